@@ -1,0 +1,148 @@
+//! The PA set: 60 16-bit parameters at legacy addresses 0x0064..=0x009F.
+
+/// Number of parameters, PA0..=PA59.
+pub const PA_COUNT: usize = 60;
+
+/// Range, default and access of one parameter.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PaDef {
+    pub min: u16,
+    pub max: u16,
+    pub default: u16,
+    pub read_only: bool,
+}
+
+const fn rw(min: u16, max: u16, default: u16) -> PaDef {
+    PaDef {
+        min,
+        max,
+        default,
+        read_only: false,
+    }
+}
+
+/// Unassigned parameters: stored and reserved, any value.
+const RESERVED: PaDef = rw(0, u16::MAX, 0);
+
+/// Firmware version reported in PA2 (≥ 7050: the new EE format, SPEC §7).
+pub const FIRMWARE_VERSION: u16 = 7060;
+
+/// The assignment of SPEC §7, indexed by PA number.
+pub const PA: [PaDef; PA_COUNT] = {
+    let mut t = [RESERVED; PA_COUNT];
+    t[2] = PaDef {
+        min: FIRMWARE_VERSION,
+        max: FIRMWARE_VERSION,
+        default: FIRMWARE_VERSION,
+        read_only: true,
+    };
+    t[10] = rw(200, 60000, 10000); // steps per revolution
+    t[11] = rw(0, 1, 0); // direction invert
+    t[12] = rw(1, 6000, 3000); // maximum speed, r/min
+    t[13] = rw(0, 7, 0); // switch polarity bits (1 = normally closed)
+    t[14] = rw(0, 3, 3); // limit switch enable bits
+    t[20] = rw(0, 60000, 0); // communication-loss timeout, ms
+    t[51] = rw(1, 247, 1); // slave address
+    t[52] = rw(0, 4, 4); // baud
+    t[53] = rw(0, 3, 0); // character format
+    t[54] = rw(0, 1, 1); // answer frame errors with 9/10
+    t[55] = rw(0, 1, 0); // exception profile
+    t[56] = rw(0, 100, 0); // minimum response delay, ms
+    t
+};
+
+/// The working set of parameters.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Params {
+    values: [u16; PA_COUNT],
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Self::defaults()
+    }
+}
+
+impl Params {
+    pub const fn defaults() -> Self {
+        let mut values = [0; PA_COUNT];
+        let mut i = 0;
+        while i < PA_COUNT {
+            values[i] = PA[i].default;
+            i += 1;
+        }
+        Self { values }
+    }
+
+    /// Value of PA`n`; `n` < 60.
+    pub fn get(&self, n: usize) -> u16 {
+        self.values[n]
+    }
+
+    /// Whether `v` is in the range of PA`n` (read-only ones accept nothing).
+    pub fn valid(n: usize, v: u16) -> bool {
+        let d = PA[n];
+        !d.read_only && d.min <= v && v <= d.max
+    }
+
+    /// Stores `v` in PA`n` without checks: the caller has validated it.
+    pub fn set_unchecked(&mut self, n: usize, v: u16) {
+        self.values[n] = v;
+    }
+
+    pub fn as_array(&self) -> &[u16; PA_COUNT] {
+        &self.values
+    }
+
+    /// Loads a whole set (from storage), replacing out-of-range values by
+    /// defaults and restoring read-only ones. Returns how many were replaced.
+    pub fn load(&mut self, values: &[u16; PA_COUNT]) -> usize {
+        let mut fixed = 0;
+        for (n, &v) in values.iter().enumerate() {
+            let d = PA[n];
+            if d.read_only {
+                self.values[n] = d.default;
+            } else if d.min <= v && v <= d.max {
+                self.values[n] = v;
+            } else {
+                self.values[n] = d.default;
+                fixed += 1;
+            }
+        }
+        fixed
+    }
+
+    pub fn steps_per_rev(&self) -> u16 {
+        self.values[10]
+    }
+    pub fn direction_inverted(&self) -> bool {
+        self.values[11] != 0
+    }
+    pub fn max_speed_rpm(&self) -> u16 {
+        self.values[12]
+    }
+    pub fn switch_polarity(&self) -> u16 {
+        self.values[13]
+    }
+    pub fn limit_enable(&self) -> u16 {
+        self.values[14]
+    }
+    pub fn comm_loss_ms(&self) -> u16 {
+        self.values[20]
+    }
+    pub fn address(&self) -> u8 {
+        self.values[51] as u8
+    }
+    pub fn answer_frame_errors(&self) -> bool {
+        self.values[54] != 0
+    }
+    pub fn standard_exceptions(&self) -> bool {
+        self.values[55] != 0
+    }
+    pub fn response_delay_ms(&self) -> u16 {
+        self.values[56]
+    }
+    pub fn line(&self) -> crate::rtu::LineConfig {
+        crate::rtu::LineConfig::from_params(self.values[52], self.values[53]).unwrap_or_default()
+    }
+}
