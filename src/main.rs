@@ -1,5 +1,18 @@
-//! The program: firmware on `target_os = "none"`, the virtual drive on a host.
-fn main() {
-    eprintln!("modbus-drive: the virtual drive is not built yet (issue 4)");
-    std::process::exit(2);
+//! The program: the STM32 firmware on `target_os = "none"` (`src/firmware/`),
+//! the virtual drive on a host (`src/virtual/`). Both run the same core
+//! ([`modbus_drive::Device`]).
+#![cfg_attr(target_os = "none", no_std)]
+#![cfg_attr(target_os = "none", no_main)]
+
+#[cfg(target_os = "none")]
+mod firmware;
+
+// `virtual` is a reserved word, hence the module name.
+#[cfg(not(target_os = "none"))]
+#[path = "virtual/mod.rs"]
+mod virtual_drive;
+
+#[cfg(not(target_os = "none"))]
+fn main() -> std::process::ExitCode {
+    virtual_drive::main()
 }

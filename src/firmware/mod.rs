@@ -1,0 +1,1 @@
+//! STM32 firmware glue (issue 6): not built yet.
