@@ -356,7 +356,10 @@ mod tests {
         assert_eq!(b[..8], [0x40; 8], "the word before the cut is complete");
         assert_ne!(b[8..], [0x40; 8], "the cut word is not complete");
         assert_ne!(b[8..], [0xFF; 8], "the cut word is not untouched");
-        assert!(b[8..].iter().all(|&v| v & 0x40 == 0x40), "only cleared bits");
+        assert!(
+            b[8..].iter().all(|&v| v & 0x40 == 0x40),
+            "only cleared bits"
+        );
         assert_eq!(
             f.write(8, &[0x40; 8]),
             Err(SimFlashError::AlreadyProgrammed),
