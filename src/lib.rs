@@ -7,7 +7,7 @@
 //! glue around it.
 //!
 //! Follow one request: [`rtu::FrameAssembler`] (bytes + timestamps → frame)
-//! → [`device::Device::handle_frame`] → [`slave`] (validation, dispatch,
+//! → [`device::Device::handle_rx`] → [`slave`] (validation, dispatch,
 //! counters) → [`dictionary`] (entries, ranges, word order) → reply bytes.
 //! Follow one set-point: controlword write → [`drive`] (state machine, modes)
 //! → [`motion`] (planner → step schedule) → the step interrupt's
@@ -18,6 +18,7 @@
 pub mod device;
 pub mod dictionary;
 pub mod drive;
+pub mod event;
 pub mod motion;
 pub mod params;
 pub mod rtu;

@@ -1,2 +1,422 @@
-//! The dispatcher: frame in → reply bytes or silence, plus the §6 counters.
-//! Filled by issue 2.
+//! The dispatcher: a closed frame in → reply bytes or silence, plus the §6
+//! counters and an [`Event`] for the glue to log.
+//!
+//! Order of a frame's journey (SPEC §2, §3, §5.2):
+//! 1. frame errors (parity, CRC) are counted; our own unicast address gets
+//!    exception 9/10 if PA54 = 1 and PA55 = 0;
+//! 2. foreign addresses (including 248..=255) are dropped without a word;
+//! 3. listen-only mode (diagnostics 0x04) swallows everything but 0x08/0x01;
+//! 4. broadcasts execute 0x06 / 0x10 and never answer;
+//! 5. unicast requests are validated in the §5.2 order and answered.
+//!
+//! The dispatcher is generic over [`DriveLayer`] so that tests can use a
+//! double; [`crate::device::Device`] runs it with the real drive.
+
+mod diagnostics;
+mod identification;
+
+pub use diagnostics::Counters;
+
+use crate::dictionary::{DriveLayer, Registers};
+use crate::event::{Event, FrameError};
+use crate::rtu::{crc16, with_crc, RxEvent, MAX_FRAME, MIN_FRAME};
+
+/// Broadcast address (§2).
+pub const BROADCAST: u8 = 0;
+
+/// Function codes (§4).
+pub mod function {
+    pub const READ_HOLDING_REGISTERS: u8 = 0x03;
+    pub const WRITE_SINGLE_REGISTER: u8 = 0x06;
+    pub const DIAGNOSTICS: u8 = 0x08;
+    pub const WRITE_MULTIPLE_REGISTERS: u8 = 0x10;
+    pub const ENCAPSULATED_INTERFACE: u8 = 0x2B;
+}
+
+/// Largest quantity of a 0x03 read (§4).
+pub const MAX_READ_QUANTITY: u16 = 125;
+/// Largest quantity of a 0x10 write (§4).
+pub const MAX_WRITE_QUANTITY: u16 = 123;
+
+/// The exception codes of seed 000 (SPEC §5.2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Exception {
+    IllegalFunction = 1,
+    IllegalDataAddress = 2,
+    IllegalDataValue = 3,
+    DeviceFailure = 4,
+    WriteReadOnly = 5,
+    Busy = 6,
+    ReadWriteOnly = 7,
+    ByteCountMismatch = 8,
+    Parity = 9,
+    Crc = 10,
+    NoSuchRegister = 11,
+}
+
+impl Exception {
+    /// The vendor code (PA55 = 0).
+    pub const fn vendor_code(self) -> u8 {
+        self as u8
+    }
+
+    /// The code sent under the profile PA55 selects; `None` when the
+    /// standard profile sends nothing (9 and 10, §5.2).
+    pub const fn code(self, standard_profile: bool) -> Option<u8> {
+        if !standard_profile {
+            return Some(self as u8);
+        }
+        match self {
+            Self::WriteReadOnly | Self::ReadWriteOnly | Self::NoSuchRegister => Some(2),
+            Self::ByteCountMismatch => Some(3),
+            Self::Parity | Self::Crc => None,
+            other => Some(other as u8),
+        }
+    }
+}
+
+/// What to do after a frame was handled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Response {
+    /// Send nothing (foreign address, broadcast, strict frame error, …).
+    Silent,
+    /// Send the first `n` bytes of the reply buffer (CRC included).
+    Reply(usize),
+}
+
+/// What [`Slave::handle`] produced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Outcome {
+    pub response: Response,
+    pub event: Option<Event>,
+}
+
+impl Outcome {
+    const SILENT: Self = Self {
+        response: Response::Silent,
+        event: None,
+    };
+}
+
+/// The slave side of the serial line: counters and listen-only mode.
+#[derive(Clone, Debug, Default)]
+pub struct Slave {
+    counters: Counters,
+    listen_only: bool,
+}
+
+/// A PDU's result: reply PDU length, or no reply at all (listen-only).
+type Handled = Result<Option<usize>, Exception>;
+
+impl Slave {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The §6 counters.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// Listen-only mode (diagnostics 0x04) is on.
+    pub fn listen_only(&self) -> bool {
+        self.listen_only
+    }
+
+    /// One event of the frame assembler. `own_address` is the unicast
+    /// address in force (a new PA51 waits for the reply, §7); PA54 and PA55
+    /// are read from `regs.pa`. A reply is written into `reply`.
+    pub fn handle<D: DriveLayer>(
+        &mut self,
+        rx: RxEvent<'_>,
+        own_address: u8,
+        regs: &mut Registers<'_, D>,
+        reply: &mut [u8; MAX_FRAME],
+    ) -> Outcome {
+        let (bytes, parity_error) = match rx {
+            RxEvent::Frame {
+                bytes,
+                parity_error,
+            } => (bytes, parity_error),
+            RxEvent::Broken => return self.lost(FrameError::Broken),
+            RxEvent::TooShort => return self.lost(FrameError::TooShort),
+            RxEvent::Overrun => return self.lost(FrameError::Overrun),
+        };
+        if bytes.len() < MIN_FRAME {
+            return self.lost(FrameError::TooShort);
+        }
+        let address = bytes[0];
+        let ours = address == own_address && address != BROADCAST;
+        let standard = regs.pa.standard_exceptions();
+
+        // §3: frame errors. A parity error names the cause better than the
+        // CRC mismatch it usually also causes, so it wins.
+        let frame_error = if parity_error {
+            Some(Exception::Parity)
+        } else if crc16(bytes) != 0 {
+            Some(Exception::Crc)
+        } else {
+            None
+        };
+        if let Some(e) = frame_error {
+            self.counters.bus_errors = self.counters.bus_errors.wrapping_add(1);
+            let code = e
+                .code(standard)
+                .filter(|_| ours && !self.listen_only && regs.pa.answer_frame_errors());
+            let kind = if e == Exception::Parity {
+                FrameError::Parity
+            } else {
+                FrameError::Crc
+            };
+            let response = match code {
+                Some(code) => {
+                    self.counters.exceptions = self.counters.exceptions.wrapping_add(1);
+                    Response::Reply(exception_reply(reply, address, bytes[1], code))
+                }
+                None => Response::Silent,
+            };
+            return Outcome {
+                response,
+                event: Some(Event::FrameError {
+                    kind,
+                    address: Some(address),
+                    answered: code.is_some(),
+                }),
+            };
+        }
+
+        self.counters.bus_messages = self.counters.bus_messages.wrapping_add(1);
+        if !ours && address != BROADCAST {
+            return Outcome::SILENT; // §2: not even counted as ours
+        }
+        self.counters.slave_messages = self.counters.slave_messages.wrapping_add(1);
+        let pdu = &bytes[1..bytes.len() - 2];
+        let function = pdu[0];
+
+        if self.listen_only {
+            self.counters.no_response = self.counters.no_response.wrapping_add(1);
+            // §2: a broadcast never acts outside 0x06/0x10, not even here.
+            let event = if ours {
+                self.listen_only_request(pdu)
+            } else {
+                None
+            };
+            return Outcome {
+                response: Response::Silent,
+                event,
+            };
+        }
+
+        if address == BROADCAST {
+            self.counters.no_response = self.counters.no_response.wrapping_add(1);
+            if !matches!(
+                function,
+                function::WRITE_SINGLE_REGISTER | function::WRITE_MULTIPLE_REGISTERS
+            ) {
+                return Outcome::SILENT; // §2: ignored, counted
+            }
+            let mut scratch = [0u8; MAX_FRAME];
+            return match self.execute(pdu, regs, &mut scratch[1..MAX_FRAME - 2]) {
+                Ok(_) => Outcome::SILENT,
+                Err(exception) => Outcome {
+                    response: Response::Silent,
+                    event: Some(self.refused(function, exception, false)),
+                },
+            };
+        }
+
+        // Unicast: the reply PDU goes after the address byte, CRC after it.
+        let outcome = self.execute(pdu, regs, &mut reply[1..MAX_FRAME - 2]);
+        match outcome {
+            Ok(Some(len)) => {
+                reply[0] = address;
+                Outcome {
+                    response: Response::Reply(with_crc(reply, 1 + len)),
+                    event: self.after_reply(pdu),
+                }
+            }
+            Ok(None) => {
+                self.counters.no_response = self.counters.no_response.wrapping_add(1);
+                Outcome {
+                    response: Response::Silent,
+                    event: Some(Event::ListenOnly(true)),
+                }
+            }
+            Err(exception) => {
+                let event = Some(self.refused(function, exception, true));
+                // Every unicast exception has a code in both profiles (only
+                // 9/10 lose theirs, and they never come from a PDU).
+                let code = exception.code(standard).unwrap_or(exception as u8);
+                Outcome {
+                    response: Response::Reply(exception_reply(reply, address, function, code)),
+                    event,
+                }
+            }
+        }
+    }
+
+    /// A frame that never became a request (§1): counted, reported.
+    fn lost(&mut self, kind: FrameError) -> Outcome {
+        let c = &mut self.counters;
+        match kind {
+            FrameError::Overrun => c.overruns = c.overruns.wrapping_add(1),
+            _ => c.bus_errors = c.bus_errors.wrapping_add(1),
+        }
+        Outcome {
+            response: Response::Silent,
+            event: Some(Event::FrameError {
+                kind,
+                address: None,
+                answered: false,
+            }),
+        }
+    }
+
+    /// Counts a refused request (§6: broadcast refusals count too).
+    fn refused(&mut self, function: u8, exception: Exception, answered: bool) -> Event {
+        let c = &mut self.counters;
+        c.exceptions = c.exceptions.wrapping_add(1);
+        if exception == Exception::Busy {
+            c.busy = c.busy.wrapping_add(1);
+        }
+        Event::Exception {
+            function,
+            exception,
+            answered,
+        }
+    }
+
+    /// Validates and executes one request PDU (§4, §5.2), writing the reply
+    /// PDU into `out` (room for 253 bytes).
+    fn execute<D: DriveLayer>(
+        &mut self,
+        pdu: &[u8],
+        regs: &mut Registers<'_, D>,
+        out: &mut [u8],
+    ) -> Handled {
+        match pdu[0] {
+            function::READ_HOLDING_REGISTERS => read_holding_registers(pdu, regs, out),
+            function::WRITE_SINGLE_REGISTER => write_single_register(pdu, regs, out),
+            function::WRITE_MULTIPLE_REGISTERS => write_multiple_registers(pdu, regs, out),
+            function::DIAGNOSTICS => self.diagnostics(pdu, out),
+            function::ENCAPSULATED_INTERFACE => identification::read_device_id(pdu, regs, out),
+            _ => Err(Exception::IllegalFunction),
+        }
+    }
+}
+
+/// Start address and quantity (or value) of a 0x03 / 0x06 / 0x10 PDU.
+fn address_and_word(pdu: &[u8]) -> Option<(u16, u16)> {
+    match pdu {
+        [_, a0, a1, q0, q1, ..] => Some((
+            u16::from_be_bytes([*a0, *a1]),
+            u16::from_be_bytes([*q0, *q1]),
+        )),
+        _ => None,
+    }
+}
+
+/// 0x03: `03 start quantity` → `03 bytecount words…`.
+fn read_holding_registers<D: DriveLayer>(
+    pdu: &[u8],
+    regs: &Registers<'_, D>,
+    out: &mut [u8],
+) -> Handled {
+    let (start, quantity) = address_and_word(pdu)
+        .filter(|_| pdu.len() == 5)
+        .ok_or(Exception::ByteCountMismatch)?;
+    if quantity == 0 || quantity > MAX_READ_QUANTITY {
+        return Err(Exception::IllegalDataValue);
+    }
+    let bytes = 2 * usize::from(quantity);
+    regs.read(start, quantity, &mut out[2..])?;
+    out[0] = function::READ_HOLDING_REGISTERS;
+    out[1] = bytes as u8;
+    Ok(Some(2 + bytes))
+}
+
+/// 0x06: `06 address value` → the same 5 bytes.
+fn write_single_register<D: DriveLayer>(
+    pdu: &[u8],
+    regs: &mut Registers<'_, D>,
+    out: &mut [u8],
+) -> Handled {
+    let (start, _) = address_and_word(pdu)
+        .filter(|_| pdu.len() == 5)
+        .ok_or(Exception::ByteCountMismatch)?;
+    regs.write(start, 1, &pdu[3..5], true)?;
+    out[..5].copy_from_slice(pdu);
+    Ok(Some(5))
+}
+
+/// 0x10: `10 start quantity bytecount words…` → `10 start quantity`.
+fn write_multiple_registers<D: DriveLayer>(
+    pdu: &[u8],
+    regs: &mut Registers<'_, D>,
+    out: &mut [u8],
+) -> Handled {
+    let (start, quantity) = address_and_word(pdu).ok_or(Exception::ByteCountMismatch)?;
+    let data = pdu.get(6..).ok_or(Exception::ByteCountMismatch)?;
+    let byte_count = usize::from(pdu[5]);
+    if byte_count != 2 * usize::from(quantity) || byte_count != data.len() {
+        return Err(Exception::ByteCountMismatch);
+    }
+    if quantity == 0 || quantity > MAX_WRITE_QUANTITY {
+        return Err(Exception::IllegalDataValue);
+    }
+    regs.write(start, quantity, data, false)?;
+    out[..5].copy_from_slice(&pdu[..5]);
+    Ok(Some(5))
+}
+
+/// `address function|0x80 code CRC` into `reply`; returns its length.
+fn exception_reply(reply: &mut [u8; MAX_FRAME], address: u8, function: u8, code: u8) -> usize {
+    reply[0] = address;
+    reply[1] = function | 0x80;
+    reply[2] = code;
+    with_crc(reply, 3)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn standard_profile_maps_vendor_codes() {
+        // SPEC §5.2: PA55 = 1 → 5, 7, 11 → 2; 8 → 3; 9/10 never sent.
+        use Exception::*;
+        let all = [
+            IllegalFunction,
+            IllegalDataAddress,
+            IllegalDataValue,
+            DeviceFailure,
+            WriteReadOnly,
+            Busy,
+            ReadWriteOnly,
+            ByteCountMismatch,
+            Parity,
+            Crc,
+            NoSuchRegister,
+        ];
+        let standard = [
+            Some(1),
+            Some(2),
+            Some(3),
+            Some(4),
+            Some(2),
+            Some(6),
+            Some(2),
+            Some(3),
+            None,
+            None,
+            Some(2),
+        ];
+        for (i, (e, s)) in all.iter().zip(standard).enumerate() {
+            assert_eq!(e.code(false), Some(i as u8 + 1));
+            assert_eq!(e.vendor_code(), i as u8 + 1);
+            assert_eq!(e.code(true), s, "{e:?}");
+        }
+    }
+}

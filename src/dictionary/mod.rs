@@ -7,7 +7,16 @@
 //! everything the master writes is stored in [`OdValues`] / [`Params`] and
 //! handed to the drive layer as [`Config`].
 
+mod legacy;
+mod table;
+
+pub use legacy::{Block as LegacyBlock, PA_BASE, PA_LAST};
+pub use table::{
+    position, string_bytes, Access, DataType, Entry, Object, STRING_BYTES, STRING_WORDS, TABLE,
+};
+
 use crate::params::Params;
+use crate::slave::Exception;
 
 /// The RW/WO values of the SPEC §5 table as last written by the master.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -74,4 +83,276 @@ pub trait DriveLayer {
     fn mode_written(&mut self, mode: i16, cfg: Config<'_>);
     /// 0x6040 was written.
     fn controlword_written(&mut self, controlword: u16, cfg: Config<'_>);
+}
+
+/// Strings of 0x1008 / 0x1009 / 0x100A (SPEC §5), 16 ASCII bytes at most
+/// (longer ones are cut).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Identity {
+    /// Device name (0x1008).
+    pub product: &'static str,
+    /// Hardware version (0x1009): the board, e.g. "STM32G431CB" or "virtual".
+    pub hardware: &'static str,
+    /// Software version (0x100A).
+    pub software: &'static str,
+}
+
+impl Identity {
+    pub const fn new(hardware: &'static str) -> Self {
+        Self {
+            product: "modbus-drive",
+            hardware,
+            software: env!("CARGO_PKG_VERSION"),
+        }
+    }
+}
+
+/// Where a request's start address points (SPEC §5: the address space is
+/// 0x0000..=0xFFFF; the §5 table and the legacy map do not overlap).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Region {
+    /// Position in [`TABLE`]: the request walks the table order.
+    Table(usize),
+    /// A legacy block: the request walks addresses.
+    Legacy(LegacyBlock),
+}
+
+impl Region {
+    fn at(address: u16) -> Option<Self> {
+        match position(address) {
+            Some(p) => Some(Self::Table(p)),
+            None => LegacyBlock::at(address).map(Self::Legacy),
+        }
+    }
+}
+
+/// The register space as one request sees it: the values, the drive layer
+/// behind the live entries and the state of the parameter store.
+pub struct Registers<'a, D> {
+    pub od: &'a mut OdValues,
+    pub pa: &'a mut Params,
+    pub drive: &'a mut D,
+    pub identity: &'a Identity,
+    /// A parameter-storage operation is running: register requests that
+    /// pass validation get exception 6 (§5.2 step 9). Set by the parameter
+    /// store (issue 5).
+    pub busy: bool,
+}
+
+/// The entries `[first, end)` covered by `quantity` words from table
+/// position `first`, and whether any has an access `refused` (§5.2 steps 6
+/// and 7, in that order: a range error wins over an access error anywhere).
+fn table_span(
+    first: usize,
+    quantity: u16,
+    refused: fn(Access) -> bool,
+) -> Result<(usize, bool), Exception> {
+    let mut words = 0u16;
+    let mut end = first;
+    let mut access_fault = false;
+    while words < quantity {
+        let Some(e) = TABLE.get(end) else {
+            return Err(Exception::IllegalDataAddress); // past the last entry
+        };
+        access_fault |= refused(e.access);
+        words += e.words();
+        end += 1;
+    }
+    if words == quantity {
+        Ok((end, access_fault))
+    } else {
+        Err(Exception::IllegalDataAddress) // ends inside an entry
+    }
+}
+
+/// The last address of a legacy request, if it stays inside `block`.
+fn legacy_span(block: LegacyBlock, start: u16, quantity: u16) -> Result<u16, Exception> {
+    let last = u32::from(start) + u32::from(quantity) - 1;
+    if quantity == 0 || last > u32::from(block.last()) {
+        Err(Exception::IllegalDataAddress)
+    } else {
+        Ok(last as u16)
+    }
+}
+
+fn not_readable(a: Access) -> bool {
+    !a.readable()
+}
+fn not_writable(a: Access) -> bool {
+    !a.writable()
+}
+
+/// 32-bit value from its two words as they arrived (SPEC §5.1).
+fn join_words(first: u16, second: u16, low_word_first: bool) -> u32 {
+    let (hi, lo) = if low_word_first {
+        (second, first)
+    } else {
+        (first, second)
+    };
+    (u32::from(hi) << 16) | u32::from(lo)
+}
+
+impl<D: DriveLayer> Registers<'_, D> {
+    /// Function 0x03 after the length and quantity checks: §5.2 steps 4, 6,
+    /// 7 and 9, then `quantity` words big-endian into `out`.
+    pub fn read(&self, start: u16, quantity: u16, out: &mut [u8]) -> Result<(), Exception> {
+        let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
+        let out = out
+            .get_mut(..2 * usize::from(quantity))
+            .ok_or(Exception::DeviceFailure)?;
+        let mut words = out.chunks_exact_mut(2);
+        let mut put = |w: u16| {
+            if let Some(slot) = words.next() {
+                slot.copy_from_slice(&w.to_be_bytes());
+            }
+        };
+        match region {
+            Region::Table(first) => {
+                let (end, write_only) = table_span(first, quantity, not_readable)?;
+                if write_only {
+                    return Err(Exception::ReadWriteOnly);
+                }
+                if self.busy {
+                    return Err(Exception::Busy);
+                }
+                let low_word_first = self.od.word_order == 1;
+                for e in &TABLE[first..end] {
+                    match e.data_type {
+                        DataType::Str => {
+                            let s = e.object.string(self.identity).unwrap_or("");
+                            for pair in string_bytes(s).chunks_exact(2) {
+                                put(u16::from_be_bytes([pair[0], pair[1]]));
+                            }
+                        }
+                        DataType::U16 | DataType::I16 => {
+                            put(e.object.read_raw(self.od, self.drive) as u16)
+                        }
+                        DataType::U32 | DataType::I32 => {
+                            let v = e.object.read_raw(self.od, self.drive);
+                            let (hi, lo) = ((v >> 16) as u16, v as u16);
+                            if low_word_first {
+                                put(lo);
+                                put(hi);
+                            } else {
+                                put(hi);
+                                put(lo);
+                            }
+                        }
+                    }
+                }
+            }
+            Region::Legacy(block) => {
+                let last = legacy_span(block, start, quantity)?;
+                if (start..=last).any(|a| block.write_only(a)) {
+                    return Err(Exception::ReadWriteOnly);
+                }
+                if self.busy {
+                    return Err(Exception::Busy);
+                }
+                for a in start..=last {
+                    put(block.read(a, self));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Functions 0x06 (`single`) and 0x10 after the length and quantity
+    /// checks: §5.2 steps 4..=10, all-or-nothing. `data` holds `quantity`
+    /// big-endian words. Stores every value, then tells the drive layer:
+    /// values, then mode, then controlword (§5.2).
+    pub fn write(
+        &mut self,
+        start: u16,
+        quantity: u16,
+        data: &[u8],
+        single: bool,
+    ) -> Result<(), Exception> {
+        let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
+        if data.len() != 2 * usize::from(quantity) {
+            return Err(Exception::ByteCountMismatch);
+        }
+        let words = || {
+            data.chunks_exact(2)
+                .map(|c| u16::from_be_bytes([c[0], c[1]]))
+        };
+        match region {
+            Region::Table(first) => {
+                if single && TABLE[first].words() > 1 {
+                    return Err(Exception::ByteCountMismatch); // step 5
+                }
+                let (end, read_only) = table_span(first, quantity, not_writable)?;
+                if read_only {
+                    return Err(Exception::WriteReadOnly);
+                }
+                // The order in force when the request arrived applies to all
+                // of it, even to a request that writes 0x6000 (§5.1).
+                let low_word_first = self.od.word_order == 1;
+                let entries = &TABLE[first..end];
+                let values = || {
+                    let mut w = words();
+                    entries.iter().map(move |e| {
+                        let first = w.next().unwrap_or(0);
+                        let raw = if e.words() == 2 {
+                            join_words(first, w.next().unwrap_or(0), low_word_first)
+                        } else {
+                            u32::from(first)
+                        };
+                        (e.object, raw)
+                    })
+                };
+                if !values().all(|(object, raw)| object.accepts(raw)) {
+                    return Err(Exception::IllegalDataValue);
+                }
+                if self.busy {
+                    return Err(Exception::Busy);
+                }
+                let mut mode = None;
+                let mut controlword = None;
+                for (object, raw) in values() {
+                    object.store_raw(self.od, raw);
+                    match object {
+                        Object::ModeOfOperation => mode = Some(self.od.mode),
+                        Object::Controlword => controlword = Some(self.od.controlword),
+                        _ => {}
+                    }
+                }
+                self.notify(mode, controlword);
+            }
+            Region::Legacy(block) => {
+                let last = legacy_span(block, start, quantity)?;
+                if (start..=last).any(|a| block.read_only(a)) {
+                    return Err(Exception::WriteReadOnly);
+                }
+                if !(start..=last)
+                    .zip(words())
+                    .all(|(a, v)| block.accepts(a, v))
+                {
+                    return Err(Exception::IllegalDataValue);
+                }
+                if self.busy {
+                    return Err(Exception::Busy);
+                }
+                for (a, v) in (start..=last).zip(words()) {
+                    block.store(a, v, self)?;
+                }
+                self.notify(None, None);
+            }
+        }
+        Ok(())
+    }
+
+    fn notify(&mut self, mode: Option<i16>, controlword: Option<u16>) {
+        let cfg = Config {
+            od: self.od,
+            pa: self.pa,
+        };
+        self.drive.values_written(cfg);
+        if let Some(m) = mode {
+            self.drive.mode_written(m, cfg);
+        }
+        if let Some(cw) = controlword {
+            self.drive.controlword_written(cw, cfg);
+        }
+    }
 }

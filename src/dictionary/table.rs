@@ -1,0 +1,332 @@
+//! The entry table of SPEC §5, in table order (seed 000 chapter 8).
+//!
+//! [`Object`]'s discriminant is the entry's position in [`TABLE`], so a
+//! request walks the table by position; [`position`] maps a Modbus address
+//! to a position with one `match` (no scan).
+
+use super::{DriveLayer, Identity, OdValues};
+
+/// Who may read / write an entry.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Access {
+    /// Read-only: a write gets exception 5 (§5.2 step 7).
+    Ro,
+    /// Read-write.
+    Rw,
+    /// Write-only: a read gets exception 7 (§5.2 step 7).
+    Wo,
+}
+
+impl Access {
+    pub const fn readable(self) -> bool {
+        !matches!(self, Self::Wo)
+    }
+    pub const fn writable(self) -> bool {
+        !matches!(self, Self::Ro)
+    }
+}
+
+/// Data type of an entry; fixes its width in 16-bit words.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DataType {
+    U16,
+    I16,
+    U32,
+    I32,
+    /// 16 ASCII bytes, NUL padded, first character in the high byte.
+    Str,
+}
+
+impl DataType {
+    pub const fn words(self) -> u16 {
+        match self {
+            Self::U16 | Self::I16 => 1,
+            Self::U32 | Self::I32 => 2,
+            Self::Str => STRING_WORDS,
+        }
+    }
+}
+
+/// Width of the string entries 0x1008 / 0x1009 / 0x100A.
+pub const STRING_WORDS: u16 = 8;
+/// Bytes of a string entry.
+pub const STRING_BYTES: usize = 2 * STRING_WORDS as usize;
+
+/// The entries of SPEC §5; the discriminant is the position in [`TABLE`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Object {
+    ErrorRegister,
+    DeviceName,
+    HardwareVersion,
+    SoftwareVersion,
+    WordOrder,
+    QuickStopOption,
+    Controlword,
+    ModeOfOperation,
+    ProfileVelocity,
+    Acceleration,
+    Deceleration,
+    QuickStopDeceleration,
+    TargetPosition,
+    HomeOffset,
+    HomingMethod,
+    HomingSpeed,
+    HomingAcceleration,
+    HomingZeroSpeed,
+    Statusword,
+    ModeDisplay,
+    ActualPosition,
+    ActualVelocity,
+}
+
+/// One entry of the table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Entry {
+    /// Its Modbus address.
+    pub index: u16,
+    pub object: Object,
+    pub access: Access,
+    pub data_type: DataType,
+    /// Value after power-up (numeric entries; strings come from [`Identity`]).
+    pub default: i32,
+}
+
+impl Entry {
+    pub const fn words(&self) -> u16 {
+        self.data_type.words()
+    }
+}
+
+const fn entry(index: u16, object: Object, access: Access, data_type: DataType) -> Entry {
+    Entry {
+        index,
+        object,
+        access,
+        data_type,
+        default: 0,
+    }
+}
+
+use Access::{Ro, Rw, Wo};
+use DataType::{Str, I16, I32, U16, U32};
+
+/// SPEC §5, in table order. Every default is 0 (strings excepted).
+pub const TABLE: [Entry; 22] = [
+    entry(0x1001, Object::ErrorRegister, Ro, U16),
+    entry(0x1008, Object::DeviceName, Ro, Str),
+    entry(0x1009, Object::HardwareVersion, Ro, Str),
+    entry(0x100A, Object::SoftwareVersion, Ro, Str),
+    entry(0x6000, Object::WordOrder, Rw, U16),
+    entry(0x605A, Object::QuickStopOption, Rw, I16),
+    entry(0x6040, Object::Controlword, Wo, U16),
+    entry(0x6060, Object::ModeOfOperation, Wo, I16),
+    entry(0x6081, Object::ProfileVelocity, Rw, I32),
+    entry(0x6083, Object::Acceleration, Rw, U16),
+    entry(0x6084, Object::Deceleration, Rw, U16),
+    entry(0x6085, Object::QuickStopDeceleration, Rw, U16),
+    entry(0x607A, Object::TargetPosition, Rw, I32),
+    entry(0x607C, Object::HomeOffset, Rw, I32),
+    entry(0x6098, Object::HomingMethod, Rw, I16),
+    entry(0x6099, Object::HomingSpeed, Rw, U32),
+    entry(0x609A, Object::HomingAcceleration, Rw, U16),
+    entry(0x609B, Object::HomingZeroSpeed, Rw, U32),
+    entry(0x6041, Object::Statusword, Ro, U16),
+    entry(0x6061, Object::ModeDisplay, Ro, I16),
+    entry(0x6064, Object::ActualPosition, Ro, I32),
+    entry(0x606C, Object::ActualVelocity, Ro, I32),
+];
+
+/// Position in [`TABLE`] of the entry whose index is `address`.
+pub const fn position(address: u16) -> Option<usize> {
+    let object = match address {
+        0x1001 => Object::ErrorRegister,
+        0x1008 => Object::DeviceName,
+        0x1009 => Object::HardwareVersion,
+        0x100A => Object::SoftwareVersion,
+        0x6000 => Object::WordOrder,
+        0x605A => Object::QuickStopOption,
+        0x6040 => Object::Controlword,
+        0x6060 => Object::ModeOfOperation,
+        0x6081 => Object::ProfileVelocity,
+        0x6083 => Object::Acceleration,
+        0x6084 => Object::Deceleration,
+        0x6085 => Object::QuickStopDeceleration,
+        0x607A => Object::TargetPosition,
+        0x607C => Object::HomeOffset,
+        0x6098 => Object::HomingMethod,
+        0x6099 => Object::HomingSpeed,
+        0x609A => Object::HomingAcceleration,
+        0x609B => Object::HomingZeroSpeed,
+        0x6041 => Object::Statusword,
+        0x6061 => Object::ModeDisplay,
+        0x6064 => Object::ActualPosition,
+        0x606C => Object::ActualVelocity,
+        _ => return None,
+    };
+    Some(object as usize)
+}
+
+impl Object {
+    /// Whether a written value is in range (§5.2 step 8). `raw` holds the
+    /// value's bits: one word zero-extended, or both words as one `u32`.
+    pub const fn accepts(self, raw: u32) -> bool {
+        match self {
+            Self::WordOrder => raw <= 1,
+            // §8.3: negative option codes are refused.
+            Self::QuickStopOption => (raw as u16 as i16) >= 0,
+            Self::ModeOfOperation => matches!(raw as u16 as i16, 1 | 3 | 6),
+            Self::HomingMethod => matches!(raw as u16 as i16, 1..=8),
+            // 0x6099 / 0x609B: any value is stored; above 100000 homing fails
+            // with bit 13 (§8.6), which needs the value to be accepted.
+            _ => true,
+        }
+    }
+
+    /// The value of a numeric entry as raw bits (see [`Object::accepts`]).
+    /// Strings read 0 here; [`string_words`] serves them.
+    pub fn read_raw<D: DriveLayer>(self, od: &OdValues, drive: &D) -> u32 {
+        match self {
+            Self::ErrorRegister => u32::from(drive.error_register()),
+            Self::DeviceName | Self::HardwareVersion | Self::SoftwareVersion => 0,
+            Self::WordOrder => u32::from(od.word_order),
+            Self::QuickStopOption => u32::from(od.quick_stop_option as u16),
+            Self::Controlword => u32::from(od.controlword),
+            Self::ModeOfOperation => u32::from(od.mode as u16),
+            Self::ProfileVelocity => od.profile_velocity as u32,
+            Self::Acceleration => u32::from(od.acceleration),
+            Self::Deceleration => u32::from(od.deceleration),
+            Self::QuickStopDeceleration => u32::from(od.quick_stop_deceleration),
+            Self::TargetPosition => od.target_position as u32,
+            Self::HomeOffset => od.home_offset as u32,
+            Self::HomingMethod => u32::from(od.homing_method as u16),
+            Self::HomingSpeed => od.homing_speed,
+            Self::HomingAcceleration => u32::from(od.homing_acceleration),
+            Self::HomingZeroSpeed => od.homing_zero_speed,
+            Self::Statusword => u32::from(drive.statusword()),
+            Self::ModeDisplay => u32::from(drive.mode_display() as u16),
+            Self::ActualPosition => drive.actual_position() as u32,
+            Self::ActualVelocity => drive.actual_velocity_rpm() as u32,
+        }
+    }
+
+    /// Stores a validated value of a writable entry; read-only ones are
+    /// never passed here (§5.2 step 7 ran before).
+    pub fn store_raw(self, od: &mut OdValues, raw: u32) {
+        match self {
+            Self::WordOrder => od.word_order = raw as u16,
+            Self::QuickStopOption => od.quick_stop_option = raw as u16 as i16,
+            Self::Controlword => od.controlword = raw as u16,
+            Self::ModeOfOperation => od.mode = raw as u16 as i16,
+            Self::ProfileVelocity => od.profile_velocity = raw as i32,
+            Self::Acceleration => od.acceleration = raw as u16,
+            Self::Deceleration => od.deceleration = raw as u16,
+            Self::QuickStopDeceleration => od.quick_stop_deceleration = raw as u16,
+            Self::TargetPosition => od.target_position = raw as i32,
+            Self::HomeOffset => od.home_offset = raw as i32,
+            Self::HomingMethod => od.homing_method = raw as u16 as i16,
+            Self::HomingSpeed => od.homing_speed = raw,
+            Self::HomingAcceleration => od.homing_acceleration = raw as u16,
+            Self::HomingZeroSpeed => od.homing_zero_speed = raw,
+            Self::ErrorRegister
+            | Self::DeviceName
+            | Self::HardwareVersion
+            | Self::SoftwareVersion
+            | Self::Statusword
+            | Self::ModeDisplay
+            | Self::ActualPosition
+            | Self::ActualVelocity => {}
+        }
+    }
+
+    /// The identity string behind a string entry.
+    pub const fn string(self, identity: &Identity) -> Option<&'static str> {
+        match self {
+            Self::DeviceName => Some(identity.product),
+            Self::HardwareVersion => Some(identity.hardware),
+            Self::SoftwareVersion => Some(identity.software),
+            _ => None,
+        }
+    }
+}
+
+/// A string entry's 16 bytes: ASCII, cut at 16, NUL padded (SPEC §5). In
+/// register order the first character is the high byte of the first word.
+pub fn string_bytes(s: &str) -> [u8; STRING_BYTES] {
+    let mut out = [0u8; STRING_BYTES];
+    for (o, &b) in out.iter_mut().zip(s.as_bytes()) {
+        *o = b;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn object_discriminants_are_table_positions_and_lookup_agrees() {
+        for (i, e) in TABLE.iter().enumerate() {
+            assert_eq!(e.object as usize, i);
+            assert_eq!(position(e.index), Some(i));
+        }
+        // SPEC §5: 0x6090 and the legacy addresses are not entries.
+        for a in [0x6090, 0x0000, 0x0064, 0x6082, 0x607B, 0xFFFF] {
+            assert_eq!(position(a), None);
+        }
+    }
+
+    #[test]
+    fn ranges_of_section_5_2_step_8() {
+        use Object::*;
+        assert!(WordOrder.accepts(0) && WordOrder.accepts(1) && !WordOrder.accepts(2));
+        for m in [1, 3, 6] {
+            assert!(ModeOfOperation.accepts(m));
+        }
+        for m in [0, 2, 4, 5, 7, 0xFFFF] {
+            assert!(!ModeOfOperation.accepts(m), "mode {m}");
+        }
+        assert!(HomingMethod.accepts(1) && HomingMethod.accepts(8));
+        assert!(!HomingMethod.accepts(0) && !HomingMethod.accepts(9));
+        assert!(QuickStopOption.accepts(0) && QuickStopOption.accepts(0x7FFF));
+        assert!(!QuickStopOption.accepts(0x8000) && !QuickStopOption.accepts(0xFFFF));
+        assert!(HomingSpeed.accepts(100_001) && ProfileVelocity.accepts(u32::MAX));
+    }
+
+    #[test]
+    fn defaults_are_what_a_fresh_dictionary_reads() {
+        struct Idle;
+        impl DriveLayer for Idle {
+            fn statusword(&self) -> u16 {
+                0
+            }
+            fn mode_display(&self) -> i16 {
+                0
+            }
+            fn actual_position(&self) -> i32 {
+                0
+            }
+            fn actual_velocity_rpm(&self) -> i32 {
+                0
+            }
+            fn error_register(&self) -> u16 {
+                0
+            }
+            fn values_written(&mut self, _: super::super::Config<'_>) {}
+            fn mode_written(&mut self, _: i16, _: super::super::Config<'_>) {}
+            fn controlword_written(&mut self, _: u16, _: super::super::Config<'_>) {}
+        }
+        let od = OdValues::default();
+        for e in TABLE {
+            assert_eq!(e.object.read_raw(&od, &Idle) as i32, e.default, "{e:?}");
+        }
+    }
+
+    #[test]
+    fn strings_are_cut_and_nul_padded() {
+        assert_eq!(&string_bytes("ab")[..3], b"ab\0");
+        assert_eq!(string_bytes("0123456789abcdefXYZ"), *b"0123456789abcdef");
+    }
+}

@@ -1,0 +1,121 @@
+//! Function 0x08, diagnostics (SPEC §4, §6; Modbus Application Protocol
+//! V1.1b3 §6.8 and Modbus over Serial Line V1.02 Appendix A).
+
+use super::{Exception, Handled, Slave};
+use crate::event::Event;
+
+/// The serial-line counters of SPEC §6 (Modbus over Serial Line, Appendix
+/// A), 16 bits each, wrapping. Cleared by diagnostics 0x01 and 0x0A.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Counters {
+    /// Frames with a good CRC and no parity error, for any address
+    /// (sub-function 0x0B).
+    pub bus_messages: u16,
+    /// CRC and parity errors (any address), broken frames, frames shorter
+    /// than 4 bytes (0x0C).
+    pub bus_errors: u16,
+    /// Exception replies sent, including 9/10 frame-error replies, plus
+    /// broadcasts refused without a reply (0x0D).
+    pub exceptions: u16,
+    /// Good frames addressed to us or broadcast (0x0E).
+    pub slave_messages: u16,
+    /// Good frames addressed to us or broadcast that got no reply:
+    /// broadcasts, listen-only mode, the 0x04 request itself (0x0F).
+    pub no_response: u16,
+    /// Requests refused with exception 6 (0x11).
+    pub busy: u16,
+    /// Frames over 256 bytes or with bytes lost by the UART (0x12).
+    pub overruns: u16,
+}
+
+/// Sub-functions (SPEC §4: 0x00, 0x01, 0x04, 0x0A..=0x12).
+mod sub {
+    pub const RETURN_QUERY_DATA: u16 = 0x00;
+    pub const RESTART_COMMUNICATIONS: u16 = 0x01;
+    pub const FORCE_LISTEN_ONLY: u16 = 0x04;
+    pub const CLEAR_COUNTERS: u16 = 0x0A;
+    pub const BUS_MESSAGE_COUNT: u16 = 0x0B;
+    pub const BUS_ERROR_COUNT: u16 = 0x0C;
+    pub const EXCEPTION_COUNT: u16 = 0x0D;
+    pub const SLAVE_MESSAGE_COUNT: u16 = 0x0E;
+    pub const NO_RESPONSE_COUNT: u16 = 0x0F;
+    pub const NAK_COUNT: u16 = 0x10;
+    pub const BUSY_COUNT: u16 = 0x11;
+    pub const OVERRUN_COUNT: u16 = 0x12;
+}
+
+/// Data of 0x01: keep (0x0000) or clear (0xFF00) the event log. There is
+/// no event log here, so both only restart.
+const CLEAR_LOG: u16 = 0xFF00;
+
+impl Slave {
+    /// `08 sub(2) data…`. The reply echoes the request except for the
+    /// counter reads, whose data is the counter. 0x04 is never answered.
+    pub(super) fn diagnostics(&mut self, pdu: &[u8], out: &mut [u8]) -> Handled {
+        let (sub_function, data) = match pdu {
+            [_, s0, s1, data @ ..] => (u16::from_be_bytes([*s0, *s1]), data),
+            _ => return Err(Exception::ByteCountMismatch),
+        };
+        if sub_function == sub::RETURN_QUERY_DATA {
+            out[..pdu.len()].copy_from_slice(pdu);
+            return Ok(Some(pdu.len()));
+        }
+        let counter = match sub_function {
+            sub::RESTART_COMMUNICATIONS | sub::FORCE_LISTEN_ONLY | sub::CLEAR_COUNTERS => None,
+            sub::BUS_MESSAGE_COUNT => Some(self.counters.bus_messages),
+            sub::BUS_ERROR_COUNT => Some(self.counters.bus_errors),
+            sub::EXCEPTION_COUNT => Some(self.counters.exceptions),
+            sub::SLAVE_MESSAGE_COUNT => Some(self.counters.slave_messages),
+            sub::NO_RESPONSE_COUNT => Some(self.counters.no_response),
+            sub::NAK_COUNT => Some(0), // this slave never sends a NAK (code 7 of the standard)
+            sub::BUSY_COUNT => Some(self.counters.busy),
+            sub::OVERRUN_COUNT => Some(self.counters.overruns),
+            _ => return Err(Exception::IllegalFunction),
+        };
+        let &[d0, d1] = data else {
+            return Err(Exception::ByteCountMismatch);
+        };
+        let value = u16::from_be_bytes([d0, d1]);
+        let value_ok = match sub_function {
+            sub::RESTART_COMMUNICATIONS => value == 0 || value == CLEAR_LOG,
+            _ => value == 0,
+        };
+        if !value_ok {
+            return Err(Exception::IllegalDataValue);
+        }
+        if sub_function == sub::FORCE_LISTEN_ONLY {
+            self.listen_only = true;
+            return Ok(None);
+        }
+        out[..3].copy_from_slice(&pdu[..3]);
+        out[3..5].copy_from_slice(&counter.unwrap_or(value).to_be_bytes());
+        Ok(Some(5))
+    }
+
+    /// After an answered request: 0x01 and 0x0A act once their echo is
+    /// built ("the reply is sent before the restart is executed").
+    pub(super) fn after_reply(&mut self, pdu: &[u8]) -> Option<Event> {
+        match pdu {
+            [0x08, 0x00, 0x01 | 0x0A, ..] => {
+                self.counters = Counters::default();
+                Some(Event::CountersCleared)
+            }
+            _ => None,
+        }
+    }
+
+    /// A good frame for us while in listen-only mode: only a valid
+    /// 0x08/0x01 acts — it leaves the mode and clears the counters, without
+    /// a reply (Modbus Application Protocol §6.8.1).
+    pub(super) fn listen_only_request(&mut self, pdu: &[u8]) -> Option<Event> {
+        match pdu {
+            [0x08, 0x00, 0x01, 0x00 | 0xFF, 0x00] => {
+                self.listen_only = false;
+                self.counters = Counters::default();
+                Some(Event::ListenOnly(false))
+            }
+            _ => None,
+        }
+    }
+}
