@@ -121,6 +121,45 @@ impl FrameAssembler {
     /// the previous frame if this byte proves it closed (silence ≥ t3.5 and
     /// `poll` was not called in between).
     pub fn push(&mut self, byte: u8, at_us: u32, flags: RxFlags) -> Option<RxEvent<'_>> {
+        // Hot path, once per byte in the UART interrupt: an unflagged byte
+        // that starts a frame, or continues the open one in time and with
+        // room. It does what `push_slow` would do then, with no stack frame.
+        if flags == RxFlags::NONE {
+            if !self.open {
+                self.start_frame();
+                self.append(byte, at_us);
+                return None;
+            }
+            if at_us.wrapping_sub(self.last_at_us) <= self.break_after_us && self.len < MAX_FRAME {
+                self.append(byte, at_us);
+                return None;
+            }
+        }
+        self.push_slow(byte, at_us, flags)
+    }
+
+    #[inline(always)]
+    fn start_frame(&mut self) {
+        self.open = true;
+        self.len = 0;
+        self.broken = false;
+        self.parity = false;
+        self.overrun = false;
+    }
+
+    /// Stores a byte of the open frame; `len < MAX_FRAME`.
+    #[inline(always)]
+    fn append(&mut self, byte: u8, at_us: u32) {
+        let len = self.len;
+        // `& 1`: `cur` is 0 or 1; saying so spares a bounds check
+        self.bufs[self.cur & 1][len] = byte;
+        self.len = len + 1;
+        self.last_at_us = at_us;
+    }
+
+    /// Every other byte: the first of a frame, a late one, a flagged one.
+    #[inline(never)]
+    fn push_slow(&mut self, byte: u8, at_us: u32, flags: RxFlags) -> Option<RxEvent<'_>> {
         let mut closed = None;
         if self.open {
             let dt = at_us.wrapping_sub(self.last_at_us);
@@ -131,19 +170,15 @@ impl FrameAssembler {
             }
         }
         if !self.open {
-            self.open = true;
-            self.len = 0;
-            self.broken = false;
-            self.parity = false;
-            self.overrun = false;
+            self.start_frame();
         }
         if self.len < MAX_FRAME {
-            self.bufs[self.cur][self.len] = byte;
+            self.append(byte, at_us);
         } else {
             self.overrun = true;
+            self.len += 1;
+            self.last_at_us = at_us;
         }
-        self.len += 1;
-        self.last_at_us = at_us;
         if flags != RxFlags::NONE {
             self.parity |= flags.parity;
             self.broken |= flags.framing;

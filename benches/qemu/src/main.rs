@@ -1,0 +1,235 @@
+//! Cortex-M4 instruction counts on QEMU's `mps2-an386` (issue 7).
+//!
+//! QEMU runs with `-icount shift=0`: virtual time advances 1 ns per executed
+//! instruction. SysTick counts the 25 MHz CPU clock (CLKSOURCE = 1), so one
+//! tick is 40 ns = 40 instructions. Each workload is called `n` times
+//! through a black-boxed function pointer between two SysTick reads; the same
+//! loop around an empty call is subtracted. A run of 1000 NOPs checks the
+//! scale before anything else is trusted.
+//!
+//! Output goes through semihosting; the exit status is non-zero when a
+//! result is wrong or a target (README "Proof") is missed.
+#![cfg_attr(target_os = "none", no_std)]
+#![cfg_attr(target_os = "none", no_main)]
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!("qemu-bench runs on thumbv7em-none-eabihf under QEMU: use benches/run-qemu.sh");
+    std::process::exit(2);
+}
+
+#[cfg(target_os = "none")]
+mod rt;
+
+#[cfg(target_os = "none")]
+mod bench {
+    use core::fmt::Write;
+    use core::hint::black_box;
+
+    use crate::rt::{exit, Console};
+    use workloads::*;
+
+    /// Instructions per SysTick tick: 25 MHz CPU clock, 1 ns per instruction.
+    const INSTR_PER_TICK: u64 = 40;
+
+    const SYST_CSR: *mut u32 = 0xE000_E010 as *mut u32;
+    const SYST_RVR: *mut u32 = 0xE000_E014 as *mut u32;
+    const SYST_CVR: *mut u32 = 0xE000_E018 as *mut u32;
+
+    fn systick_start() {
+        // SAFETY: SysTick registers of the Cortex-M4 (ARMv7-M ARM B3.3).
+        unsafe {
+            SYST_RVR.write_volatile(0x00FF_FFFF);
+            SYST_CVR.write_volatile(0);
+            // ENABLE, no interrupt, CLKSOURCE = processor clock
+            SYST_CSR.write_volatile(0b101);
+        }
+    }
+
+    #[inline(always)]
+    fn systick_now() -> u32 {
+        // SAFETY: read of the SysTick current value register.
+        unsafe { SYST_CVR.read_volatile() }
+    }
+
+    /// Ticks taken by `n` calls of `f` (SysTick counts down, 24 bits), and
+    /// the last result.
+    #[inline(never)]
+    fn ticks<S>(state: &mut S, f: fn(&mut S) -> u32, n: u32) -> (u32, u32) {
+        let f = black_box(f);
+        let start = systick_now();
+        let mut r = 0;
+        for _ in 0..n {
+            r = f(black_box(&mut *state));
+        }
+        let end = systick_now();
+        (start.wrapping_sub(end) & 0x00FF_FFFF, r)
+    }
+
+    /// Instructions per call of `f` in tenths, the empty call subtracted.
+    fn measure<S>(state: &mut S, f: fn(&mut S) -> u32, n: u32) -> (u64, u32) {
+        let (t_empty, _) = ticks(state, empty::<S>, n);
+        let (t, r) = ticks(state, f, n);
+        if t >= 0x00F0_0000 {
+            fail("a measurement came near the 24-bit SysTick wrap: lower n");
+        }
+        let net = u64::from(t.saturating_sub(t_empty)) * INSTR_PER_TICK;
+        (net * 10 / u64::from(n), r)
+    }
+
+    fn fail(msg: &str) -> ! {
+        let _ = writeln!(Console, "FAIL: {msg}");
+        exit(false)
+    }
+
+    /// Prints one figure: `tenths` instructions per `unit`, and its limit.
+    fn row(name: &str, tenths: u64, unit: &str, target: Option<u64>, ok: &mut bool) {
+        let mut c = Console;
+        let _ = write!(
+            c,
+            "{name:<38} {:>7}.{} /{unit:<5}",
+            tenths / 10,
+            tenths % 10
+        );
+        match target {
+            Some(max) if tenths <= max * 10 => {
+                let _ = writeln!(c, "  target <= {max:<5} ok");
+            }
+            Some(max) => {
+                let _ = writeln!(c, "  target <= {max:<5} MISSED");
+                *ok = false;
+            }
+            None => {
+                let _ = writeln!(c);
+            }
+        }
+    }
+
+    fn expect(what: &str, got: u32, want: u32) {
+        if got != want {
+            let _ = writeln!(Console, "FAIL: {what}: result {got}, expected {want}");
+            exit(false)
+        }
+    }
+
+    /// 1000 NOPs: checks 40 instructions per tick and the baseline.
+    #[inline(never)]
+    fn nops_1000(_: &mut ()) -> u32 {
+        // SAFETY: NOPs only.
+        unsafe { core::arch::asm!(".rept 1000", "nop", ".endr", options(nomem, nostack)) };
+        1
+    }
+
+    pub fn run() -> ! {
+        systick_start();
+        let mut ok = true;
+        let mut c = Console;
+        let _ = writeln!(
+            c,
+            "QEMU mps2-an386 (Cortex-M4), -icount shift=0, SysTick x {INSTR_PER_TICK}; \
+             instructions per call, empty call subtracted"
+        );
+
+        // ---- harness check
+        let (nop, _) = measure(&mut (), nops_1000, 100);
+        row("harness: 1000 NOPs", nop, "call", None, &mut ok);
+        if nop.abs_diff(10_000) > 10 {
+            fail("1000 NOPs did not measure as 1000 +- 1 instructions");
+        }
+
+        // ---- CRC
+        let mut crc_in = CrcInput::default();
+        let (ours, r1) = measure(&mut crc_in, crc_ours_8, 1000);
+        let (theirs, r2) = measure(&mut crc_in, crc_crate_8, 1000);
+        expect("crc16 = crc crate", r1, r2);
+        row(
+            "crc crate CRC_16_MODBUS, 8 bytes",
+            theirs,
+            "call",
+            None,
+            &mut ok,
+        );
+        row(
+            "modbus-drive rtu::crc16, 8 bytes",
+            ours,
+            "call",
+            None,
+            &mut ok,
+        );
+
+        // ---- frame assembler, per received byte: (one `push` call per byte
+        // + the `poll` that closes the frame) minus the same feed loop with
+        // empty calls, divided by the frame length
+        for (name, frame, _) in frames::ALL {
+            let mut feed = AssemblerFeed::new(frame);
+            let (t, len) = measure(&mut feed, assembler_frame, 1000);
+            expect("assembler frame length", len, frame.len() as u32);
+            let mut harness = AssemblerFeed::harness_only(frame);
+            let (t0, _) = measure(&mut harness, assembler_frame, 1000);
+            let mut label = heapless::String::<48>::new();
+            let _ = write!(label, "frame assembler: {name} ({} B)", frame.len());
+            let per_byte = t.saturating_sub(t0) / frame.len() as u64;
+            row(&label, per_byte, "byte", Some(25), &mut ok);
+        }
+
+        // ---- rmodbus on the four frames
+        let _ = writeln!(
+            c,
+            "-- rmodbus 0.13 (no_std, ModbusStorage), parse + process + finalize"
+        );
+        for (name, frame, reply_len) in frames::ALL {
+            let mut slave = RmodbusSlave::new(frame);
+            let (t, len) = measure(&mut slave, rmodbus_frame, 200);
+            expect("rmodbus reply length", len, reply_len as u32);
+            let mut label = heapless::String::<48>::new();
+            let _ = write!(label, "rmodbus: {name}");
+            row(&label, t, "frame", None, &mut ok);
+        }
+
+        // ---- step generation
+        let _ = writeln!(
+            c,
+            "-- step generation ({RAMP_MOVE_STEPS}-step move, per step)"
+        );
+        let mut fixed = RampMakerFixed::default();
+        let (t, steps) = measure(&mut fixed, ramp_maker_fixed_move, 3);
+        if steps < RAMP_MOVE_STEPS {
+            fail("ramp-maker (fixed) produced too few steps");
+        }
+        row(
+            "ramp-maker 0.2 trapezoidal, fixed",
+            t / u64::from(steps),
+            "step",
+            None,
+            &mut ok,
+        );
+        let mut float = RampMakerF32::default();
+        let (t, steps) = measure(&mut float, ramp_maker_f32_move, 20);
+        if steps < RAMP_MOVE_STEPS {
+            fail("ramp-maker (f32) produced too few steps");
+        }
+        row(
+            "ramp-maker 0.2 trapezoidal, f32",
+            t / u64::from(steps),
+            "step",
+            None,
+            &mut ok,
+        );
+        let mut klipper = KlipperStepper::default();
+        let (t, _) = measure(&mut klipper, klipper_step_event, 10_000);
+        row("Klipper-style step event", t, "step", None, &mut ok);
+
+        if ok {
+            let _ = writeln!(c, "all targets met");
+        } else {
+            let _ = writeln!(c, "FAIL: a target was missed");
+        }
+        exit(ok)
+    }
+}
+
+#[cfg(target_os = "none")]
+#[no_mangle]
+extern "C" fn bench_main() -> ! {
+    bench::run()
+}

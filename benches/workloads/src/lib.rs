@@ -1,0 +1,330 @@
+//! The calls the benchmarks measure, on the same inputs for the drive core
+//! and for the libraries a user would pick instead (issue 7).
+//!
+//! Every workload is an `#[inline(never)]` function taking `&mut` state and
+//! returning a value that depends on the work done, so that the runner can
+//! call it through a black-boxed function pointer, subtract the cost of an
+//! empty call with the same signature, and check the result.
+//!
+//! Both runners use this crate: `../qemu` (Cortex-M4 instructions under QEMU)
+//! and `../host` (x86-64 instructions under valgrind).
+#![no_std]
+
+use modbus_drive::rtu::{FrameAssembler, LineConfig, RxEvent, RxFlags};
+
+/// The four request frames of the slave-path comparison, CRC included.
+pub mod frames {
+    /// FC03, read 2 registers: 0x607A target position (seed 000 §6 example).
+    pub const READ_2: &[u8] = &[0x01, 0x03, 0x60, 0x7A, 0x00, 0x02, 0xFB, 0xD2];
+    /// FC03, read 10 registers from 0x6081 (profile velocity … homing method).
+    pub const READ_10: &[u8] = &[0x01, 0x03, 0x60, 0x81, 0x00, 0x0A, 0x8B, 0xE5];
+    /// FC10, write 9 registers: seed 000's first worked frame (SPEC §5).
+    pub const WRITE_9: &[u8] = &[
+        0x01, 0x10, 0x60, 0x40, 0x00, 0x09, 0x12, 0x00, 0x0F, 0x00, 0x01, 0x00, 0x00, 0x00, 0x64,
+        0x00, 0x64, 0x00, 0x64, 0x00, 0x64, 0x00, 0x03, 0x0D, 0x40, 0x40, 0x1C,
+    ];
+    /// FC06, write 0x6083 acceleration = 100 (seed 000 §6 example).
+    pub const WRITE_1: &[u8] = &[0x01, 0x06, 0x60, 0x83, 0x00, 0x64, 0x67, 0xC9];
+
+    /// (name, request, length of the normal reply) for every compared frame.
+    pub const ALL: [(&str, &[u8], usize); 4] = [
+        ("FC03 read 2 regs", READ_2, 5 + 2 * 2),
+        ("FC03 read 10 regs", READ_10, 5 + 2 * 10),
+        ("FC10 write 9 regs", WRITE_9, 8),
+        ("FC06 write 1 reg", WRITE_1, 8),
+    ];
+}
+
+/// An empty call with the workloads' signature: the baseline subtracted
+/// from every measurement.
+#[inline(never)]
+pub fn empty<S>(_state: &mut S) -> u32 {
+    0
+}
+
+// ---------------------------------------------------------------- CRC
+
+/// 8 bytes to checksum (the FC03 request without its CRC, plus two bytes).
+pub struct CrcInput(pub [u8; 8]);
+
+impl Default for CrcInput {
+    fn default() -> Self {
+        Self([0x01, 0x03, 0x60, 0x7A, 0x00, 0x02, 0x12, 0x34])
+    }
+}
+
+/// The drive's CRC (`modbus_drive::rtu::crc16`, table-driven `crc` crate).
+#[inline(never)]
+pub fn crc_ours_8(input: &mut CrcInput) -> u32 {
+    modbus_drive::rtu::crc16(core::hint::black_box(&input.0)).into()
+}
+
+const CRC_CRATE: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_MODBUS);
+
+/// The `crc` crate used directly, through its digest API so that it is a
+/// code path of its own. (When LLVM keeps one out-of-line `checksum` shared
+/// by several callers instead of inlining it with the algorithm's constants
+/// folded in, a call costs ~22 instructions more: 106 for 8 bytes.)
+#[inline(never)]
+pub fn crc_crate_8(input: &mut CrcInput) -> u32 {
+    let mut digest = CRC_CRATE.digest();
+    digest.update(core::hint::black_box(&input.0));
+    digest.finalize().into()
+}
+
+// ---------------------------------------------------------------- frame assembler
+
+/// The frame assembler at 115200 8N1, bytes back to back.
+///
+/// The receive interrupt makes one call per byte; so does this feed, through
+/// black-boxed function pointers. [`AssemblerFeed::harness_only`] runs the
+/// same loop with empty calls: the difference, divided by the frame length,
+/// is the assembler's own cost per received byte (its call included).
+pub struct AssemblerFeed {
+    assembler: FrameAssembler,
+    now_us: u32,
+    tc_us: u32,
+    t35_us: u32,
+    /// The frame fed by [`assembler_frame`].
+    pub frame: &'static [u8],
+    push: fn(&mut FrameAssembler, u8, u32) -> u32,
+    poll: fn(&mut FrameAssembler, u32) -> u32,
+}
+
+impl AssemblerFeed {
+    pub fn new(frame: &'static [u8]) -> Self {
+        Self::with(frame, assembler_push, assembler_poll)
+    }
+
+    /// The feed loop alone: every call is an empty one.
+    pub fn harness_only(frame: &'static [u8]) -> Self {
+        Self::with(frame, empty_push, empty_poll)
+    }
+
+    fn with(
+        frame: &'static [u8],
+        push: fn(&mut FrameAssembler, u8, u32) -> u32,
+        poll: fn(&mut FrameAssembler, u32) -> u32,
+    ) -> Self {
+        let timing = LineConfig::DEFAULT.timing();
+        Self {
+            assembler: FrameAssembler::new(timing),
+            now_us: 0,
+            tc_us: timing.tc_us,
+            t35_us: timing.t35_us,
+            frame,
+            push,
+            poll,
+        }
+    }
+}
+
+/// What the UART receive interrupt does with one byte.
+#[inline(never)]
+pub fn assembler_push(a: &mut FrameAssembler, byte: u8, at_us: u32) -> u32 {
+    // a byte never closes the previous frame here: `poll` did
+    a.push(byte, at_us, RxFlags::NONE).is_some().into()
+}
+
+/// What the t3.5 timer does: close the frame; returns its length.
+#[inline(never)]
+pub fn assembler_poll(a: &mut FrameAssembler, now_us: u32) -> u32 {
+    match a.poll(now_us) {
+        Some(RxEvent::Frame { bytes, .. }) => bytes.len() as u32,
+        _ => 0,
+    }
+}
+
+#[inline(never)]
+fn empty_push(_: &mut FrameAssembler, _: u8, _: u32) -> u32 {
+    0
+}
+
+#[inline(never)]
+fn empty_poll(_: &mut FrameAssembler, _: u32) -> u32 {
+    0
+}
+
+/// Every byte of one frame through `push`, then the `poll` that closes it
+/// after t3.5. Returns what `poll` returned (the frame length).
+#[inline(never)]
+pub fn assembler_frame(s: &mut AssemblerFeed) -> u32 {
+    let frame = core::hint::black_box(s.frame);
+    let push = core::hint::black_box(s.push);
+    let poll = core::hint::black_box(s.poll);
+    let mut t = s.now_us;
+    for &b in frame {
+        t = t.wrapping_add(s.tc_us);
+        push(&mut s.assembler, b, t);
+    }
+    let len = poll(&mut s.assembler, t.wrapping_add(s.t35_us));
+    s.now_us = t.wrapping_add(s.t35_us + s.tc_us);
+    len
+}
+
+// ---------------------------------------------------------------- rmodbus
+
+/// Holding registers up to 0x6100 so that the drive's indices exist.
+pub const RMODBUS_HOLDINGS: usize = 0x6100;
+
+/// rmodbus 0.13 as a no_std RTU server over its array `ModbusStorage`.
+pub struct RmodbusSlave {
+    storage: rmodbus::server::storage::ModbusStorage<0, 0, 0, RMODBUS_HOLDINGS>,
+    response: heapless::Vec<u8, 256>,
+    /// The request [`rmodbus_frame`] processes.
+    pub request: &'static [u8],
+}
+
+impl RmodbusSlave {
+    pub const fn new(request: &'static [u8]) -> Self {
+        Self {
+            storage: rmodbus::server::storage::ModbusStorage::new(),
+            response: heapless::Vec::new(),
+            request,
+        }
+    }
+
+    pub fn response(&self) -> &[u8] {
+        &self.response
+    }
+}
+
+/// One request through rmodbus the way its README does it: parse (CRC
+/// check), process, finalize (CRC). Returns the reply length.
+#[inline(never)]
+pub fn rmodbus_frame(s: &mut RmodbusSlave) -> u32 {
+    use rmodbus::{server::ModbusFrame, ModbusProto};
+    let request = core::hint::black_box(s.request);
+    let mut frame = ModbusFrame::new(1, request, ModbusProto::Rtu, &mut s.response);
+    if frame.parse().is_err() {
+        return 0;
+    }
+    if frame.processing_required {
+        let done = if frame.readonly {
+            frame.process_read(&s.storage)
+        } else {
+            frame.process_write(&mut s.storage)
+        };
+        if done.is_err() {
+            return 0;
+        }
+    }
+    if frame.response_required && frame.finalize_response().is_err() {
+        return 0;
+    }
+    s.response.len() as u32
+}
+
+// ---------------------------------------------------------------- step generation
+
+/// Steps of the move the ramp workloads generate.
+pub const RAMP_MOVE_STEPS: u32 = 2000;
+/// Its limits: 20 000 steps/s² up to 10 000 steps/s (ramps of 2500 steps
+/// would not fit, so it is a triangle of 1000 + 1000 steps).
+pub const RAMP_ACCEL_STEPS_PER_S2: u32 = 20_000;
+pub const RAMP_MAX_STEPS_PER_S: u32 = 10_000;
+
+/// ramp-maker 0.2's trapezoidal ramp with its default fixed-point number
+/// type (`FixedU64<U32>`), time in seconds.
+pub struct RampMakerFixed {
+    profile: ramp_maker::Trapezoidal,
+}
+
+impl Default for RampMakerFixed {
+    fn default() -> Self {
+        Self {
+            profile: ramp_maker::Trapezoidal::new(ramp_maker::trapezoidal::DefaultNum::from_num(
+                RAMP_ACCEL_STEPS_PER_S2,
+            )),
+        }
+    }
+}
+
+/// One whole move of [`RAMP_MOVE_STEPS`]: the per-step cost is the result
+/// divided by that. Returns the number of delays produced.
+#[inline(never)]
+pub fn ramp_maker_fixed_move(s: &mut RampMakerFixed) -> u32 {
+    use ramp_maker::MotionProfile;
+    let max = ramp_maker::trapezoidal::DefaultNum::from_num(RAMP_MAX_STEPS_PER_S);
+    s.profile
+        .enter_position_mode(core::hint::black_box(max), RAMP_MOVE_STEPS);
+    let mut n = 0;
+    while let Some(delay) = s.profile.next_delay() {
+        core::hint::black_box(delay);
+        n += 1;
+    }
+    n
+}
+
+/// The same ramp with `f32` (needs an FPU to be cheap).
+pub struct RampMakerF32 {
+    profile: ramp_maker::Trapezoidal<f32>,
+}
+
+impl Default for RampMakerF32 {
+    fn default() -> Self {
+        Self {
+            profile: ramp_maker::Trapezoidal::new(RAMP_ACCEL_STEPS_PER_S2 as f32),
+        }
+    }
+}
+
+#[inline(never)]
+pub fn ramp_maker_f32_move(s: &mut RampMakerF32) -> u32 {
+    use ramp_maker::MotionProfile;
+    s.profile.enter_position_mode(
+        core::hint::black_box(RAMP_MAX_STEPS_PER_S as f32),
+        RAMP_MOVE_STEPS,
+    );
+    let mut n = 0;
+    while let Some(delay) = s.profile.next_delay() {
+        core::hint::black_box(delay);
+        n += 1;
+    }
+    n
+}
+
+/// Stands in for a GPIO output data register.
+pub static STEP_PORT_ODR: core::sync::atomic::AtomicU32 = core::sync::atomic::AtomicU32::new(0);
+
+/// Klipper's step timer event (`stepper_event` in klipper/src/stepper.c):
+/// the reference for a step interrupt's work — toggle the step pin, count
+/// down, advance the wake time by `interval`, then `interval += add`.
+pub struct KlipperStepper {
+    pub waketime: u32,
+    pub interval: u32,
+    pub add: i32,
+    pub count: u32,
+    /// Step pin mask in [`STEP_PORT_ODR`].
+    pub step_pin: u32,
+}
+
+impl Default for KlipperStepper {
+    fn default() -> Self {
+        Self {
+            waketime: 0,
+            interval: 1000,
+            add: 1,
+            count: u32::MAX,
+            step_pin: 1 << 5,
+        }
+    }
+}
+
+/// One step event. Returns the next wake time (0 when the move ended).
+#[inline(never)]
+pub fn klipper_step_event(s: &mut KlipperStepper) -> u32 {
+    use core::sync::atomic::Ordering::Relaxed;
+    // gpio_out_toggle_noirq: ODR ^= bit (plain load and store)
+    STEP_PORT_ODR.store(STEP_PORT_ODR.load(Relaxed) ^ s.step_pin, Relaxed);
+    let count = s.count.wrapping_sub(1);
+    if count != 0 {
+        s.count = count;
+        s.waketime = s.waketime.wrapping_add(s.interval);
+        s.interval = s.interval.wrapping_add(s.add as u32);
+        return s.waketime;
+    }
+    // stepper_load_next: the benchmark keeps the move endless
+    s.count = u32::MAX;
+    0
+}
