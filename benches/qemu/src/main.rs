@@ -22,6 +22,8 @@ fn main() {
 mod rt;
 
 #[cfg(target_os = "none")]
+// The profile build runs `profile` instead of `run`.
+#[cfg_attr(feature = "profile", allow(dead_code))]
 mod bench {
     use core::fmt::Write;
     use core::hint::black_box;
@@ -120,6 +122,51 @@ mod bench {
         1
     }
 
+    /// The markers benches/profile-qemu.sh looks for in QEMU's trace.
+    #[cfg(feature = "profile")]
+    #[inline(never)]
+    #[no_mangle]
+    extern "C" fn profile_start() {
+        black_box(1u32);
+    }
+    #[cfg(feature = "profile")]
+    #[inline(never)]
+    #[no_mangle]
+    extern "C" fn profile_end() {
+        black_box(2u32);
+    }
+
+    #[cfg(feature = "profile")]
+    fn profile_one<S>(state: &mut S, f: fn(&mut S) -> u32) -> ! {
+        let f = black_box(f);
+        for _ in 0..3 {
+            f(state); // warm: first-call paths out of the picture
+        }
+        profile_start();
+        let r = f(black_box(state));
+        profile_end();
+        let _ = writeln!(Console, "profiled one call, result {r}");
+        exit(true)
+    }
+
+    /// One call of the workload named `which`, between the two markers.
+    #[cfg(feature = "profile")]
+    pub fn profile(which: &str) -> ! {
+        for (i, (_, frame, _)) in frames::ALL.iter().enumerate() {
+            let key = ["fc03-2", "fc03-10", "fc10", "fc06"][i];
+            if which.strip_prefix("drive-") == Some(key) {
+                profile_one(&mut DriveSlave::new(frame), drive_slave_frame);
+            }
+            if which.strip_prefix("rmodbus-") == Some(key) {
+                profile_one(&mut RmodbusSlave::new(frame), rmodbus_frame);
+            }
+            if which.strip_prefix("assembler-") == Some(key) {
+                profile_one(&mut AssemblerFeed::new(frame), assembler_frame);
+            }
+        }
+        fail("BENCH_PROFILE: drive-|rmodbus-|assembler- + fc03-2|fc03-10|fc10|fc06")
+    }
+
     pub fn run() -> ! {
         systick_start();
         let mut ok = true;
@@ -172,18 +219,43 @@ mod bench {
             row(&label, per_byte, "byte", Some(25), &mut ok);
         }
 
-        // ---- rmodbus on the four frames
+        // ---- the slave path against rmodbus on the same four frames
         let _ = writeln!(
             c,
-            "-- rmodbus 0.13 (no_std, ModbusStorage), parse + process + finalize"
+            "-- slave path per frame: modbus-drive Device::handle_rx vs rmodbus 0.13 \
+             (no_std, ModbusStorage: parse + process + finalize)"
         );
         for (name, frame, reply_len) in frames::ALL {
-            let mut slave = RmodbusSlave::new(frame);
-            let (t, len) = measure(&mut slave, rmodbus_frame, 200);
+            let mut theirs = RmodbusSlave::new(frame);
+            let (t_theirs, len) = measure(&mut theirs, rmodbus_frame, 200);
             expect("rmodbus reply length", len, reply_len as u32);
+            expect(
+                "rmodbus reply function",
+                theirs.response()[1].into(),
+                frame[1].into(),
+            );
+            let mut ours = DriveSlave::new(frame);
+            let (t_ours, len) = measure(&mut ours, drive_slave_frame, 200);
+            expect("modbus-drive reply length", len, reply_len as u32);
+            expect(
+                "modbus-drive reply function",
+                ours.reply()[1].into(),
+                frame[1].into(),
+            );
             let mut label = heapless::String::<48>::new();
             let _ = write!(label, "rmodbus: {name}");
-            row(&label, t, "frame", None, &mut ok);
+            row(&label, t_theirs, "frame", None, &mut ok);
+            label.clear();
+            let _ = write!(label, "modbus-drive: {name}");
+            // target: at most 40 % of rmodbus (tenths, rounded down)
+            row(&label, t_ours, "frame", Some(t_theirs * 4 / 100), &mut ok);
+            let _ = writeln!(
+                c,
+                "{:<38} {:>7}.{} %     target <= 40 %",
+                "  = share of rmodbus",
+                t_ours * 100 / t_theirs,
+                (t_ours * 1000 / t_theirs) % 10
+            );
         }
 
         // ---- step generation
@@ -231,5 +303,8 @@ mod bench {
 #[cfg(target_os = "none")]
 #[no_mangle]
 extern "C" fn bench_main() -> ! {
+    #[cfg(feature = "profile")]
+    bench::profile(option_env!("BENCH_PROFILE").unwrap_or(""));
+    #[cfg(not(feature = "profile"))]
     bench::run()
 }

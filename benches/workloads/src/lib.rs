@@ -162,6 +162,46 @@ pub fn assembler_frame(s: &mut AssemblerFeed) -> u32 {
     len
 }
 
+// ---------------------------------------------------------------- the drive's slave path
+
+/// The whole slave path of one drive: `Device::handle_rx` on a closed frame
+/// (CRC check, address, dispatch, dictionary, reply with CRC).
+pub struct DriveSlave {
+    device: modbus_drive::Device,
+    reply: [u8; modbus_drive::rtu::MAX_FRAME],
+    /// The request [`drive_slave_frame`] processes.
+    pub request: &'static [u8],
+}
+
+impl DriveSlave {
+    pub fn new(request: &'static [u8]) -> Self {
+        Self {
+            device: modbus_drive::Device::new(modbus_drive::device::Identity::new("bench")),
+            reply: [0; modbus_drive::rtu::MAX_FRAME],
+            request,
+        }
+    }
+
+    /// The reply buffer (its first bytes are the last reply).
+    pub fn reply(&self) -> &[u8] {
+        &self.reply
+    }
+}
+
+/// One request through the drive. Returns the reply length (0: silent).
+#[inline(never)]
+pub fn drive_slave_frame(s: &mut DriveSlave) -> u32 {
+    let bytes = core::hint::black_box(s.request);
+    let rx = RxEvent::Frame {
+        bytes,
+        parity_error: false,
+    };
+    match s.device.handle_rx(rx, &mut s.reply) {
+        modbus_drive::device::Response::Reply(n) => n as u32,
+        modbus_drive::device::Response::Silent => 0,
+    }
+}
+
 // ---------------------------------------------------------------- rmodbus
 
 /// Holding registers up to 0x6100 so that the drive's indices exist.
