@@ -158,7 +158,7 @@ impl Bus {
             // The byte closed the previous frame: its reply would have
             // collided with this byte; tests that get here send frames
             // without waiting, like a master that does not wait.
-            self.after(r, &reply, prev_end);
+            self.after(r, &reply, prev_end, false);
         }
     }
 
@@ -178,7 +178,7 @@ impl Bus {
             };
             if let Some(r) = response {
                 self.now_us = t;
-                self.after(r, &reply, last);
+                self.after(r, &reply, last, true);
             }
         }
         let end = start.wrapping_add(us);
@@ -188,8 +188,16 @@ impl Bus {
     }
 
     /// Sends a reply no earlier than `reply_delay_us` after the request's
-    /// last byte, in one burst, then tells the device it left.
-    fn after(&mut self, response: Response, reply: &[u8; MAX_FRAME], request_end_us: u32) {
+    /// last byte, in one burst, then tells the device it left. With
+    /// `occupy_line` the clock moves past the reply (the master waited for
+    /// it); without, the master's bytes keep their own timestamps.
+    fn after(
+        &mut self,
+        response: Response,
+        reply: &[u8; MAX_FRAME],
+        request_end_us: u32,
+        occupy_line: bool,
+    ) {
         if let Response::Reply(n) = response {
             let start_us = request_end_us.wrapping_add(self.device.reply_delay_us());
             self.sent.push(Sent {
@@ -197,7 +205,9 @@ impl Bus {
                 start_us,
                 request_end_us,
             });
-            self.now_us = start_us.wrapping_add(n as u32 * self.timing.tc_us);
+            if occupy_line {
+                self.now_us = start_us.wrapping_add(n as u32 * self.timing.tc_us);
+            }
         }
         if let Some(line) = self.device.reply_sent() {
             self.set_line(line);
