@@ -9,15 +9,34 @@
 //! 4. then call [`Device::reply_sent`] (also after [`Response::Silent`]) so
 //!    that a new address or line format takes effect (SPEC §7) — it returns
 //!    the new line settings when they changed.
+//!
+//! Parameter storage (SPEC §9, `params/storage.rs`):
+//! - at power-up, `device.apply_boot(&store.boot())` before the first frame;
+//! - an accepted EE request (`10 00 3A 00 01 02 00 0k`, or the old
+//!   `06 00 00 00 0k`) is answered [`Response::Silent`] for now and makes the
+//!   device busy: every register request that passes validation meanwhile
+//!   gets exception 6 (§5.2 step 9); the UART keeps receiving;
+//! - the glue then calls [`Device::poll_storage`] with the store (the
+//!   firmware from its flash task, the virtual drive right away or after a
+//!   simulated delay). It runs the operation and returns the deferred reply:
+//!   the 0x10 reply / the echo of the old frame once done, exception 4 if
+//!   the flash failed, nothing for a broadcast. Send it like any reply
+//!   (step 3, no earlier than `reply_delay_us` after the request) and call
+//!   [`Device::reply_sent`] after it: an address or line changed by EE-rd /
+//!   EE-rS / EE-dEF takes effect then, as after a PA51..53 write.
 
 use heapless::Deque;
 
 pub use crate::dictionary::Identity;
-use crate::dictionary::{OdValues, Registers};
+use embedded_storage::nor_flash::NorFlash;
+
+use crate::dictionary::{Config, DriveLayer, OdValues, Registers};
 use crate::drive::Drive;
 use crate::event::Event;
-use crate::params::Params;
-use crate::rtu::{LineConfig, RxEvent, MAX_FRAME};
+use crate::params::{
+    execute, Boot, BootOutcome, EeError, EeOp, ParamStore, Params, PendingEe, StoreStatus,
+};
+use crate::rtu::{with_crc, LineConfig, RxEvent, MAX_FRAME};
 pub use crate::slave::Response;
 use crate::slave::Slave;
 
@@ -33,9 +52,10 @@ pub struct Device {
     pub drive: Drive,
     /// Dispatcher state: §6 counters and listen-only mode.
     pub slave: Slave,
-    /// A parameter-storage operation is running (§5.2 step 9); set by the
-    /// parameter store (issue 5).
-    pub storage_busy: bool,
+    /// The EE operation accepted and not yet run (§5.2 step 9: busy).
+    ee_pending: Option<PendingEe>,
+    /// What DP-Err says about the store.
+    store_status: StoreStatus,
     /// Address and line in force: PA51/52/53 as they were when the last
     /// reply left (SPEC §7).
     address: u8,
@@ -55,7 +75,8 @@ impl Device {
             pa,
             drive: Drive::new(),
             slave: Slave::new(),
-            storage_busy: false,
+            ee_pending: None,
+            store_status: StoreStatus::default(),
             events: Deque::new(),
             events_dropped: 0,
         }
@@ -70,13 +91,118 @@ impl Device {
             pa: &mut self.pa,
             drive: &mut self.drive,
             identity: &self.identity,
-            busy: self.storage_busy,
+            busy: self.ee_pending.is_some(),
+            store_status: self.store_status,
+            ee_request: None,
         };
         let outcome = self.slave.handle(rx, self.address, &mut regs, reply);
+        let ee_request = regs.ee_request;
         if let Some(event) = outcome.event {
             self.push_event(event);
         }
-        outcome.response
+        match (ee_request, outcome.response) {
+            // SPEC §9: the reply comes once the operation is done.
+            (Some(op), Response::Reply(n)) => {
+                self.ee_pending = Some(PendingEe::new(op, Some(&reply[..n])));
+                Response::Silent
+            }
+            (Some(op), Response::Silent) => {
+                self.ee_pending = Some(PendingEe::new(op, None)); // broadcast
+                Response::Silent
+            }
+            (None, response) => response,
+        }
+    }
+
+    /// An EE operation is waiting for [`Self::poll_storage`]: register
+    /// requests get exception 6 (§5.2 step 9).
+    pub fn storage_busy(&self) -> bool {
+        self.ee_pending.is_some()
+    }
+
+    /// The EE operation waiting, if any (the glue may log it or decide when
+    /// to run it).
+    pub fn pending_ee(&self) -> Option<EeOp> {
+        self.ee_pending.map(|p| p.op)
+    }
+
+    /// At power-up, before the first frame: takes the set the store found
+    /// (SPEC §9) as the working set, with its address and line in force at
+    /// once, reports how it was obtained (event, DP-Err) and tells the
+    /// drive layer.
+    pub fn apply_boot(&mut self, boot: &Boot) {
+        boot.set.apply_to(&mut self.pa, &mut self.od);
+        self.address = self.pa.address();
+        self.line = self.pa.line();
+        self.store_status = StoreStatus {
+            defaulted_blank: boot.outcome == BootOutcome::Blank,
+            defaulted_unreadable: matches!(boot.outcome, BootOutcome::Unreadable(_)),
+            flash_failed: false,
+        };
+        self.push_event(Event::ParamsLoaded(boot.outcome));
+        self.configuration_changed();
+    }
+
+    /// Runs the waiting EE operation (if any) on `store` and returns its
+    /// deferred reply: `None` when nothing was waiting, `Some(Silent)` after
+    /// a broadcast, else `Some(Reply(n))` with the reply in `reply` — the
+    /// request's own success reply, or exception 4 when the flash failed or
+    /// EE-rS found no backup (§5.2 step 10). Call [`Self::reply_sent`] after
+    /// sending it.
+    pub fn poll_storage<F: NorFlash>(
+        &mut self,
+        store: &mut ParamStore<F>,
+        reply: &mut [u8; MAX_FRAME],
+    ) -> Option<Response> {
+        let pending = self.ee_pending?;
+        let result = execute(pending.op, &mut self.pa, &mut self.od, store);
+        self.ee_pending = None;
+        let s = &mut self.store_status;
+        s.flash_failed = matches!(result, Err(EeError::Storage(_)));
+        let saved = matches!(
+            pending.op,
+            EeOp::Save | EeOp::RestoreBackup | EeOp::RestoreDefaults
+        );
+        if result.is_ok() && saved {
+            // The store holds a valid saved set now.
+            s.defaulted_blank = false;
+            s.defaulted_unreadable = false;
+        }
+        self.push_event(Event::EeDone {
+            op: pending.op,
+            error: result.err(),
+        });
+        if result.is_ok() && pending.op != EeOp::Save && pending.op != EeOp::Backup {
+            self.configuration_changed();
+        }
+        let Some(ok_reply) = pending.reply() else {
+            return Some(Response::Silent);
+        };
+        let n = match result {
+            Ok(()) => {
+                reply[..ok_reply.len()].copy_from_slice(ok_reply);
+                ok_reply.len()
+            }
+            Err(_) => {
+                // Code 4 is the same in both PA55 profiles.
+                self.slave.count_deferred_exception();
+                reply[0] = ok_reply[0];
+                reply[1] = ok_reply[1] | 0x80;
+                reply[2] = crate::slave::Exception::DeviceFailure as u8;
+                with_crc(reply, 3)
+            }
+        };
+        Some(Response::Reply(n))
+    }
+
+    /// The working set was replaced (boot, EE-rd / EE-rS / EE-dEF): the
+    /// drive layer re-reads PA10..14, PA20 and the profile values.
+    fn configuration_changed(&mut self) {
+        let cfg = Config {
+            od: &self.od,
+            pa: &self.pa,
+        };
+        self.drive.values_written(cfg);
     }
 
     /// The reply (if any) has left the wire: apply a deferred change of

@@ -6,6 +6,7 @@
 //! changes, faults, parameters loaded); the enum is `non_exhaustive` so that
 //! the glue keeps a catch-all arm.
 
+use crate::params::{BootOutcome, EeError, EeOp};
 use crate::rtu::LineConfig;
 use crate::slave::Exception;
 
@@ -54,4 +55,10 @@ pub enum Event {
     AddressChanged { address: u8 },
     /// New line settings (PA52/PA53) took effect after the reply (§7).
     LineChanged(LineConfig),
+    /// At power-up: the saved parameter set was loaded, or defaults are in
+    /// use because the store was blank or unreadable (SPEC §9; DP-Err too).
+    ParamsLoaded(BootOutcome),
+    /// An EE operation (SPEC §9) finished; `error` is why it failed (the
+    /// master got exception 4).
+    EeDone { op: EeOp, error: Option<EeError> },
 }

@@ -120,6 +120,12 @@ impl Slave {
         &self.counters
     }
 
+    /// An exception reply produced after the request (a failed EE
+    /// operation's exception 4, `Device::poll_storage`) is counted (§6).
+    pub fn count_deferred_exception(&mut self) {
+        self.counters.exceptions = self.counters.exceptions.wrapping_add(1);
+    }
+
     /// Listen-only mode (diagnostics 0x04) is on.
     pub fn listen_only(&self) -> bool {
         self.listen_only

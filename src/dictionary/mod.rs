@@ -15,7 +15,7 @@ pub use table::{
     position, string_bytes, Access, DataType, Entry, Object, STRING_BYTES, STRING_WORDS, TABLE,
 };
 
-use crate::params::Params;
+use crate::params::{DriveMonitor, EeOp, Params, StoreStatus};
 use crate::slave::Exception;
 
 /// The RW/WO values of the SPEC §5 table as last written by the master.
@@ -76,6 +76,11 @@ pub trait DriveLayer {
     fn actual_velocity_rpm(&self) -> i32;
     /// 0x1001 (§8.7).
     fn error_register(&self) -> u16;
+    /// Live values of the legacy DP monitor (SPEC §9, `params/monitor.rs`)
+    /// beyond the entries above; a drive that does not know reports zeros.
+    fn monitor(&self) -> DriveMonitor {
+        DriveMonitor::default()
+    }
     /// Any accepted write stored new values (e.g. 0x6081 while running in
     /// velocity mode ramps to the new speed).
     fn values_written(&mut self, cfg: Config<'_>);
@@ -137,6 +142,12 @@ pub struct Registers<'a, D> {
     /// pass validation get exception 6 (§5.2 step 9). Set by the parameter
     /// store (issue 5).
     pub busy: bool,
+    /// State of the parameter store, for DP-Err (SPEC §9).
+    pub store_status: StoreStatus,
+    /// Set by an accepted write of an EE command register (0x003A, or
+    /// 0x0000 in the old format): the operation to run. The reply waits
+    /// until it is done (`Device::poll_storage`).
+    pub ee_request: Option<EeOp>,
 }
 
 /// The entries `[first, end)` covered by `quantity` words from table

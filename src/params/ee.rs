@@ -72,6 +72,36 @@ impl From<StorageError> for EeError {
     }
 }
 
+/// An EE operation accepted but not yet run, with the reply it will get.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PendingEe {
+    pub op: EeOp,
+    /// The success reply the dispatcher built (the 0x10 reply, or the echo
+    /// of the old 0x06 frame); `None` for a broadcast.
+    reply: Option<([u8; EE_REPLY_MAX], u8)>,
+}
+
+/// Longest EE success reply: `addr 10 00 3A 00 01 CRC` / `addr 06 … CRC`.
+pub const EE_REPLY_MAX: usize = 8;
+
+impl PendingEe {
+    /// `reply`: the dispatcher's reply to the request, `None` when it was a
+    /// broadcast. A reply longer than an EE reply is not kept.
+    pub fn new(op: EeOp, reply: Option<&[u8]>) -> Self {
+        let reply = reply.filter(|r| r.len() <= EE_REPLY_MAX).map(|r| {
+            let mut b = [0; EE_REPLY_MAX];
+            b[..r.len()].copy_from_slice(r);
+            (b, r.len() as u8)
+        });
+        Self { op, reply }
+    }
+
+    /// The success reply, if the request was not a broadcast.
+    pub fn reply(&self) -> Option<&[u8]> {
+        self.reply.as_ref().map(|(b, n)| &b[..usize::from(*n)])
+    }
+}
+
 /// Runs `op` on the working set (`pa`, `od`) and the store.
 pub fn execute<F: NorFlash>(
     op: EeOp,

@@ -214,6 +214,20 @@ impl Bus {
         }
     }
 
+    /// The glue's storage step (device.rs): runs a waiting EE operation on
+    /// `store` and sends its deferred reply like any other; returns it.
+    pub fn poll_storage<F: embedded_storage::nor_flash::NorFlash>(
+        &mut self,
+        store: &mut modbus_drive::params::ParamStore<F>,
+    ) -> Option<Vec<u8>> {
+        let before = self.sent.len();
+        let mut reply = [0u8; MAX_FRAME];
+        let response = self.device.poll_storage(store, &mut reply)?;
+        let request_end = self.assembler.last_byte_at_us();
+        self.after(response, &reply, request_end);
+        self.sent.get(before).map(|s| s.bytes.clone())
+    }
+
     fn set_line(&mut self, line: LineConfig) {
         self.timing = line.timing();
         self.assembler.set_timing(self.timing);

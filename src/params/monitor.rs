@@ -1,0 +1,211 @@
+//! The DP monitor of seed 001 at 0x0000..=0x0017 (SPEC §9): read-only
+//! 16-bit items, in the order of seed 001's table, from live drive state.
+//!
+//! | addr | item | value |
+//! |---|---|---|
+//! | 0x00 | DP-SPd | actual speed, r/min (0x606C), signed, saturated to i16 |
+//! | 0x01 | DP-PoS | actual position (0x6064), low word |
+//! | 0x02 | DP-PoS. | actual position, high word |
+//! | 0x03 | DP-CPo | command position: the target the profile runs to, low word |
+//! | 0x04 | DP-CPo. | command position, high word |
+//! | 0x05 | DP-EPo | position error, low word: 0 (open loop, no encoder) |
+//! | 0x06 | DP-EPo. | position error, high word: 0 |
+//! | 0x07 | DP-trq | torque: 0 (not measured) |
+//! | 0x08 | DP-I | motor current: 0 (not measured) |
+//! | 0x09 | DP-LSP | linear speed: 0 (no lead given) |
+//! | 0x0A | DP-Cnt | control mode: the mode in force (0x6061: 0, 1, 3, 6) |
+//! | 0x0B | DP-Frq | step frequency, units of 10 steps/s, unsigned, saturated |
+//! | 0x0C | DP-CS | speed command, r/min, signed (the profile's commanded speed) |
+//! | 0x0D | DP-Ct | torque command: 0 (no torque control) |
+//! | 0x0E | DP-APo | position within one revolution, 0..PA10-1 steps |
+//! | 0x0F | DP-In | inputs, active = 1: bit 0 CW limit, 1 CCW limit, 2 home |
+//! | 0x10 | DP-oUt | outputs: bit 0 power stage enabled, bit 1 brake released |
+//! | 0x11 | DP-Cod | encoder signals: 0 (no encoder) |
+//! | 0x12 | DP-m | load inertia ratio: 0 (not estimated) |
+//! | 0x13 | DP-Err | bits 0..7: 0x1001 error register; bit 8 defaults loaded (store blank); bit 9 defaults loaded (store unreadable); bit 10 last flash operation failed |
+//! | 0x14 | DP-tL | torque limit: 0 (none) |
+//! | 0x15 | DP-IA | phase A current: 0 (not measured) |
+//! | 0x16 | DP-IC | phase C current: 0 (not measured) |
+//! | 0x17 | DP-rES | reserved: 0 |
+//!
+//! Signed values are two's complement; 32-bit ones are split in address
+//! order low word, high word (seed 001 "DP-PoS / DP-PoS."), whatever 0x6000.
+
+use crate::dictionary::DriveLayer;
+
+use super::Params;
+
+/// First DP item.
+pub const DP_BASE: u16 = 0x0000;
+/// Last DP item (DP-rES).
+pub const DP_LAST: u16 = 0x0017;
+/// DP-Err's address.
+pub const DP_ERR: u16 = 0x0013;
+
+/// What the DP monitor needs from the drive beyond the §5 entries (see
+/// [`DriveLayer::monitor`]); all zero for a drive that does not know.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DriveMonitor {
+    /// Where the running (or last) move is commanded to, steps.
+    pub command_position: i32,
+    /// Steps per second being generated now, signed.
+    pub step_rate_steps_per_s: i32,
+    /// Speed the profile commands now (before ramps), r/min, signed.
+    pub speed_command_rpm: i32,
+    /// Switch inputs, 1 = active (after PA13 polarity): bit 0 CW limit,
+    /// bit 1 CCW limit, bit 2 home.
+    pub inputs: u16,
+    /// Outputs: bit 0 power stage enabled, bit 1 brake released (§8.1).
+    pub outputs: u16,
+}
+
+/// State of the parameter store as DP-Err reports it (bits 8..10).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StoreStatus {
+    /// At boot the store was blank: defaults are in use.
+    pub defaulted_blank: bool,
+    /// At boot the saved set could not be read: defaults are in use.
+    pub defaulted_unreadable: bool,
+    /// The last EE operation failed in the flash.
+    pub flash_failed: bool,
+}
+
+impl StoreStatus {
+    /// DP-Err bits 8..10.
+    pub fn dp_err_bits(self) -> u16 {
+        u16::from(self.defaulted_blank) << 8
+            | u16::from(self.defaulted_unreadable) << 9
+            | u16::from(self.flash_failed) << 10
+    }
+}
+
+fn saturate_i16(v: i32) -> u16 {
+    v.clamp(i32::from(i16::MIN), i32::from(i16::MAX)) as i16 as u16
+}
+
+/// The value of DP item `address` (0x0000..=0x0017; others read 0).
+pub fn dp_value<D: DriveLayer>(address: u16, drive: &D, pa: &Params, store: StoreStatus) -> u16 {
+    let m = drive.monitor();
+    let low = |v: i32| v as u16;
+    let high = |v: i32| (v >> 16) as u16;
+    match address {
+        0x00 => saturate_i16(drive.actual_velocity_rpm()),
+        0x01 => low(drive.actual_position()),
+        0x02 => high(drive.actual_position()),
+        0x03 => low(m.command_position),
+        0x04 => high(m.command_position),
+        0x0A => drive.mode_display() as u16,
+        0x0B => (m.step_rate_steps_per_s.unsigned_abs() / 10).min(u32::from(u16::MAX)) as u16,
+        0x0C => saturate_i16(m.speed_command_rpm),
+        0x0E => {
+            let rev = i32::from(pa.steps_per_rev().max(1));
+            drive.actual_position().rem_euclid(rev) as u16
+        }
+        0x0F => m.inputs,
+        0x10 => m.outputs,
+        DP_ERR => (drive.error_register() & 0x00FF) | store.dp_err_bits(),
+        // 0x05/0x06 position error, 0x07 torque, 0x08 current, 0x09 linear
+        // speed, 0x0D torque command, 0x11 encoder, 0x12 inertia, 0x14
+        // torque limit, 0x15/0x16 phase currents, 0x17 reserved: an
+        // open-loop step drive measures none of them (SPEC §9).
+        _ => 0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dictionary::Config;
+
+    struct Fake {
+        position: i32,
+        rpm: i32,
+        error: u16,
+        m: DriveMonitor,
+    }
+
+    impl DriveLayer for Fake {
+        fn statusword(&self) -> u16 {
+            0
+        }
+        fn mode_display(&self) -> i16 {
+            3
+        }
+        fn actual_position(&self) -> i32 {
+            self.position
+        }
+        fn actual_velocity_rpm(&self) -> i32 {
+            self.rpm
+        }
+        fn error_register(&self) -> u16 {
+            self.error
+        }
+        fn monitor(&self) -> DriveMonitor {
+            self.m
+        }
+        fn values_written(&mut self, _: Config<'_>) {}
+        fn mode_written(&mut self, _: i16, _: Config<'_>) {}
+        fn controlword_written(&mut self, _: u16, _: Config<'_>) {}
+    }
+
+    fn all(d: &Fake, pa: &Params, s: StoreStatus) -> [u16; 24] {
+        core::array::from_fn(|a| dp_value(a as u16, d, pa, s))
+    }
+
+    #[test]
+    fn items_come_from_the_drive_in_seed_001_order() {
+        let d = Fake {
+            position: -200_001,
+            rpm: -600,
+            error: 0x11,
+            m: DriveMonitor {
+                command_position: 300_000,
+                step_rate_steps_per_s: -100_000,
+                speed_command_rpm: 600,
+                inputs: 0b101,
+                outputs: 0b11,
+            },
+        };
+        let pa = Params::defaults(); // PA10 = 10000
+        let v = all(&d, &pa, StoreStatus::default());
+        assert_eq!(v[0x00], (-600i16) as u16);
+        assert_eq!([v[0x01], v[0x02]], [0xF2BF, 0xFFFC]); // -200001
+        assert_eq!([v[0x03], v[0x04]], [0x93E0, 0x0004]); // 300000
+        assert_eq!(v[0x0A], 3);
+        assert_eq!(v[0x0B], 10_000);
+        assert_eq!(v[0x0C], 600);
+        assert_eq!(v[0x0E], 9_999, "-200001 mod 10000");
+        assert_eq!(v[0x0F], 0b101);
+        assert_eq!(v[0x10], 0b11);
+        assert_eq!(v[0x13], 0x11);
+        for a in [5, 6, 7, 8, 9, 0x0D, 0x11, 0x12, 0x14, 0x15, 0x16, 0x17] {
+            assert_eq!(v[a], 0, "item {a:#04x} is not measured open loop");
+        }
+    }
+
+    #[test]
+    fn saturation_and_store_flags() {
+        let d = Fake {
+            position: 0,
+            rpm: 100_000,
+            error: 0x0100, // beyond bit 7: not DP-Err's business
+            m: DriveMonitor {
+                step_rate_steps_per_s: i32::MAX,
+                speed_command_rpm: -100_000,
+                ..DriveMonitor::default()
+            },
+        };
+        let s = StoreStatus {
+            defaulted_blank: true,
+            defaulted_unreadable: false,
+            flash_failed: true,
+        };
+        let v = all(&d, &Params::defaults(), s);
+        assert_eq!(v[0x00], i16::MAX as u16);
+        assert_eq!(v[0x0B], u16::MAX);
+        assert_eq!(v[0x0C], i16::MIN as u16);
+        assert_eq!(v[0x13], 0x0500);
+    }
+}
