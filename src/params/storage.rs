@@ -10,9 +10,7 @@
 //! log(boot.outcome);                     // Loaded / Blank / Unreadable(why)
 //! // …then per frame: device.handle_rx(…); device.poll_storage(&mut store, …)
 //! ```
-//!
-//! (`Device::apply_boot` / `Device::poll_storage` land with the EE frames of
-//! issue 5; until then [`super::execute`] runs an EE operation directly.)
+
 //!
 //! * `flash` is anything implementing `embedded_storage::nor_flash::NorFlash`
 //!   (also `&mut F`). The range is in the flash's own offsets, page aligned,
@@ -21,7 +19,8 @@
 //!   least one record (~190 bytes), 2 KiB pages hold ten.
 //! * [`ParamStore::load`] / [`ParamStore::save`] read and write one of the
 //!   two sets, [`Slot::Saved`] (EE-Set / EE-rd) and [`Slot::Backup`]
-//!   (EE-bA / EE-rS). The EE operations themselves are [`super::execute`].
+//!   (EE-bA / EE-rS). The EE operations are [`super::execute`], which
+//!   [`crate::Device::poll_storage`] runs for the EE frames.
 //! * The virtual drive's state file is the raw image of the region: load it
 //!   with [`super::SimFlash::from_image`], hand the `SimFlash` to this store,
 //!   write [`super::SimFlash::image`] back after each EE operation (write a
