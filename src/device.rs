@@ -52,6 +52,10 @@ pub struct Device {
     pub drive: Drive,
     /// Dispatcher state: §6 counters and listen-only mode.
     pub slave: Slave,
+    /// Busy for a reason of the glue's own (or a test's): register requests
+    /// get exception 6 (§5.2 step 9). The device is also busy on its own
+    /// while an EE operation waits for [`Device::poll_storage`].
+    pub storage_busy: bool,
     /// The EE operation accepted and not yet run (§5.2 step 9: busy).
     ee_pending: Option<PendingEe>,
     /// What DP-Err says about the store.
@@ -75,6 +79,7 @@ impl Device {
             pa,
             drive: Drive::new(),
             slave: Slave::new(),
+            storage_busy: false,
             ee_pending: None,
             store_status: StoreStatus::default(),
             events: Deque::new(),
@@ -86,12 +91,13 @@ impl Device {
     /// into `reply` and says how much of it to send. Bus errors are counted
     /// (§6) and reported as events.
     pub fn handle_rx(&mut self, rx: RxEvent<'_>, reply: &mut [u8; MAX_FRAME]) -> Response {
+        let busy = self.busy();
         let mut regs = Registers {
             od: &mut self.od,
             pa: &mut self.pa,
             drive: &mut self.drive,
             identity: &self.identity,
-            busy: self.ee_pending.is_some(),
+            busy,
             store_status: self.store_status,
             ee_request: None,
         };
@@ -114,10 +120,10 @@ impl Device {
         }
     }
 
-    /// An EE operation is waiting for [`Self::poll_storage`]: register
-    /// requests get exception 6 (§5.2 step 9).
-    pub fn storage_busy(&self) -> bool {
-        self.ee_pending.is_some()
+    /// Register requests get exception 6 (§5.2 step 9): an EE operation is
+    /// waiting for [`Self::poll_storage`], or the glue set `storage_busy`.
+    pub fn busy(&self) -> bool {
+        self.storage_busy || self.ee_pending.is_some()
     }
 
     /// The EE operation waiting, if any (the glue may log it or decide when

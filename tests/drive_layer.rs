@@ -86,6 +86,8 @@ impl Rig {
             drive: &mut self.drive,
             identity: &self.identity,
             busy: false,
+            store_status: Default::default(),
+            ee_request: None,
         };
         let mut reply = [0u8; MAX_FRAME];
         let rx = RxEvent::Frame {

@@ -243,7 +243,7 @@ fn code_11_no_such_register() {
     let mut bus = Bus::new();
     for a in [
         0x6090, 0x607B, 0x6082, 0x1000, 0xFFFF, // gaps of the §5 table
-        0x0000, 0x0017, 0x003A, // legacy DP monitor and EE register: issue 5
+        0x0018, 0x0039, 0x003B, // around the DP monitor and the EE register
         0x0063, 0x00A0, // around the PA block
     ] {
         assert_eq!(code(&mut bus, &read_pdu(a, 1)), 11, "read {a:#06x}");

@@ -38,9 +38,9 @@ fn ee_old(address: u8, k: u8) -> Vec<u8> {
 /// operation ran, runs it and returns the deferred reply.
 fn ee(bus: &mut Bus, store: &mut Store, request: &[u8]) -> Option<Vec<u8>> {
     assert_eq!(bus.send(request), None, "the reply waits for the operation");
-    assert!(bus.device.storage_busy());
+    assert!(bus.device.busy());
     let reply = bus.poll_storage(store);
-    assert!(!bus.device.storage_busy());
+    assert!(!bus.device.busy());
     reply
 }
 
@@ -407,7 +407,7 @@ fn other_requests_during_an_ee_operation_get_exception_6() {
     let mut s = store();
     let mut bus = booted(&mut s);
     assert_eq!(bus.send(&ee_new(1, 1)), None);
-    assert!(bus.device.storage_busy());
+    assert!(bus.device.busy());
     assert_eq!(bus.device.pending_ee(), Some(EeOp::Save));
     // Reads, writes and a second EE request all pass validation → busy.
     assert_eq!(
@@ -485,9 +485,9 @@ fn broadcast_ee_operations_run_without_a_reply() {
     let mut bus = booted(&mut s);
     assert_eq!(bus.write(pa_addr(10), &[700]), Ok(()));
     assert_eq!(bus.send(&ee_new(0, 1)), None);
-    assert!(bus.device.storage_busy());
+    assert!(bus.device.busy());
     assert_eq!(bus.poll_storage(&mut s), None, "broadcast: silent");
-    assert!(!bus.device.storage_busy());
+    assert!(!bus.device.busy());
     assert_eq!(bus.send(&ee_old(0, 5)), None);
     assert_eq!(bus.poll_storage(&mut s), None);
     assert_eq!(bus.device.pa.get(10), 10_000, "EE-dEF ran");
@@ -504,7 +504,7 @@ fn ee_requests_out_of_range_or_misshapen_are_refused() {
     assert_eq!(bus.read(0x003A, 1), Err(7), "the EE command is write-only");
     assert_eq!(bus.write(0x003A, &[1, 1]), Err(2), "one register only");
     assert_eq!(bus.write(0x0039, &[1]), Err(11));
-    assert!(!bus.device.storage_busy());
+    assert!(!bus.device.busy());
 }
 
 #[test]

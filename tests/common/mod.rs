@@ -224,7 +224,7 @@ impl Bus {
         let mut reply = [0u8; MAX_FRAME];
         let response = self.device.poll_storage(store, &mut reply)?;
         let request_end = self.assembler.last_byte_at_us();
-        self.after(response, &reply, request_end);
+        self.after(response, &reply, request_end, true);
         self.sent.get(before).map(|s| s.bytes.clone())
     }
 
