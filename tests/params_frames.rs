@@ -58,6 +58,15 @@ fn ee_old_ok(bus: &mut Bus, store: &mut Store, k: u8) {
     assert_eq!(ee(bus, store, &request), Some(request));
 }
 
+/// EE `k` in the old or the new format, expecting success.
+fn ee_ok(bus: &mut Bus, store: &mut Store, k: u8, old: bool) {
+    if old {
+        ee_old_ok(bus, store, k)
+    } else {
+        ee_new_ok(bus, store, k)
+    }
+}
+
 fn pa_addr(n: u16) -> u16 {
     0x0064 + n
 }
@@ -307,13 +316,7 @@ fn ee_set_and_ee_rd_in_both_formats() {
     for old in [false, true] {
         let mut s = store();
         let mut bus = booted(&mut s);
-        let run = |bus: &mut Bus, s: &mut Store, k| {
-            if old {
-                ee_old_ok(bus, s, k)
-            } else {
-                ee_new_ok(bus, s, k)
-            }
-        };
+        let run = |bus: &mut Bus, s: &mut Store, k| ee_ok(bus, s, k, old);
         assert_eq!(bus.write(pa_addr(10), &[4000]), Ok(()));
         assert_eq!(bus.write(0x6083, &[250]), Ok(()));
         run(&mut bus, &mut s, 1); // EE-Set
@@ -334,13 +337,7 @@ fn ee_ba_and_ee_rs_in_both_formats() {
     for old in [false, true] {
         let mut s = store();
         let mut bus = booted(&mut s);
-        let run = |bus: &mut Bus, s: &mut Store, k| {
-            if old {
-                ee_old_ok(bus, s, k)
-            } else {
-                ee_new_ok(bus, s, k)
-            }
-        };
+        let run = |bus: &mut Bus, s: &mut Store, k| ee_ok(bus, s, k, old);
         assert_eq!(bus.write(pa_addr(12), &[1500]), Ok(()));
         run(&mut bus, &mut s, 3); // EE-bA
         assert_eq!(bus.write(pa_addr(12), &[2500]), Ok(()));
@@ -359,11 +356,7 @@ fn ee_def_in_both_formats() {
         let mut bus = booted(&mut s);
         assert_eq!(bus.write(pa_addr(20), &[500]), Ok(()));
         ee_new_ok(&mut bus, &mut s, 1);
-        if old {
-            ee_old_ok(&mut bus, &mut s, 5)
-        } else {
-            ee_new_ok(&mut bus, &mut s, 5)
-        }
+        ee_ok(&mut bus, &mut s, 5, old);
         assert_eq!(bus.device.pa, Params::defaults());
         let bus = booted(&mut s);
         assert_eq!(bus.device.pa, Params::defaults(), "EE-dEF saved them");
