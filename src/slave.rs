@@ -107,8 +107,20 @@ pub struct Slave {
     listen_only: bool,
 }
 
-/// A PDU's result: reply PDU length, or no reply at all (listen-only).
-type Handled = Result<Option<usize>, Exception>;
+/// What a valid request is answered with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Reply {
+    /// The first `n` bytes written to the reply PDU buffer.
+    Pdu(usize),
+    /// The request frame itself, CRC included (0x06, most of 0x08): no
+    /// second CRC computation.
+    Echo,
+    /// Nothing (0x08/0x04 enters listen-only mode).
+    None,
+}
+
+/// A PDU's result.
+type Handled = Result<Reply, Exception>;
 
 impl Slave {
     pub fn new() -> Self {
@@ -236,14 +248,26 @@ impl Slave {
         // Unicast: the reply PDU goes after the address byte, CRC after it.
         let outcome = self.execute(pdu, regs, &mut reply[1..MAX_FRAME - 2]);
         match outcome {
-            Ok(Some(len)) => {
+            Ok(Reply::Pdu(len)) => {
                 reply[0] = address;
                 Outcome {
                     response: Response::Reply(with_crc(reply, 1 + len)),
                     event: self.after_reply(pdu),
                 }
             }
-            Ok(None) => {
+            Ok(Reply::Echo) => {
+                match <&[u8; 8]>::try_from(bytes) {
+                    // 0x06 and most 0x08 requests: a fixed-size copy, no
+                    // memcpy call.
+                    Ok(frame8) => reply[..8].copy_from_slice(frame8),
+                    Err(_) => reply[..bytes.len()].copy_from_slice(bytes),
+                }
+                Outcome {
+                    response: Response::Reply(bytes.len()),
+                    event: self.after_reply(pdu),
+                }
+            }
+            Ok(Reply::None) => {
                 self.counters.no_response = self.counters.no_response.wrapping_add(1);
                 Outcome {
                     response: Response::Silent,
@@ -304,7 +328,7 @@ impl Slave {
     ) -> Handled {
         match pdu[0] {
             function::READ_HOLDING_REGISTERS => read_holding_registers(pdu, regs, out),
-            function::WRITE_SINGLE_REGISTER => write_single_register(pdu, regs, out),
+            function::WRITE_SINGLE_REGISTER => write_single_register(pdu, regs),
             function::WRITE_MULTIPLE_REGISTERS => write_multiple_registers(pdu, regs, out),
             function::DIAGNOSTICS => self.diagnostics(pdu, out),
             function::ENCAPSULATED_INTERFACE => identification::read_device_id(pdu, regs, out),
@@ -340,21 +364,16 @@ fn read_holding_registers<D: DriveLayer>(
     regs.read(start, quantity, &mut out[2..])?;
     out[0] = function::READ_HOLDING_REGISTERS;
     out[1] = bytes as u8;
-    Ok(Some(2 + bytes))
+    Ok(Reply::Pdu(2 + bytes))
 }
 
-/// 0x06: `06 address value` → the same 5 bytes.
-fn write_single_register<D: DriveLayer>(
-    pdu: &[u8],
-    regs: &mut Registers<'_, D>,
-    out: &mut [u8],
-) -> Handled {
+/// 0x06: `06 address value` → the same frame.
+fn write_single_register<D: DriveLayer>(pdu: &[u8], regs: &mut Registers<'_, D>) -> Handled {
     let (start, _) = address_and_word(pdu)
         .filter(|_| pdu.len() == 5)
         .ok_or(Exception::ByteCountMismatch)?;
     regs.write(start, 1, &pdu[3..5], true)?;
-    out[..5].copy_from_slice(pdu);
-    Ok(Some(5))
+    Ok(Reply::Echo)
 }
 
 /// 0x10: `10 start quantity bytecount words…` → `10 start quantity`.
@@ -374,7 +393,7 @@ fn write_multiple_registers<D: DriveLayer>(
     }
     regs.write(start, quantity, data, false)?;
     out[..5].copy_from_slice(&pdu[..5]);
-    Ok(Some(5))
+    Ok(Reply::Pdu(5))
 }
 
 /// `address function|0x80 code CRC` into `reply`; returns its length.

@@ -150,29 +150,20 @@ pub struct Registers<'a, D> {
     pub ee_request: Option<EeOp>,
 }
 
-/// The entries `[first, end)` covered by `quantity` words from table
-/// position `first`, and whether any has an access `refused` (§5.2 steps 6
-/// and 7, in that order: a range error wins over an access error anywhere).
-fn table_span(
-    first: usize,
-    quantity: u16,
-    refused: fn(Access) -> bool,
-) -> Result<(usize, bool), Exception> {
-    let mut words = 0u16;
-    let mut end = first;
-    let mut access_fault = false;
-    while words < quantity {
-        let Some(e) = TABLE.get(end) else {
-            return Err(Exception::IllegalDataAddress); // past the last entry
-        };
-        access_fault |= refused(e.access);
-        words += e.words();
-        end += 1;
+/// Word `i` of big-endian request data (0 past its end; the dispatcher has
+/// checked the length, this only keeps bad input from panicking).
+fn word(data: &[u8], i: usize) -> u16 {
+    match data.get(2 * i..2 * i + 2) {
+        Some(&[hi, lo]) => u16::from_be_bytes([hi, lo]),
+        _ => 0,
     }
-    if words == quantity {
-        Ok((end, access_fault))
-    } else {
-        Err(Exception::IllegalDataAddress) // ends inside an entry
+}
+
+/// Puts word `i` into a reply; words past `out` are dropped (an entry that
+/// ends after the requested quantity fails step 6 anyway).
+fn put_word(out: &mut [u8], i: usize, w: u16) {
+    if let Some(slot) = out.get_mut(2 * i..2 * i + 2) {
+        slot.copy_from_slice(&w.to_be_bytes());
     }
 }
 
@@ -184,13 +175,6 @@ fn legacy_span(block: LegacyBlock, start: u16, quantity: u16) -> Result<u16, Exc
     } else {
         Ok(last as u16)
     }
-}
-
-fn not_readable(a: Access) -> bool {
-    !a.readable()
-}
-fn not_writable(a: Access) -> bool {
-    !a.writable()
 }
 
 /// 32-bit value from its two words as they arrived (SPEC §5.1).
@@ -208,48 +192,53 @@ impl<D: DriveLayer> Registers<'_, D> {
     /// 7 and 9, then `quantity` words big-endian into `out`.
     pub fn read(&self, start: u16, quantity: u16, out: &mut [u8]) -> Result<(), Exception> {
         let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
-        let out = out
-            .get_mut(..2 * usize::from(quantity))
-            .ok_or(Exception::DeviceFailure)?;
-        let mut words = out.chunks_exact_mut(2);
-        let mut put = |w: u16| {
-            if let Some(slot) = words.next() {
-                slot.copy_from_slice(&w.to_be_bytes());
-            }
-        };
         match region {
             Region::Table(first) => {
-                let (end, write_only) = table_span(first, quantity, not_readable)?;
+                // One pass: emit while walking, decide after it in the §5.2
+                // order (range 2, then access 7, then busy 6). Reading a WO
+                // entry on the way has no effect; its words are discarded.
+                let low_word_first = self.od.word_order == 1;
+                let quantity = usize::from(quantity);
+                let mut at = 0;
+                let mut pos = first;
+                let mut write_only = false;
+                while at < quantity {
+                    let Some(e) = TABLE.get(pos) else {
+                        return Err(Exception::IllegalDataAddress); // past the last entry
+                    };
+                    write_only |= !e.access.readable();
+                    match e.data_type {
+                        DataType::U16 | DataType::I16 => {
+                            put_word(out, at, e.object.read_raw(self.od, self.drive) as u16)
+                        }
+                        DataType::U32 | DataType::I32 => {
+                            let v = e.object.read_raw(self.od, self.drive);
+                            let (first_word, second_word) = if low_word_first {
+                                (v as u16, (v >> 16) as u16)
+                            } else {
+                                ((v >> 16) as u16, v as u16)
+                            };
+                            put_word(out, at, first_word);
+                            put_word(out, at + 1, second_word);
+                        }
+                        DataType::Str => {
+                            let s = e.object.string(self.identity).unwrap_or("");
+                            for (i, pair) in string_bytes(s).chunks_exact(2).enumerate() {
+                                put_word(out, at + i, u16::from_be_bytes([pair[0], pair[1]]));
+                            }
+                        }
+                    }
+                    at += usize::from(e.words());
+                    pos += 1;
+                }
+                if at != quantity {
+                    return Err(Exception::IllegalDataAddress); // ends inside an entry
+                }
                 if write_only {
                     return Err(Exception::ReadWriteOnly);
                 }
                 if self.busy {
                     return Err(Exception::Busy);
-                }
-                let low_word_first = self.od.word_order == 1;
-                for e in &TABLE[first..end] {
-                    match e.data_type {
-                        DataType::Str => {
-                            let s = e.object.string(self.identity).unwrap_or("");
-                            for pair in string_bytes(s).chunks_exact(2) {
-                                put(u16::from_be_bytes([pair[0], pair[1]]));
-                            }
-                        }
-                        DataType::U16 | DataType::I16 => {
-                            put(e.object.read_raw(self.od, self.drive) as u16)
-                        }
-                        DataType::U32 | DataType::I32 => {
-                            let v = e.object.read_raw(self.od, self.drive);
-                            let (hi, lo) = ((v >> 16) as u16, v as u16);
-                            if low_word_first {
-                                put(lo);
-                                put(hi);
-                            } else {
-                                put(hi);
-                                put(lo);
-                            }
-                        }
-                    }
                 }
             }
             Region::Legacy(block) => {
@@ -260,8 +249,8 @@ impl<D: DriveLayer> Registers<'_, D> {
                 if self.busy {
                     return Err(Exception::Busy);
                 }
-                for a in start..=last {
-                    put(block.read(a, self));
+                for (i, a) in (start..=last).enumerate() {
+                    put_word(out, i, block.read(a, self));
                 }
             }
         }
@@ -292,43 +281,52 @@ impl<D: DriveLayer> Registers<'_, D> {
                 if single && TABLE[first].words() > 1 {
                     return Err(Exception::ByteCountMismatch); // step 5
                 }
-                let (end, read_only) = table_span(first, quantity, not_writable)?;
-                if read_only {
-                    return Err(Exception::WriteReadOnly);
-                }
+                // One pass storing into a copy, decided after it in the
+                // §5.2 order (range 2, access 5, value 3, busy 6); the copy
+                // replaces the values only if all of it passed.
                 // The order in force when the request arrived applies to all
                 // of it, even to a request that writes 0x6000 (§5.1).
                 let low_word_first = self.od.word_order == 1;
-                let entries = &TABLE[first..end];
-                let values = || {
-                    let mut w = words();
-                    entries.iter().map(move |e| {
-                        let first = w.next().unwrap_or(0);
-                        let raw = if e.words() == 2 {
-                            join_words(first, w.next().unwrap_or(0), low_word_first)
-                        } else {
-                            u32::from(first)
-                        };
-                        (e.object, raw)
-                    })
-                };
-                if !values().all(|(object, raw)| object.accepts(raw)) {
+                let mut shadow = self.od.clone();
+                let quantity = usize::from(quantity);
+                let mut at = 0;
+                let mut pos = first;
+                let (mut read_only, mut out_of_range) = (false, false);
+                let (mut mode_written, mut controlword_written) = (false, false);
+                while at < quantity {
+                    let Some(e) = TABLE.get(pos) else {
+                        return Err(Exception::IllegalDataAddress); // past the last entry
+                    };
+                    let raw = if e.words() == 2 {
+                        join_words(word(data, at), word(data, at + 1), low_word_first)
+                    } else {
+                        u32::from(word(data, at))
+                    };
+                    read_only |= !e.access.writable();
+                    out_of_range |= !e.object.accepts(raw);
+                    e.object.store_raw(&mut shadow, raw);
+                    mode_written |= e.object == Object::ModeOfOperation;
+                    controlword_written |= e.object == Object::Controlword;
+                    at += usize::from(e.words());
+                    pos += 1;
+                }
+                if at != quantity {
+                    return Err(Exception::IllegalDataAddress); // ends inside an entry
+                }
+                if read_only {
+                    return Err(Exception::WriteReadOnly);
+                }
+                if out_of_range {
                     return Err(Exception::IllegalDataValue);
                 }
                 if self.busy {
                     return Err(Exception::Busy);
                 }
-                let mut mode = None;
-                let mut controlword = None;
-                for (object, raw) in values() {
-                    object.store_raw(self.od, raw);
-                    match object {
-                        Object::ModeOfOperation => mode = Some(self.od.mode),
-                        Object::Controlword => controlword = Some(self.od.controlword),
-                        _ => {}
-                    }
-                }
-                self.notify(mode, controlword);
+                *self.od = shadow;
+                self.notify(
+                    mode_written.then_some(self.od.mode),
+                    controlword_written.then_some(self.od.controlword),
+                );
             }
             Region::Legacy(block) => {
                 let last = legacy_span(block, start, quantity)?;

@@ -1,7 +1,7 @@
 //! Function 0x08, diagnostics (SPEC §4, §6; Modbus Application Protocol
 //! V1.1b3 §6.8 and Modbus over Serial Line V1.02 Appendix A).
 
-use super::{Exception, Handled, Slave};
+use super::{Exception, Handled, Reply, Slave};
 use crate::event::Event;
 
 /// The serial-line counters of SPEC §6 (Modbus over Serial Line, Appendix
@@ -58,8 +58,7 @@ impl Slave {
             _ => return Err(Exception::ByteCountMismatch),
         };
         if sub_function == sub::RETURN_QUERY_DATA {
-            out[..pdu.len()].copy_from_slice(pdu);
-            return Ok(Some(pdu.len()));
+            return Ok(Reply::Echo);
         }
         let counter = match sub_function {
             sub::RESTART_COMMUNICATIONS | sub::FORCE_LISTEN_ONLY | sub::CLEAR_COUNTERS => None,
@@ -86,11 +85,14 @@ impl Slave {
         }
         if sub_function == sub::FORCE_LISTEN_ONLY {
             self.listen_only = true;
-            return Ok(None);
+            return Ok(Reply::None);
         }
+        let Some(counter) = counter else {
+            return Ok(Reply::Echo); // 0x01, 0x0A
+        };
         out[..3].copy_from_slice(&pdu[..3]);
-        out[3..5].copy_from_slice(&counter.unwrap_or(value).to_be_bytes());
-        Ok(Some(5))
+        out[3..5].copy_from_slice(&counter.to_be_bytes());
+        Ok(Reply::Pdu(5))
     }
 
     /// After an answered request: 0x01 and 0x0A act once their echo is

@@ -2,7 +2,7 @@
 //! Application Protocol V1.1b3 §6.21): the basic objects 0..=2 from the
 //! strings of 0x1008 / 0x1009 / 0x100A.
 
-use super::{function, Exception, Handled};
+use super::{function, Exception, Handled, Reply};
 use crate::dictionary::{string_bytes, Identity, Registers};
 
 /// MEI type of read device identification.
@@ -65,5 +65,5 @@ pub(super) fn read_device_id<D>(pdu: &[u8], regs: &Registers<'_, D>, out: &mut [
         count += 1;
     }
     out[6] = count;
-    Ok(Some(len))
+    Ok(Reply::Pdu(len))
 }
