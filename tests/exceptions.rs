@@ -121,9 +121,9 @@ fn code_3_illegal_value() {
 fn code_4_device_failure_is_kept_in_both_profiles() {
     // No request of the §5 table or the PA block can fail inside the
     // device: code 4 comes from the flash operations of the parameter store
-    // (§9, issue 5). What is fixed here is its place in the order (after
-    // 6, see `busy_drive_refuses_valid_requests_with_6`) and that PA55
-    // keeps it as 4.
+    // (§9); on the wire it is tested in tests/params_frames.rs
+    // (`dp_err_reports_the_store_and_clears_after_a_save`: an EE-Set on a
+    // failing flash is answered `01 90 04`). Fixed here: PA55 keeps it as 4.
     use modbus_drive::slave::Exception;
     assert_eq!(Exception::DeviceFailure.code(false), Some(4));
     assert_eq!(Exception::DeviceFailure.code(true), Some(4));
