@@ -4,6 +4,7 @@
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
 
+// The firmware (src/firmware/): its entry point is `#[embassy_executor::main]`.
 #[cfg(target_os = "none")]
 mod firmware;
 

@@ -1,1 +1,102 @@
-//! STM32 firmware glue (issue 6): not built yet.
+//! STM32 firmware (issue 6): embassy-stm32 glue around the core, one file
+//! per concern.
+//!
+//! Follow one request: `rs485.rs` (USART interrupt: timestamp → the core's
+//! `FrameAssembler`; t3.5 from the G431 receiver timeout or the F103 gap
+//! task) → `dispatch.rs` (`Device::handle_rx`, reply after
+//! `Device::reply_delay_us`, `Device::reply_sent`) → `rs485.rs` (one burst,
+//! DE). Follow one set-point: `control.rs` (1 kHz loop) → `steps.rs` (step
+//! timer interrupt). Switches: `switches.rs`; parameter flash: `flash.rs`;
+//! pins and peripherals: `board_g431.rs` / `board_f103.rs`; arithmetic:
+//! `calc.rs` (host-tested).
+//!
+//! Interrupt priorities (lower = more urgent; README "Firmware"):
+//! step timer P0, switches (EXTI) P1, USART P2, embassy-time driver P3;
+//! the tasks run in thread mode.
+
+#[cfg(all(feature = "board-g431", feature = "board-f103"))]
+compile_error!("choose one board feature: board-g431 or board-f103");
+#[cfg(not(any(feature = "board-g431", feature = "board-f103")))]
+compile_error!("choose a board: `cargo fw` (STM32G431CB) or `cargo fw-f103` (STM32F103C8)");
+
+#[cfg(feature = "board-f103")]
+#[path = "board_f103.rs"]
+mod board;
+#[cfg(feature = "board-g431")]
+#[path = "board_g431.rs"]
+mod board;
+
+mod calc;
+mod control;
+mod dispatch;
+mod flash;
+mod rs485;
+mod steps;
+mod switches;
+
+use embassy_executor::Spawner;
+use embassy_stm32::interrupt::typelevel::{Interrupt, TIM2};
+use embassy_stm32::interrupt::Priority;
+use embedded_storage::nor_flash::ReadNorFlash;
+use modbus_drive::device::Identity;
+use modbus_drive::Device;
+use {defmt_rtt as _, panic_probe as _};
+
+/// Interrupt priorities (see the module docs).
+const PRIO_STEP: Priority = Priority::P0;
+const PRIO_SWITCH: Priority = Priority::P1;
+const PRIO_UART: Priority = Priority::P2;
+const PRIO_TIME: Priority = Priority::P3;
+
+#[embassy_executor::main]
+async fn main(spawner: Spawner) {
+    let p = embassy_stm32::init(board::config());
+    board::StepIrq::set_priority(PRIO_STEP);
+    board::SwitchIrq::set_priority(PRIO_SWITCH);
+    board::UartIrq::set_priority(PRIO_UART);
+    TIM2::set_priority(PRIO_TIME);
+
+    let device = Device::new(Identity::new(board::NAME));
+    // SEAM: load PA0..PA59 and the saved RW entries from `param_flash`
+    // (the params storage, issue 5, not on main yet): defaults until then.
+    let line = device.line();
+    let address = device.address();
+    dispatch::DEVICE.lock(|d| *d.borrow_mut() = Some(device));
+
+    let parts = defmt::unwrap!(board::split(p, &rs485::usart_config(line)));
+    let mut uart = parts.uart;
+    defmt::unwrap!(rs485::apply_line(&mut uart, line));
+    #[cfg(feature = "board-f103")]
+    rs485::set_de_pin(parts.de);
+    switches::install(parts.switches);
+    steps::start(parts.dir, parts.step_timer.get_clock_frequency().0);
+    // SAFETY: the handler is bound in `board::Irqs`; its state (steps::STEPPER)
+    // is initialised by `steps::start` above.
+    unsafe { board::StepIrq::enable() };
+
+    defmt::info!(
+        "modbus-drive {} on {}: address {}, line {} (t3.5 = {=u32} µs), parameter flash {}",
+        env!("CARGO_PKG_VERSION"),
+        board::NAME,
+        address,
+        line,
+        line.timing().t35_us,
+        parts
+            .param_flash
+            .as_ref()
+            .map(|f| (f.range(), f.capacity())),
+    );
+
+    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart)));
+    #[cfg(feature = "board-f103")]
+    spawner.spawn(defmt::unwrap!(rs485::frame_gap_task()));
+
+    // The step pin and the flash region stay owned here for good.
+    let _step_pin = parts.step_pin;
+    let _param_flash = parts.param_flash;
+    control::run(control::PowerPins {
+        enable: parts.enable,
+        brake: parts.brake,
+    })
+    .await
+}

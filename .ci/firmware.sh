@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Firmware stage (issue 6), run by .ci/run: both boards built in release,
+# clippy -D warnings on both, flash / static-RAM budgets checked and printed.
+# No board is attached in CI: nothing is flashed or run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# flip-link is the linker of the thumb targets (.cargo/config.toml)
+command -v flip-link >/dev/null || cargo install flip-link --locked
+# llvm-size from the toolchain's own llvm-tools: no cargo-binutils needed
+rustup component add llvm-tools
+host="$(rustc -vV | sed -n 's/^host: //p')"
+llvm_size="$(rustc --print sysroot)/lib/rustlib/$host/bin/llvm-size"
+
+# board target feature flash_budget_KiB ram_budget_KiB
+check() {
+  local board=$1 target=$2 feature=$3 flash_kib=$4 ram_kib=$5
+  local elf="target/$target/release/modbus-drive"
+  echo "---- $board ($target, --features $feature)"
+  cargo clippy --release --bin modbus-drive --target "$target" --features "$feature" -- -D warnings
+  cargo build --release --bin modbus-drive --target "$target" --features "$feature"
+  # Flash = every section placed in flash (0x0800_0000..) + the .data image;
+  # static RAM = every section placed in RAM (0x2000_0000..): .data, .bss,
+  # .uninit (defmt-rtt buffer). The stack is not a section (flip-link puts
+  # it below them) and is not counted.
+  "$llvm_size" -A -d "$elf" | awk -v board="$board" -v fb="$flash_kib" -v rb="$ram_kib" '
+    $3 >= 134217728 && $3 < 135266304 { flash += $2 }
+    $3 >= 536870912 && $3 < 537919488 { ram += $2; if ($1 == ".data") flash += $2 }
+    END {
+      printf "%s: flash %d B (%.1f KiB of %d KiB), static RAM %d B (%.1f KiB of %d KiB)\n",
+        board, flash, flash / 1024, fb, ram, ram / 1024, rb
+      if (flash > fb * 1024) { print board ": FLASH BUDGET EXCEEDED"; bad = 1 }
+      if (ram > rb * 1024) { print board ": RAM BUDGET EXCEEDED"; bad = 1 }
+      exit bad
+    }'
+}
+
+check STM32G431CB thumbv7em-none-eabihf board-g431 64 16
+check STM32F103C8 thumbv7m-none-eabi board-f103 56 12

@@ -1,0 +1,112 @@
+//! STM32F103C8 (Cortex-M3, 72 MHz, "blue pill" with an 8 MHz crystal): pin
+//! map and peripheral choices.
+//!
+//! | signal | pin | peripheral |
+//! |---|---|---|
+//! | RS-485 RO → RX | PA10 | USART1_RX (no remap) |
+//! | RS-485 DI ← TX | PA9 | USART1_TX (no remap) |
+//! | RS-485 DE + /RE | PA8 | GPIO: high before the first byte, low at TC |
+//! | STEP | PA6 | TIM3_CH1 (no remap), PWM mode 2 |
+//! | DIR | PB0 | GPIO, written by the step interrupt |
+//! | ENABLE | PB1 | GPIO, high = power stage enabled |
+//! | BRAKE | PB10 | GPIO, high = brake released (PB2 is BOOT1 on the blue pill) |
+//! | CW limit | PB12 | EXTI12 → EXTI15_10, pull-up |
+//! | CCW limit | PB13 | EXTI13 → EXTI15_10, pull-up |
+//! | HOME | PB14 | EXTI14 → EXTI15_10, pull-up |
+//!
+//! This USART has no receiver timeout and no driver-enable output: t3.5 is
+//! timed by `rs485::frame_gap_task`, DE is a GPIO dropped in the TC interrupt.
+
+use embassy_stm32::exti::{ExtiInput, TriggerEdge};
+use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
+use embassy_stm32::gpio::{AfioRemap, Level, Output, OutputType, Pull, Speed};
+use embassy_stm32::mode::Blocking;
+use embassy_stm32::peripherals::TIM3;
+use embassy_stm32::time::Hertz;
+use embassy_stm32::timer::low_level::Timer;
+use embassy_stm32::timer::simple_pwm::PwmPin;
+use embassy_stm32::timer::Ch1;
+use embassy_stm32::usart::{self, Uart};
+use embassy_stm32::{bind_interrupts, interrupt, pac, Config, Peripherals};
+
+use super::flash::FlashRegion;
+use super::switches::SwitchInputs;
+
+pub const NAME: &str = "STM32F103C8";
+
+/// Step timer tick: 72 MHz / 9 (72 / 10 MHz is not a whole divider).
+pub const STEP_TICK_HZ: u32 = 8_000_000;
+
+/// The parameter pages: the last four 1 KiB pages (offsets from
+/// 0x0800_0000), which `memory-f103.x` leaves out of FLASH.
+pub const PARAM_FLASH_START: u32 = 0xF000;
+pub const PARAM_FLASH_LEN: u32 = 0x1000;
+
+pub const UART: pac::usart::Usart = pac::USART1;
+pub const STEP_TIMER: pac::timer::TimGp16 = pac::TIM3;
+pub type UartIrq = interrupt::typelevel::USART1;
+pub type StepIrq = interrupt::typelevel::TIM3;
+pub type SwitchIrq = interrupt::typelevel::EXTI15_10;
+
+bind_interrupts!(pub struct Irqs {
+    USART1 => super::rs485::UartHandler;
+    TIM3 => super::steps::StepHandler;
+    EXTI15_10 => super::switches::SwitchHandler;
+});
+
+/// HSE 8 MHz → PLL × 9 = 72 MHz, APB1 36 MHz; copied from embassy's
+/// examples/stm32f1/src/bin/usb_serial.rs at embassy-stm32-v0.6.0.
+pub fn config() -> Config {
+    use embassy_stm32::rcc::*;
+    let mut config = embassy_stm32::Config::default();
+    config.rcc.hse = Some(Hse {
+        freq: Hertz(8_000_000),
+        mode: HseMode::Oscillator,
+    });
+    config.rcc.pll = Some(Pll {
+        src: PllSource::HSE,
+        prediv: PllPreDiv::DIV1,
+        mul: PllMul::MUL9,
+    });
+    config.rcc.sys = Sysclk::PLL1_P;
+    config.rcc.ahb_pre = AHBPrescaler::DIV1;
+    config.rcc.apb1_pre = APBPrescaler::DIV2;
+    config.rcc.apb2_pre = APBPrescaler::DIV1;
+    config
+}
+
+/// Everything the firmware drives, configured.
+pub struct Parts {
+    pub uart: Uart<'static, Blocking>,
+    pub de: Output<'static>,
+    pub step_timer: Timer<'static, TIM3>,
+    pub step_pin: PwmPin<'static, TIM3, Ch1, AfioRemap<0>>,
+    pub dir: Output<'static>,
+    pub enable: Output<'static>,
+    pub brake: Output<'static>,
+    pub switches: SwitchInputs,
+    pub param_flash: Option<FlashRegion<Flash<'static, FlashBlocking>>>,
+}
+
+pub fn split(p: Peripherals, line: &usart::Config) -> Result<Parts, usart::ConfigError> {
+    Ok(Parts {
+        uart: Uart::new_blocking(p.USART1, p.PA10, p.PA9, *line)?,
+        de: Output::new(p.PA8, Level::Low, Speed::VeryHigh),
+        step_timer: Timer::new(p.TIM3),
+        step_pin: PwmPin::new(p.PA6, OutputType::PushPull),
+        // outputs start in the safe state: disabled, brake applied (SPEC §8.1)
+        dir: Output::new(p.PB0, Level::Low, Speed::Low),
+        enable: Output::new(p.PB1, Level::Low, Speed::Low),
+        brake: Output::new(p.PB10, Level::Low, Speed::Low),
+        switches: SwitchInputs {
+            cw: ExtiInput::new_blocking(p.PB12, p.EXTI12, Pull::Up, TriggerEdge::Any),
+            ccw: ExtiInput::new_blocking(p.PB13, p.EXTI13, Pull::Up, TriggerEdge::Any),
+            home: ExtiInput::new_blocking(p.PB14, p.EXTI14, Pull::Up, TriggerEdge::Any),
+        },
+        param_flash: FlashRegion::new(
+            Flash::new_blocking(p.FLASH),
+            PARAM_FLASH_START,
+            PARAM_FLASH_LEN,
+        ),
+    })
+}

@@ -1,0 +1,106 @@
+//! STM32G431CB (Cortex-M4F, 170 MHz): pin map and peripheral choices.
+//!
+//! | signal | pin | peripheral |
+//! |---|---|---|
+//! | RS-485 RO → RX | PA10 | USART1_RX (AF7) |
+//! | RS-485 DI ← TX | PA9 | USART1_TX (AF7) |
+//! | RS-485 DE + /RE | PA12 | USART1_DE (AF7), driven by the USART (CR3.DEM) |
+//! | STEP | PA6 | TIM3_CH1 (AF2), PWM mode 2 |
+//! | DIR | PB0 | GPIO, written by the step interrupt |
+//! | ENABLE | PB1 | GPIO, high = power stage enabled |
+//! | BRAKE | PB2 | GPIO, high = brake released |
+//! | CW limit | PB12 | EXTI12 → EXTI15_10, pull-up |
+//! | CCW limit | PB13 | EXTI13 → EXTI15_10, pull-up |
+//! | HOME | PB14 | EXTI14 → EXTI15_10, pull-up |
+//!
+//! t3.5 comes from the USART's receiver timeout (RTOR), DE from its hardware
+//! driver-enable with assertion/deassertion times (rs485.rs).
+
+use embassy_stm32::exti::{ExtiInput, TriggerEdge};
+use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
+use embassy_stm32::gpio::{Level, Output, OutputType, Pull, Speed};
+use embassy_stm32::mode::Blocking;
+use embassy_stm32::peripherals::TIM3;
+use embassy_stm32::timer::low_level::Timer;
+use embassy_stm32::timer::simple_pwm::PwmPin;
+use embassy_stm32::timer::Ch1;
+use embassy_stm32::usart::{self, Uart};
+use embassy_stm32::{bind_interrupts, interrupt, pac, Config, Peripherals};
+
+use super::flash::FlashRegion;
+use super::switches::SwitchInputs;
+
+pub const NAME: &str = "STM32G431CB";
+
+/// Free-running step timer tick: 170 MHz / 17.
+pub const STEP_TICK_HZ: u32 = 10_000_000;
+
+/// The parameter pages: the last two 2 KiB pages (offsets from 0x0800_0000),
+/// which `memory.x` leaves out of FLASH.
+pub const PARAM_FLASH_START: u32 = 0x1_F000;
+pub const PARAM_FLASH_LEN: u32 = 0x1000;
+
+pub const UART: pac::usart::Usart = pac::USART1;
+pub const STEP_TIMER: pac::timer::TimGp16 = pac::TIM3;
+pub type UartIrq = interrupt::typelevel::USART1;
+pub type StepIrq = interrupt::typelevel::TIM3;
+pub type SwitchIrq = interrupt::typelevel::EXTI15_10;
+
+bind_interrupts!(pub struct Irqs {
+    USART1 => super::rs485::UartHandler;
+    TIM3 => super::steps::StepHandler;
+    EXTI15_10 => super::switches::SwitchHandler;
+});
+
+/// HSI16 → PLL (/4 × 85 /2) = 170 MHz; copied from embassy's
+/// examples/stm32g4/src/bin/pll.rs at embassy-stm32-v0.6.0.
+pub fn config() -> Config {
+    use embassy_stm32::rcc::*;
+    let mut config = embassy_stm32::Config::default();
+    config.rcc.hsi = true;
+    config.rcc.pll = Some(Pll {
+        source: PllSource::HSI,
+        prediv: PllPreDiv::DIV4,
+        mul: PllMul::MUL85,
+        divp: None,
+        divq: None,
+        divr: Some(PllRDiv::DIV2),
+    });
+    config.rcc.sys = Sysclk::PLL1_R;
+    config
+}
+
+/// Everything the firmware drives, configured.
+pub struct Parts {
+    pub uart: Uart<'static, Blocking>,
+    pub step_timer: Timer<'static, TIM3>,
+    pub step_pin: PwmPin<'static, TIM3, Ch1>,
+    pub dir: Output<'static>,
+    pub enable: Output<'static>,
+    pub brake: Output<'static>,
+    pub switches: SwitchInputs,
+    pub param_flash: Option<FlashRegion<Flash<'static, FlashBlocking>>>,
+}
+
+pub fn split(p: Peripherals, line: &usart::Config) -> Result<Parts, usart::ConfigError> {
+    let uart = Uart::new_blocking_with_de(p.USART1, p.PA10, p.PA9, p.PA12, *line)?;
+    Ok(Parts {
+        uart,
+        step_timer: Timer::new(p.TIM3),
+        step_pin: PwmPin::new(p.PA6, OutputType::PushPull),
+        // outputs start in the safe state: disabled, brake applied (SPEC §8.1)
+        dir: Output::new(p.PB0, Level::Low, Speed::Low),
+        enable: Output::new(p.PB1, Level::Low, Speed::Low),
+        brake: Output::new(p.PB2, Level::Low, Speed::Low),
+        switches: SwitchInputs {
+            cw: ExtiInput::new_blocking(p.PB12, p.EXTI12, Pull::Up, TriggerEdge::Any),
+            ccw: ExtiInput::new_blocking(p.PB13, p.EXTI13, Pull::Up, TriggerEdge::Any),
+            home: ExtiInput::new_blocking(p.PB14, p.EXTI14, Pull::Up, TriggerEdge::Any),
+        },
+        param_flash: FlashRegion::new(
+            Flash::new_blocking(p.FLASH),
+            PARAM_FLASH_START,
+            PARAM_FLASH_LEN,
+        ),
+    })
+}

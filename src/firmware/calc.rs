@@ -1,0 +1,340 @@
+//! The arithmetic of the firmware glue: receiver timeout, step-pulse timing,
+//! switch polarity and debounce, power outputs, log rate limiting.
+//!
+//! No HAL types here, so `tests/firmware_calc.rs` includes this file by path
+//! and checks it on the host — the rest of `src/firmware/` only builds for
+//! the boards.
+
+use modbus_drive::rtu::LineConfig;
+
+// ---------------------------------------------------------------- serial line
+
+/// t3.5 as a USART receiver timeout in bit times (STM32G4 `USART_RTOR.RTO`).
+///
+/// The G4 receiver-timeout counter runs in bit times from the end of the last
+/// stop bit (RM0440, "Modbus/RTU" in the USART chapter), which is exactly the
+/// silence SPEC §1 measures: 3.5 characters up to 19200 baud, 1750 µs above.
+/// Rounded up, so the frame never closes early.
+#[cfg_attr(not(feature = "board-g431"), allow(dead_code))] // F103: no receiver timeout
+pub fn t35_rto_bits(line: LineConfig) -> u32 {
+    if line.baud <= 19_200 {
+        (35 * line.format.bits_per_char()).div_ceil(10)
+    } else {
+        (1750 * u64::from(line.baud)).div_ceil(1_000_000) as u32
+    }
+}
+
+/// How long the reply must still wait: SPEC §1 wants it no earlier than
+/// `delay_us` (t3.5 + PA56, `Device::reply_delay_us`) after the request's
+/// last byte. Timestamps are wrapping µs (`rtu::FrameAssembler`).
+pub fn reply_wait_us(now_us: u32, last_byte_at_us: u32, delay_us: u32) -> u32 {
+    delay_us.saturating_sub(now_us.wrapping_sub(last_byte_at_us))
+}
+
+// ---------------------------------------------------------------- step output
+
+/// Safe minimum STEP pulse width: 2.5 µs (issue 6).
+pub const MIN_STEP_PULSE_NS: u32 = 2_500;
+/// Safe minimum DIR set-up time before the STEP edge: 5 µs (issue 6).
+pub const MIN_DIR_SETUP_NS: u32 = 5_000;
+/// Longest pulse or set-up time a parameter may ask for: 100 µs.
+pub const MAX_SHAPE_NS: u32 = 100_000;
+/// The DIR write happens this long after the update event at worst (entry
+/// latency < 1 µs on both cores; the rest is room for a critical section).
+pub const ISR_LATENCY_NS: u32 = 2_000;
+/// Longest period of the 16-bit step timer, in ticks.
+pub const MAX_PERIOD_TICKS: u32 = 1 << 16;
+/// Period of the timer while no step is due: the interrupt then asks the
+/// step source again every 100 µs.
+pub const IDLE_PERIOD_NS: u32 = 100_000;
+
+/// Nanoseconds → timer ticks at `tick_hz`, rounded up (a minimum stays a minimum).
+pub const fn ns_to_ticks(ns: u32, tick_hz: u32) -> u32 {
+    (ns as u64 * tick_hz as u64).div_ceil(1_000_000_000) as u32
+}
+
+/// A parameter in 0.1 µs as ns, raised to `min_ns` and capped at 100 µs.
+const fn shape_ns(v_100ns: u16, min_ns: u32) -> u32 {
+    let ns = v_100ns as u32 * 100;
+    if ns < min_ns {
+        min_ns
+    } else if ns > MAX_SHAPE_NS {
+        MAX_SHAPE_NS
+    } else {
+        ns
+    }
+}
+
+/// STEP pulse width and DIR set-up time in step-timer ticks.
+///
+/// From PA15 (STEP pulse width) and PA16 (DIR set-up), both in 0.1 µs; SPEC
+/// §7 leaves them unassigned (reserved, default 0), so 0 or anything below
+/// the safe minimum gives the minimum, and anything above 100 µs is capped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepShape {
+    pub pulse_ticks: u32,
+    pub dir_setup_ticks: u32,
+    pub latency_ticks: u32,
+    pub idle_ticks: u32,
+}
+
+impl StepShape {
+    pub const fn from_params(
+        pa15_pulse_100ns: u16,
+        pa16_dir_setup_100ns: u16,
+        tick_hz: u32,
+    ) -> Self {
+        let idle_ticks = ns_to_ticks(IDLE_PERIOD_NS, tick_hz);
+        Self {
+            pulse_ticks: ns_to_ticks(shape_ns(pa15_pulse_100ns, MIN_STEP_PULSE_NS), tick_hz),
+            dir_setup_ticks: ns_to_ticks(shape_ns(pa16_dir_setup_100ns, MIN_DIR_SETUP_NS), tick_hz),
+            latency_ticks: ns_to_ticks(ISR_LATENCY_NS, tick_hz),
+            idle_ticks: if idle_ticks > MAX_PERIOD_TICKS {
+                MAX_PERIOD_TICKS
+            } else {
+                idle_ticks
+            },
+        }
+    }
+
+    /// The safe defaults.
+    pub const fn safe(tick_hz: u32) -> Self {
+        Self::from_params(0, 0, tick_hz)
+    }
+
+    /// Shortest period that still holds a pulse: the pulse plus a low time
+    /// of the same width (the driver must see both levels).
+    fn min_period(self) -> u32 {
+        2 * self.pulse_ticks
+    }
+
+    /// Shortest period whose pulse follows a direction change: DIR is written
+    /// at the start of the period, so the rising edge must come at least the
+    /// set-up time (plus interrupt latency) later.
+    fn min_period_after_reversal(self) -> u32 {
+        self.pulse_ticks + self.dir_setup_ticks + self.latency_ticks
+    }
+}
+
+/// One step from the core's step schedule, in step-timer ticks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Step {
+    /// Direction on the motor side (SPEC §8.6: positive = "right", towards
+    /// the CCW limit); PA11 inversion is the core's business.
+    pub forward: bool,
+    /// Time from the previous step's edge to this one.
+    pub interval_ticks: u32,
+}
+
+/// What the step interrupt writes into the timer for the *next* period
+/// (preloaded: ARR and CCR take effect at the next update event).
+///
+/// The channel runs in PWM mode 2 (output high while `CNT ≥ CCR`), so a pulse
+/// sits at the end of its period: rising at `ccr`, falling at the update
+/// event. `ccr > arr` means no pulse in that period.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Period {
+    pub arr: u16,
+    pub ccr: u16,
+    /// DIR level for the pulse at the end of this period, to be written when
+    /// the period starts (the interrupt after next); `None` = leave DIR.
+    pub dir: Option<bool>,
+}
+
+/// Splits the step schedule into 16-bit timer periods, stretching a period
+/// after a reversal so DIR is set up in time. Constant time per call.
+#[derive(Clone, Copy, Debug)]
+pub struct StepShaper {
+    shape: StepShape,
+    /// Ticks still to go until the pending step's edge.
+    remaining: u32,
+    pending_forward: bool,
+    last_forward: bool,
+}
+
+impl StepShaper {
+    pub const fn new(shape: StepShape) -> Self {
+        Self {
+            shape,
+            remaining: 0,
+            pending_forward: true,
+            last_forward: true,
+        }
+    }
+
+    pub fn set_shape(&mut self, shape: StepShape) {
+        self.shape = shape;
+    }
+
+    /// Drops a step that is under way (limit stop, SPEC §8.7 / issue 6):
+    /// the next period carries no pulse.
+    pub fn cancel(&mut self) {
+        self.remaining = 0;
+    }
+
+    /// The next timer period. `next_step` is asked only when the previous
+    /// step has been issued.
+    pub fn next_period(&mut self, next_step: impl FnOnce() -> Option<Step>) -> Period {
+        if self.remaining == 0 {
+            let Some(step) = next_step() else {
+                return Self::idle(self.shape.idle_ticks);
+            };
+            let min = if step.forward != self.last_forward {
+                self.shape.min_period_after_reversal()
+            } else {
+                self.shape.min_period()
+            };
+            self.remaining = step.interval_ticks.max(min);
+            self.pending_forward = step.forward;
+        }
+        if self.remaining > MAX_PERIOD_TICKS {
+            // A slow step: idle half-periods until the rest fits in one
+            // period (the rest stays > MAX/2, far above any minimum).
+            let chunk = MAX_PERIOD_TICKS / 2;
+            self.remaining -= chunk;
+            return Self::idle(chunk);
+        }
+        let ticks = self.remaining;
+        self.remaining = 0;
+        self.last_forward = self.pending_forward;
+        Period {
+            arr: (ticks - 1) as u16,
+            ccr: (ticks - self.shape.pulse_ticks) as u16,
+            dir: Some(self.pending_forward),
+        }
+    }
+
+    fn idle(ticks: u32) -> Period {
+        Period {
+            arr: (ticks - 1) as u16,
+            ccr: u16::MAX,
+            dir: None,
+        }
+    }
+}
+
+// ---------------------------------------------------------------- switches
+
+/// Switch level → active (SPEC §7 PA13: bit set = normally closed).
+///
+/// Inputs have pull-ups and the contact switches to ground: a normally open
+/// switch is active when the pin is low, a normally closed one when the
+/// contact opens and the pin goes high.
+pub fn switch_active(pin_high: bool, normally_closed: bool) -> bool {
+    pin_high == normally_closed
+}
+
+/// Samples needed before a switch change is believed (at 1 kHz: 3 ms).
+pub const DEBOUNCE_SAMPLES: u8 = 3;
+
+/// Integrating debounce for one switch, sampled by the control loop.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Debounce {
+    stable: bool,
+    count: u8,
+}
+
+impl Debounce {
+    pub const fn new(initial: bool) -> Self {
+        Self {
+            stable: initial,
+            count: 0,
+        }
+    }
+
+    pub fn state(&self) -> bool {
+        self.stable
+    }
+
+    /// One raw sample; returns the new stable state when it changes.
+    pub fn sample(&mut self, raw: bool) -> Option<bool> {
+        if raw == self.stable {
+            self.count = 0;
+            return None;
+        }
+        self.count += 1;
+        if self.count >= DEBOUNCE_SAMPLES {
+            self.stable = raw;
+            self.count = 0;
+            Some(raw)
+        } else {
+            None
+        }
+    }
+}
+
+// ---------------------------------------------------------------- power outputs
+
+/// ENABLE and BRAKE outputs for a statusword (SPEC §8.1 "Outputs").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PowerOutputs {
+    /// Power stage enabled: operation enabled, quick stop active.
+    pub enable: bool,
+    /// Brake released: switched on, operation enabled, quick stop active.
+    pub brake_released: bool,
+}
+
+pub fn power_outputs(statusword: u16) -> PowerOutputs {
+    // state bits 0–3, 5, 6 (SPEC §8.1)
+    let (switched_on, operation_enabled, quick_stop_active) = match statusword & 0x6F {
+        0x23 => (true, false, false),
+        0x27 => (false, true, false),
+        0x07 => (false, false, true),
+        _ => (false, false, false),
+    };
+    PowerOutputs {
+        enable: operation_enabled || quick_stop_active,
+        brake_released: switched_on || operation_enabled || quick_stop_active,
+    }
+}
+
+// ---------------------------------------------------------------- logging
+
+/// Lets one log line through per `period_ms` and counts the rest, so a noisy
+/// bus cannot flood the RTT channel.
+#[derive(Clone, Copy, Debug)]
+pub struct RateLimit {
+    period_ms: u32,
+    last_ms: Option<u32>,
+    suppressed: u32,
+}
+
+impl RateLimit {
+    pub const fn new(period_ms: u32) -> Self {
+        Self {
+            period_ms,
+            last_ms: None,
+            suppressed: 0,
+        }
+    }
+
+    /// `Some(n)` if this event may be logged, `n` = events suppressed since
+    /// the last one logged.
+    pub fn allow(&mut self, now_ms: u32) -> Option<u32> {
+        match self.last_ms {
+            Some(last) if now_ms.wrapping_sub(last) < self.period_ms => {
+                self.suppressed = self.suppressed.saturating_add(1);
+                None
+            }
+            _ => {
+                self.last_ms = Some(now_ms);
+                Some(core::mem::take(&mut self.suppressed))
+            }
+        }
+    }
+}
+
+/// Name of the power state in a statusword (SPEC §8.1 patterns), for logs.
+pub fn power_state_name(statusword: u16) -> &'static str {
+    match (statusword & 0x4F, statusword & 0x6F) {
+        (_, 0x21) => "ready to switch on",
+        (_, 0x23) => "switched on",
+        (_, 0x27) => "operation enabled",
+        (_, 0x07) => "quick stop active",
+        (0x00, _) => "not ready to switch on",
+        (0x40, _) => "switch on disabled",
+        (0x0F, _) => "fault reaction active",
+        (0x08, _) => "fault",
+        _ => "unknown",
+    }
+}

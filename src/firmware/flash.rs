@@ -1,0 +1,99 @@
+//! The parameter flash region: the last pages of the internal flash, as an
+//! embedded-storage `NorFlash` whose offsets start at 0 (SPEC §9 storage; the
+//! storage logic on top of it is `params`' business).
+//!
+//! The board's memory map (`memory.x`, `memory-f103.x`) leaves these pages
+//! out of FLASH, so the linker can never place code there. Generic over the
+//! flash driver (embassy-stm32's blocking `Flash` on the boards), hence free
+//! of HAL types: `tests/firmware_calc.rs` checks it against a RAM flash.
+
+use embedded_storage::nor_flash::{
+    ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
+};
+
+/// `len` bytes of `flash` from offset `start` (offsets relative to the flash
+/// driver's base), seen as a flash of its own.
+pub struct FlashRegion<F> {
+    flash: F,
+    start: u32,
+    len: u32,
+}
+
+/// Region errors: out of the region, or the driver's own error.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RegionError<E> {
+    OutOfBounds,
+    Flash(E),
+}
+
+impl<E: NorFlashError> NorFlashError for RegionError<E> {
+    fn kind(&self) -> NorFlashErrorKind {
+        match self {
+            Self::OutOfBounds => NorFlashErrorKind::OutOfBounds,
+            Self::Flash(e) => e.kind(),
+        }
+    }
+}
+
+impl<F: NorFlash> FlashRegion<F> {
+    /// `start` and `len` must be whole erase pages (checked: `None` if not,
+    /// or if the region runs past the end of the flash).
+    pub fn new(flash: F, start: u32, len: u32) -> Option<Self> {
+        let page = F::ERASE_SIZE as u32;
+        let whole_pages = start % page == 0 && len % page == 0 && len > 0;
+        let fits = start.checked_add(len)? as usize <= flash.capacity();
+        (whole_pages && fits).then_some(Self { flash, start, len })
+    }
+
+    /// The region's range in driver offsets.
+    pub fn range(&self) -> core::ops::Range<u32> {
+        self.start..self.start + self.len
+    }
+
+    fn to_flash(&self, offset: u32, n: usize) -> Result<u32, RegionError<F::Error>> {
+        let end = offset
+            .checked_add(n as u32)
+            .ok_or(RegionError::OutOfBounds)?;
+        if end > self.len {
+            return Err(RegionError::OutOfBounds);
+        }
+        Ok(self.start + offset)
+    }
+}
+
+impl<F: NorFlash> ErrorType for FlashRegion<F> {
+    type Error = RegionError<F::Error>;
+}
+
+impl<F: NorFlash> ReadNorFlash for FlashRegion<F> {
+    const READ_SIZE: usize = F::READ_SIZE;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        let at = self.to_flash(offset, bytes.len())?;
+        self.flash.read(at, bytes).map_err(RegionError::Flash)
+    }
+
+    fn capacity(&self) -> usize {
+        self.len as usize
+    }
+}
+
+impl<F: NorFlash> NorFlash for FlashRegion<F> {
+    const WRITE_SIZE: usize = F::WRITE_SIZE;
+    const ERASE_SIZE: usize = F::ERASE_SIZE;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        if from > to {
+            return Err(RegionError::OutOfBounds);
+        }
+        let at = self.to_flash(from, (to - from) as usize)?;
+        self.flash
+            .erase(at, at + (to - from))
+            .map_err(RegionError::Flash)
+    }
+
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        let at = self.to_flash(offset, bytes.len())?;
+        self.flash.write(at, bytes).map_err(RegionError::Flash)
+    }
+}

@@ -1,0 +1,383 @@
+//! The RS-485 link: the USART interrupt and the line settings (SPEC §1).
+//!
+//! Receive: every byte is time-stamped in the interrupt (µs from the
+//! embassy-time driver, a free-running timer) and pushed into the core's
+//! [`FrameAssembler`] with its parity / framing / overrun flags. A closed
+//! frame is copied into [`FRAMES`] for the dispatcher task (dispatch.rs).
+//! The frame closes after t3.5 of silence:
+//! - STM32G431: the USART receiver timeout (RTOF) fires t3.5 after the last
+//!   stop bit → [`FrameAssembler::end_of_frame`];
+//! - STM32F103 (no receiver timeout): [`frame_gap_task`] sleeps on an
+//!   embassy-time alarm until t3.5 after the last byte and calls
+//!   [`FrameAssembler::poll`]; t1.5 is judged by the assembler from the
+//!   timestamps.
+//!
+//! Transmit: [`send`] hands the reply to the interrupt, which feeds the data
+//! register on TXE (one burst, no gaps) and finishes at TC. DE is the
+//! USART's hardware driver-enable on the G431 and a GPIO raised before the
+//! first byte and dropped at TC on the F103.
+//!
+//! Shared state: [`LINK`] (assembler + transmit buffer) behind a critical
+//! section; [`FRAMES`], [`TX_DONE`] are embassy-sync primitives on a
+//! critical-section mutex.
+
+use core::cell::RefCell;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use critical_section::Mutex;
+use embassy_stm32::interrupt::typelevel::Handler;
+use embassy_stm32::mode::Blocking;
+use embassy_stm32::usart::{self, Uart};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_sync::signal::Signal;
+use heapless::Vec;
+use modbus_drive::rtu::{
+    CharFormat, FrameAssembler, FrameTiming, LineConfig, RxEvent, RxFlags, MAX_FRAME,
+};
+
+use super::board;
+
+/// A closed frame (or frame error), owned, on its way to the dispatcher.
+pub struct Received {
+    pub outcome: Outcome,
+    /// End of the request's last byte (the reply waits from here, SPEC §1).
+    pub last_byte_at_us: u32,
+}
+
+// No heap to box into: the frame lives in its channel slot either way.
+#[allow(clippy::large_enum_variant)]
+pub enum Outcome {
+    Frame {
+        bytes: Vec<u8, MAX_FRAME>,
+        parity_error: bool,
+    },
+    Broken,
+    TooShort,
+    Overrun,
+}
+
+impl Received {
+    fn new(ev: RxEvent<'_>, last_byte_at_us: u32) -> Self {
+        let outcome = match ev {
+            RxEvent::Frame {
+                bytes,
+                parity_error,
+            } => Outcome::Frame {
+                // a frame is at most MAX_FRAME bytes (the assembler's buffer)
+                bytes: Vec::from_slice(bytes).unwrap_or_default(),
+                parity_error,
+            },
+            RxEvent::Broken => Outcome::Broken,
+            RxEvent::TooShort => Outcome::TooShort,
+            RxEvent::Overrun => Outcome::Overrun,
+        };
+        Self {
+            outcome,
+            last_byte_at_us,
+        }
+    }
+
+    /// The core's view of it, for `Device::handle_rx`.
+    pub fn event(&self) -> RxEvent<'_> {
+        match &self.outcome {
+            Outcome::Frame {
+                bytes,
+                parity_error,
+            } => RxEvent::Frame {
+                bytes,
+                parity_error: *parity_error,
+            },
+            Outcome::Broken => RxEvent::Broken,
+            Outcome::TooShort => RxEvent::TooShort,
+            Outcome::Overrun => RxEvent::Overrun,
+        }
+    }
+}
+
+/// Closed frames for the dispatcher. Two slots: one being answered, one
+/// arriving (a master does not send more before our reply).
+pub static FRAMES: Channel<CriticalSectionRawMutex, Received, 2> = Channel::new();
+/// Frames lost because the dispatcher was behind (logged by the dispatcher).
+pub static FRAMES_DROPPED: AtomicU32 = AtomicU32::new(0);
+/// The interrupt has sent the last stop bit of the reply.
+static TX_DONE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+/// A byte arrived (wakes the F103 frame-gap task).
+#[cfg(feature = "board-f103")]
+static RX_ACTIVITY: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+
+struct Link {
+    assembler: FrameAssembler,
+    t35_us: u32,
+    tx: [u8; MAX_FRAME],
+    tx_len: usize,
+    tx_pos: usize,
+    transmitting: bool,
+    #[cfg(feature = "board-f103")]
+    de: Option<embassy_stm32::gpio::Output<'static>>,
+}
+
+static LINK: Mutex<RefCell<Link>> = Mutex::new(RefCell::new(Link {
+    assembler: FrameAssembler::new(FrameTiming::new(LineConfig::DEFAULT)),
+    t35_us: FrameTiming::new(LineConfig::DEFAULT).t35_us,
+    tx: [0; MAX_FRAME],
+    tx_len: 0,
+    tx_pos: 0,
+    transmitting: false,
+    #[cfg(feature = "board-f103")]
+    de: None,
+}));
+
+/// Microseconds from the embassy-time driver (tick 1 MHz), wrapping.
+pub fn now_us() -> u32 {
+    embassy_time::Instant::now().as_micros() as u32
+}
+
+/// embassy-stm32 USART settings for a line (SPEC §7 PA52/PA53).
+pub fn usart_config(line: LineConfig) -> usart::Config {
+    let mut c = usart::Config::default();
+    c.baudrate = line.baud;
+    c.data_bits = usart::DataBits::DataBits8;
+    (c.parity, c.stop_bits) = match line.format {
+        CharFormat::N1 => (usart::Parity::ParityNone, usart::StopBits::STOP1),
+        CharFormat::E1 => (usart::Parity::ParityEven, usart::StopBits::STOP1),
+        CharFormat::O1 => (usart::Parity::ParityOdd, usart::StopBits::STOP1),
+        CharFormat::N2 => (usart::Parity::ParityNone, usart::StopBits::STOP2),
+    };
+    // RX idles high through the transceiver; a pull-up keeps it there when
+    // the transceiver's receiver is disabled while we transmit.
+    c.rx_pull = embassy_stm32::gpio::Pull::Up;
+    c
+}
+
+/// Applies a line (at boot and after `Device::reply_sent` changed it) and
+/// (re)arms the receive interrupts. Call it between frames.
+pub fn apply_line(
+    uart: &mut Uart<'static, Blocking>,
+    line: LineConfig,
+) -> Result<(), usart::ConfigError> {
+    // embassy rewrites CR1/CR2 here (for the whole USART, whichever half is
+    // asked), clearing our interrupt enables
+    uart.split_ref().1.set_config(&usart_config(line))?;
+    critical_section::with(|cs| {
+        let mut link = LINK.borrow_ref_mut(cs);
+        link.assembler.set_timing(line.timing());
+        link.t35_us = line.timing().t35_us;
+        arm_receiver(line);
+    });
+    Ok(())
+}
+
+/// STM32G4 (RM0440 USART chapter): FIFO off so that each byte gets its own
+/// interrupt and timestamp; DE assertion/deassertion one bit time (DEAT /
+/// DEDT in 1/16 bit; embassy-stm32 0.6.0 writes DEAT into both, so set them
+/// here); receiver timeout = t3.5 in bit times. FIFOEN, DEAT and DEDT may
+/// only be written with UE = 0.
+#[cfg(feature = "board-g431")]
+fn arm_receiver(line: LineConfig) {
+    let r = board::UART;
+    r.cr1().modify(|w| w.set_ue(false));
+    r.cr1().modify(|w| {
+        w.set_fifoen(false);
+        w.set_deat(16);
+        w.set_dedt(16);
+    });
+    r.rtor()
+        .write(|w| w.set_rto(super::calc::t35_rto_bits(line)));
+    r.cr2().modify(|w| w.set_rtoen(true));
+    r.icr().write(|w| {
+        w.set_pe(true);
+        w.set_fe(true);
+        w.set_ne(true);
+        w.set_ore(true);
+        w.set_rtof(true);
+        w.set_tc(true);
+    });
+    r.cr1().modify(|w| {
+        w.set_ue(true);
+        w.set_rxneie(true);
+        w.set_rtoie(true);
+    });
+}
+
+/// STM32F103 (RM0008 USART chapter): RXNE interrupt only; t3.5 is timed by
+/// [`frame_gap_task`]. Error flags are read with RXNE (SR then DR clears them).
+#[cfg(feature = "board-f103")]
+fn arm_receiver(_line: LineConfig) {
+    board::UART.cr1().modify(|w| w.set_rxneie(true));
+}
+
+/// The USART interrupt (priority: `board::PRIO_UART`).
+pub struct UartHandler;
+
+impl Handler<board::UartIrq> for UartHandler {
+    unsafe fn on_interrupt() {
+        let at_us = now_us();
+        critical_section::with(|cs| on_uart(&mut LINK.borrow_ref_mut(cs), at_us));
+    }
+}
+
+#[cfg(feature = "board-g431")]
+fn on_uart(link: &mut Link, at_us: u32) {
+    let r = board::UART;
+    let isr = r.isr().read();
+    if isr.rxne() {
+        let flags = RxFlags {
+            parity: isr.pe(),
+            framing: isr.fe() || isr.ne(),
+            overrun: isr.ore(),
+        };
+        let byte = r.rdr().read().dr() as u8; // clears RXNE
+        r.icr().write(|w| {
+            w.set_pe(true);
+            w.set_fe(true);
+            w.set_ne(true);
+            w.set_ore(true);
+        });
+        on_byte(link, byte, at_us, flags);
+    } else if isr.ore() {
+        r.icr().write(|w| w.set_ore(true));
+    }
+    if isr.rtof() {
+        r.icr().write(|w| w.set_rtof(true));
+        let last = link.assembler.last_byte_at_us();
+        if let Some(ev) = link.assembler.end_of_frame() {
+            deliver(Received::new(ev, last));
+        }
+    }
+    let cr1 = r.cr1().read();
+    if cr1.txeie() && isr.txe() {
+        if link.tx_pos < link.tx_len {
+            r.tdr().write(|w| w.set_dr(u16::from(link.tx[link.tx_pos])));
+            link.tx_pos += 1;
+        } else {
+            r.cr1().modify(|w| {
+                w.set_txeie(false);
+                w.set_tcie(true);
+            });
+        }
+    }
+    if cr1.tcie() && isr.tc() {
+        // last stop bit sent; the USART drops DE after DEDT by itself
+        r.cr1().modify(|w| w.set_tcie(false));
+        r.icr().write(|w| w.set_tc(true));
+        link.transmitting = false;
+        TX_DONE.signal(());
+    }
+}
+
+#[cfg(feature = "board-f103")]
+fn on_uart(link: &mut Link, at_us: u32) {
+    let r = board::UART;
+    let sr = r.sr().read();
+    if sr.rxne() || sr.ore() {
+        let flags = RxFlags {
+            parity: sr.pe(),
+            framing: sr.fe() || sr.ne(),
+            overrun: sr.ore(),
+        };
+        // SR read then DR read clears RXNE, PE, FE, NE and ORE (RM0008)
+        let byte = r.dr().read().dr() as u8;
+        if sr.rxne() {
+            on_byte(link, byte, at_us, flags);
+            RX_ACTIVITY.signal(());
+        }
+    }
+    let cr1 = r.cr1().read();
+    if cr1.txeie() && sr.txe() {
+        if link.tx_pos < link.tx_len {
+            r.dr().write(|w| w.set_dr(u16::from(link.tx[link.tx_pos])));
+            link.tx_pos += 1;
+        } else {
+            r.cr1().modify(|w| {
+                w.set_txeie(false);
+                w.set_tcie(true);
+            });
+        }
+    }
+    if cr1.tcie() && sr.tc() {
+        // the last stop bit has left: release the bus (SPEC §1)
+        r.cr1().modify(|w| w.set_tcie(false));
+        if let Some(de) = link.de.as_mut() {
+            de.set_low();
+        }
+        link.transmitting = false;
+        TX_DONE.signal(());
+    }
+}
+
+fn on_byte(link: &mut Link, byte: u8, at_us: u32, flags: RxFlags) {
+    if link.transmitting {
+        return; // our own echo if /RE is not tied to DE
+    }
+    let last = link.assembler.last_byte_at_us();
+    if let Some(ev) = link.assembler.push(byte, at_us, flags) {
+        deliver(Received::new(ev, last));
+    }
+}
+
+fn deliver(rx: Received) {
+    if FRAMES.try_send(rx).is_err() {
+        FRAMES_DROPPED.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// Sends `bytes` (≤ 256) in one burst and returns once the last stop bit has
+/// left the wire.
+pub async fn send(bytes: &[u8]) {
+    let n = bytes.len().min(MAX_FRAME);
+    TX_DONE.reset();
+    critical_section::with(|cs| {
+        let mut link = LINK.borrow_ref_mut(cs);
+        link.tx[..n].copy_from_slice(&bytes[..n]);
+        link.tx_len = n;
+        link.tx_pos = 0;
+        link.transmitting = true;
+        #[cfg(feature = "board-f103")]
+        if let Some(de) = link.de.as_mut() {
+            de.set_high();
+        }
+        // inside the critical section: the interrupt modifies CR1 too
+        board::UART.cr1().modify(|w| w.set_txeie(true));
+    });
+    TX_DONE.wait().await;
+}
+
+/// The F103's DE GPIO, driven by [`send`] and the TC interrupt.
+#[cfg(feature = "board-f103")]
+pub fn set_de_pin(de: embassy_stm32::gpio::Output<'static>) {
+    critical_section::with(|cs| LINK.borrow_ref_mut(cs).de = Some(de));
+}
+
+/// STM32F103: closes a frame t3.5 after its last byte (no receiver timeout
+/// in this USART). The assembler itself rejects early polls, so a byte that
+/// arrives while this task sleeps just makes it sleep again.
+#[cfg(feature = "board-f103")]
+#[embassy_executor::task]
+pub async fn frame_gap_task() {
+    loop {
+        RX_ACTIVITY.wait().await;
+        loop {
+            let (receiving, last, t35) = critical_section::with(|cs| {
+                let link = LINK.borrow_ref(cs);
+                (
+                    link.assembler.is_receiving(),
+                    link.assembler.last_byte_at_us(),
+                    link.t35_us,
+                )
+            });
+            if !receiving {
+                break;
+            }
+            let wait = super::calc::reply_wait_us(now_us(), last, t35);
+            embassy_time::Timer::after_micros(u64::from(wait)).await;
+            critical_section::with(|cs| {
+                let mut link = LINK.borrow_ref_mut(cs);
+                let last = link.assembler.last_byte_at_us();
+                if let Some(ev) = link.assembler.poll(now_us()) {
+                    deliver(Received::new(ev, last));
+                }
+            });
+        }
+    }
+}
