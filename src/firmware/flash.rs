@@ -40,7 +40,7 @@ impl<F: NorFlash> FlashRegion<F> {
     /// or if the region runs past the end of the flash).
     pub fn new(flash: F, start: u32, len: u32) -> Option<Self> {
         let page = F::ERASE_SIZE as u32;
-        let whole_pages = start % page == 0 && len % page == 0 && len > 0;
+        let whole_pages = start.is_multiple_of(page) && len.is_multiple_of(page) && len > 0;
         let fits = start.checked_add(len)? as usize <= flash.capacity();
         (whole_pages && fits).then_some(Self { flash, start, len })
     }
