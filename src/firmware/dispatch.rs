@@ -1,5 +1,7 @@
-//! The dispatcher task: closed frames → `Device::handle_rx` → reply after
-//! `Device::reply_delay_us` → `Device::reply_sent` (SPEC §1, §3, §7).
+//! The dispatcher task: closed frames → `Device::handle_rx` → (EE operation
+//! on the parameter store) → reply after `Device::reply_delay_us` →
+//! `Device::reply_sent` (SPEC §1, §3, §7, §9). It also logs what the core
+//! reports (`Device::take_event`).
 //!
 //! The device lives in [`DEVICE`], a thread-mode mutex: only tasks of the
 //! thread-mode executor (this one and the control loop) touch it, never an
@@ -8,49 +10,97 @@
 use core::cell::RefCell;
 use core::sync::atomic::Ordering;
 
+use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
 use embassy_stm32::mode::Blocking;
 use embassy_stm32::usart::Uart;
 use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use modbus_drive::device::Response;
-use modbus_drive::rtu::{RxEvent, MAX_FRAME};
+use modbus_drive::event::Event;
+use modbus_drive::params::ParamStore;
+use modbus_drive::rtu::MAX_FRAME;
 use modbus_drive::Device;
 
 use super::calc::{reply_wait_us, RateLimit};
+use super::flash::FlashRegion;
 use super::rs485::{self, FRAMES, FRAMES_DROPPED};
 
 /// The drive core, shared by the dispatcher and the control loop.
 pub static DEVICE: Mutex<ThreadModeRawMutex, RefCell<Option<Device>>> =
     Mutex::new(RefCell::new(None));
 
+/// The parameter store (SPEC §9) on the board's parameter pages.
+pub type Store = ParamStore<FlashRegion<Flash<'static, FlashBlocking>>>;
+
 /// Runs `f` on the device (installed by `main` before any task starts).
 pub fn with_device<R>(f: impl FnOnce(&mut Device) -> R) -> Option<R> {
     DEVICE.lock(|d| d.borrow_mut().as_mut().map(f))
 }
 
-#[embassy_executor::task]
-pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>) {
-    let mut reply = [0u8; MAX_FRAME];
-    let mut frame_errors = RateLimit::new(1000);
-    loop {
-        let rx = FRAMES.receive().await;
-        let event = rx.event();
-        if !matches!(event, RxEvent::Frame { .. }) {
+/// Logs the core's events; frame errors and exceptions at most once a
+/// second each, so a noisy bus or a misbehaving master cannot flood RTT.
+pub struct EventLog {
+    frame_errors: RateLimit,
+    exceptions: RateLimit,
+}
+
+impl EventLog {
+    pub const fn new() -> Self {
+        Self {
+            frame_errors: RateLimit::new(1000),
+            exceptions: RateLimit::new(1000),
+        }
+    }
+
+    pub fn drain(&mut self) {
+        while let Some(Some(event)) = with_device(|d| d.take_event()) {
             let now_ms = embassy_time::Instant::now().as_millis() as u32;
-            if let Some(suppressed) = frame_errors.allow(now_ms) {
-                defmt::warn!(
-                    "frame error: {} ({} more suppressed, {} frames dropped)",
-                    event,
-                    suppressed,
-                    FRAMES_DROPPED.load(Ordering::Relaxed)
-                );
+            match event {
+                Event::FrameError { .. } => {
+                    if let Some(suppressed) = self.frame_errors.allow(now_ms) {
+                        defmt::warn!(
+                            "{} ({} similar suppressed, {} frames dropped by the glue)",
+                            event,
+                            suppressed,
+                            FRAMES_DROPPED.load(Ordering::Relaxed)
+                        );
+                    }
+                }
+                Event::Exception { .. } => {
+                    if let Some(suppressed) = self.exceptions.allow(now_ms) {
+                        defmt::info!("{} ({} similar suppressed)", event, suppressed);
+                    }
+                }
+                _ => defmt::info!("{}", event),
             }
         }
-        let Some((response, delay_us)) =
-            with_device(|d| (d.handle_rx(event, &mut reply), d.reply_delay_us()))
+        if let Some(dropped) = with_device(|d| d.events_dropped()).filter(|&n| n > 0) {
+            defmt::trace!("{} events dropped by the core so far", dropped);
+        }
+    }
+}
+
+#[embassy_executor::task]
+pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
+    let mut reply = [0u8; MAX_FRAME];
+    let mut log = EventLog::new();
+    loop {
+        let rx = FRAMES.receive().await;
+        let Some((mut response, delay_us)) =
+            with_device(|d| (d.handle_rx(rx.event(), &mut reply), d.reply_delay_us()))
         else {
             continue;
         };
+        // An accepted EE request (SPEC §9) runs now; its reply is deferred
+        // until it is done. Erasing stalls the CPU's flash reads (single
+        // bank), so interrupts wait too: save with the motor at rest.
+        if let Some(Some(deferred)) = with_device(|d| {
+            d.pending_ee()
+                .and_then(|_| d.poll_storage(&mut store, &mut reply))
+        }) {
+            response = deferred;
+        }
+        log.drain();
         if let Response::Reply(n) = response {
             let wait = reply_wait_us(rs485::now_us(), rx.last_byte_at_us, delay_us);
             embassy_time::Timer::after_micros(u64::from(wait)).await;
@@ -58,10 +108,10 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>) {
         }
         // a new address or line format takes effect after the reply (SPEC §7)
         if let Some(Some(line)) = with_device(|d| d.reply_sent()) {
-            match rs485::apply_line(&mut uart, line) {
-                Ok(()) => defmt::info!("line changed: {}", line),
-                Err(e) => defmt::error!("line {} refused by the USART: {}", line, e),
+            if let Err(e) = rs485::apply_line(&mut uart, line) {
+                defmt::error!("line {} refused by the USART: {}", line, e);
             }
         }
+        log.drain();
     }
 }

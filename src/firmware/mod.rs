@@ -39,6 +39,8 @@ use embassy_stm32::interrupt::typelevel::{Interrupt, TIM2};
 use embassy_stm32::interrupt::Priority;
 use embedded_storage::nor_flash::ReadNorFlash;
 use modbus_drive::device::Identity;
+use modbus_drive::params::ParamStore;
+use modbus_drive::rtu::LineConfig;
 use modbus_drive::Device;
 use {defmt_rtt as _, panic_probe as _};
 
@@ -56,14 +58,19 @@ async fn main(spawner: Spawner) {
     board::UartIrq::set_priority(PRIO_UART);
     TIM2::set_priority(PRIO_TIME);
 
-    let device = Device::new(Identity::new(board::NAME));
-    // SEAM: load PA0..PA59 and the saved RW entries from `param_flash`
-    // (the params storage, issue 5, not on main yet): defaults until then.
+    let parts = defmt::unwrap!(board::split(p, &rs485::usart_config(LineConfig::DEFAULT)));
+
+    // SPEC §9: the saved parameter set (or the defaults, and why) before the
+    // first frame; its address and line are in force at once.
+    let region = defmt::unwrap!(parts.param_flash.ok_or("parameter flash region"));
+    let (range, capacity) = (region.range(), region.capacity() as u32);
+    let mut store = defmt::unwrap!(ParamStore::new(region, 0..capacity));
+    let mut device = Device::new(Identity::new(board::NAME));
+    device.apply_boot(&store.boot());
     let line = device.line();
     let address = device.address();
     dispatch::DEVICE.lock(|d| *d.borrow_mut() = Some(device));
 
-    let parts = defmt::unwrap!(board::split(p, &rs485::usart_config(line)));
     let mut uart = parts.uart;
     defmt::unwrap!(rs485::apply_line(&mut uart, line));
     #[cfg(feature = "board-f103")]
@@ -75,25 +82,23 @@ async fn main(spawner: Spawner) {
     unsafe { board::StepIrq::enable() };
 
     defmt::info!(
-        "modbus-drive {} on {}: address {}, line {} (t3.5 = {=u32} µs), parameter flash {}",
+        "modbus-drive {} on {}: address {}, line {} (t3.5 = {=u32} µs), parameter flash {:#x} ({} B)",
         env!("CARGO_PKG_VERSION"),
         board::NAME,
         address,
         line,
         line.timing().t35_us,
-        parts
-            .param_flash
-            .as_ref()
-            .map(|f| (f.range(), f.capacity())),
+        range,
+        capacity,
     );
+    dispatch::EventLog::new().drain(); // how the parameters were loaded
 
-    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart)));
+    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart, store)));
     #[cfg(feature = "board-f103")]
     spawner.spawn(defmt::unwrap!(rs485::frame_gap_task()));
 
-    // The step pin and the flash region stay owned here for good.
+    // The step pin stays owned here for good.
     let _step_pin = parts.step_pin;
-    let _param_flash = parts.param_flash;
     control::run(control::PowerPins {
         enable: parts.enable,
         brake: parts.brake,
