@@ -1,7 +1,74 @@
-//! The virtual drive (issue 4): not built yet.
+//! The virtual drive (issue 4): the drive core in real time on a host, with
+//! a simulated axis per drive, reachable by Modbus-RTU masters over a
+//! pseudo-terminal and over TCP. Host glue only: framing, dispatch and drive
+//! behaviour are the core's ([`modbus_drive::Device`]).
+//!
+//! Files, in the order a request travels: `cli.rs` (flags) → `transport.rs`
+//! (pty / TCP byte streams) → `run.rs` (event loop: framing, replies,
+//! control loop) → `console.rs` (status line, logs), `trace.rs` (CSV, SVG),
+//! `flash.rs` (`--state` file as NOR flash).
+
+mod cli;
+mod console;
+#[allow(dead_code)] // wired to the parameter storage when it lands (issue 5)
+mod flash;
+mod run;
+mod trace;
+mod transport;
+
+use std::io::Write;
 use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use cli::Command;
 
 pub fn main() -> ExitCode {
-    eprintln!("modbus-drive: the virtual drive is not built yet (issue 4)");
-    ExitCode::from(2)
+    let opts = match cli::parse(std::env::args().skip(1)) {
+        Ok(Command::Run(o)) => o,
+        Ok(Command::Help) => {
+            print!("{}", cli::HELP);
+            return ExitCode::SUCCESS;
+        }
+        Ok(Command::Version) => {
+            println!("modbus-drive {}", env!("CARGO_PKG_VERSION"));
+            return ExitCode::SUCCESS;
+        }
+        Err(e) => {
+            eprintln!("modbus-drive: {e}");
+            return ExitCode::from(2);
+        }
+    };
+
+    // Ctrl-C and SIGTERM only set a flag; the loop notices it within one
+    // wake-up and exits through the normal path that writes trace and plot.
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        if let Err(e) = signal_hook::flag::register(sig, Arc::clone(&stop)) {
+            eprintln!("modbus-drive: cannot handle signal {sig}: {e}");
+            return ExitCode::from(1);
+        }
+    }
+
+    let drive = match run::VirtualDrive::start(&opts) {
+        Ok(d) => d,
+        Err(run::StartError(msg)) => {
+            eprintln!("modbus-drive: {msg}");
+            return ExitCode::from(1);
+        }
+    };
+    // Every transport accepts frames now (the pty exists, listeners are bound).
+    let mut out = std::io::stdout().lock();
+    if writeln!(out, "ready").and_then(|_| out.flush()).is_err() {
+        // Nobody reads stdout; keep running, the transports work regardless.
+    }
+    drop(out);
+
+    match drive.run(&stop) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("modbus-drive: {e}");
+            ExitCode::from(1)
+        }
+    }
 }

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# e2e stage (issue 4): the release binary of the virtual drive, started as a
+# user starts it, driven by real Modbus masters (pymodbus over the pty and
+# over TCP, mbpoll and socat over the pty). Run by .ci/run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+missing=()
+command -v mbpoll >/dev/null || missing+=(mbpoll)
+command -v socat >/dev/null || missing+=(socat)
+if [ ${#missing[@]} -gt 0 ]; then
+  sudo=""
+  [ "$(id -u)" -ne 0 ] && sudo="sudo"
+  $sudo apt-get update
+  $sudo apt-get install -y "${missing[@]}"
+fi
+
+venv=.venv/e2e
+[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+"$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/e2e/requirements.txt
+
+cargo build --release --bin modbus-drive
+
+set +e
+"$venv/bin/python" -m pytest tests/e2e -p no:cacheprovider -v "$@"
+rc=$?
+set -e
+if [ "$rc" -eq 5 ]; then
+  # pytest's "no tests collected": the harness is broken, not green.
+  echo "e2e: no tests ran" >&2
+  exit 1
+fi
+exit "$rc"

@@ -1,0 +1,327 @@
+//! Command line of the virtual drive. Hand-written: a dozen flags do not
+//! justify a parser dependency, and the messages can name the flag at fault.
+
+use std::fmt;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+pub const HELP: &str = "\
+modbus-drive (virtual drive): the drive core running in real time on this
+machine, with a simulated axis per drive, reachable by any Modbus-RTU master.
+
+USAGE:
+    modbus-drive [OPTIONS]
+
+TRANSPORTS (both may be used at once):
+    (default)                A pseudo-terminal: its path is printed on stderr;
+                             open it like a serial port (any baud, 8N1).
+    --pty-link PATH          Also make a symlink PATH -> the pseudo-terminal
+                             (replaces an existing symlink, refuses other files).
+    --no-pty                 No pseudo-terminal (then --tcp is required).
+    --tcp ADDR:PORT          Listen for Modbus-RTU frames over TCP (same bytes,
+                             same CRC as on the serial line; not Modbus-TCP).
+                             Each connection is its own line to the drives;
+                             several at once. Repeatable. Port 0 picks a free
+                             port (printed on stderr).
+
+DRIVES AND AXES:
+    --drives LIST            Addresses of the drives on the bus, comma
+                             separated, 1..=247, distinct [default: 1]. Each
+                             drive has its own simulated axis.
+    --cw-limit STEPS         CW limit switch (negative side): active while the
+                             position is at or below STEPS. Every axis.
+    --ccw-limit STEPS        CCW limit switch (positive side): active while the
+                             position is at or above STEPS. Every axis.
+    --home-switch FROM:TO    Home switch: active while FROM <= position <= TO.
+                             Every axis.
+
+FILES:
+    --state FILE             The drives' parameter flash lives in FILE (created
+                             erased if missing), so saved parameters survive a
+                             restart. Drive n of --drives owns region n.
+    --trace FILE.csv         Record time, address, position, velocity,
+                             statusword and mode of every drive.
+    --plot FILE.svg          On exit, draw position and velocity over time.
+
+OUTPUT:
+    --no-status              No status line on stderr (logs remain).
+    -h, --help               This text.
+    -V, --version            Version.
+
+stdout carries exactly one line, `ready`, once every transport accepts frames.
+Ctrl-C or SIGTERM stop the drive cleanly (trace and plot are written).
+Exit status: 0 after a clean stop, 1 on a runtime error (e.g. a port in use),
+2 on a bad command line.
+";
+
+/// A simulated limit or home switch window, in steps (inclusive bounds).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HomeSwitch {
+    pub from_steps: i32,
+    pub to_steps: i32,
+}
+
+/// Switch placement shared by every simulated axis.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AxisLayout {
+    pub cw_limit_steps: Option<i32>,
+    pub ccw_limit_steps: Option<i32>,
+    pub home_switch: Option<HomeSwitch>,
+}
+
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Options {
+    pub pty: bool,
+    pub pty_link: Option<PathBuf>,
+    pub tcp: Vec<SocketAddr>,
+    pub drives: Vec<u8>,
+    pub axis: AxisLayout,
+    pub state: Option<PathBuf>,
+    pub trace: Option<PathBuf>,
+    pub plot: Option<PathBuf>,
+    pub status_line: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            pty: true,
+            pty_link: None,
+            tcp: Vec::new(),
+            drives: vec![1],
+            axis: AxisLayout::default(),
+            state: None,
+            trace: None,
+            plot: None,
+            status_line: true,
+        }
+    }
+}
+
+/// What the command line asks for.
+#[derive(Debug, PartialEq, Eq)]
+pub enum Command {
+    Run(Options),
+    Help,
+    Version,
+}
+
+/// A bad command line, phrased for the user.
+#[derive(Debug, PartialEq, Eq)]
+pub struct UsageError(pub String);
+
+impl fmt::Display for UsageError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+fn err<T>(msg: impl Into<String>) -> Result<T, UsageError> {
+    Err(UsageError(msg.into()))
+}
+
+pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageError> {
+    let mut o = Options::default();
+    let mut args = args.into_iter();
+    while let Some(arg) = args.next() {
+        // `--flag=value` and `--flag value` are both accepted.
+        let (flag, inline) = match arg.split_once('=') {
+            Some((f, v)) if f.starts_with("--") => (f.to_string(), Some(v.to_string())),
+            _ => (arg.clone(), None),
+        };
+        let mut value = |name: &str| -> Result<String, UsageError> {
+            match inline.clone().or_else(|| args.next()) {
+                Some(v) => Ok(v),
+                None => err(format!("{name} needs a value (see --help)")),
+            }
+        };
+        match flag.as_str() {
+            "-h" | "--help" => return Ok(Command::Help),
+            "-V" | "--version" => return Ok(Command::Version),
+            "--no-pty" => o.pty = false,
+            "--no-status" => o.status_line = false,
+            "--pty-link" => o.pty_link = Some(PathBuf::from(value("--pty-link")?)),
+            "--tcp" => {
+                let v = value("--tcp")?;
+                match v.parse::<SocketAddr>() {
+                    Ok(a) => o.tcp.push(a),
+                    Err(_) => {
+                        return err(format!(
+                            "--tcp {v}: expected ADDR:PORT, e.g. 127.0.0.1:5020 or [::1]:5020"
+                        ))
+                    }
+                }
+            }
+            "--drives" => o.drives = parse_drives(&value("--drives")?)?,
+            "--cw-limit" => o.axis.cw_limit_steps = Some(parse_steps("--cw-limit", &value("--cw-limit")?)?),
+            "--ccw-limit" => {
+                o.axis.ccw_limit_steps = Some(parse_steps("--ccw-limit", &value("--ccw-limit")?)?)
+            }
+            "--home-switch" => o.axis.home_switch = Some(parse_window(&value("--home-switch")?)?),
+            "--state" => o.state = Some(PathBuf::from(value("--state")?)),
+            "--trace" => o.trace = Some(PathBuf::from(value("--trace")?)),
+            "--plot" => o.plot = Some(PathBuf::from(value("--plot")?)),
+            _ => return err(format!("unknown argument `{arg}` (see --help)")),
+        }
+    }
+    if !o.pty && o.pty_link.is_some() {
+        return err("--pty-link and --no-pty contradict each other");
+    }
+    if !o.pty && o.tcp.is_empty() {
+        return err("--no-pty leaves no transport: add --tcp ADDR:PORT");
+    }
+    if let (Some(cw), Some(ccw)) = (o.axis.cw_limit_steps, o.axis.ccw_limit_steps) {
+        if cw >= ccw {
+            return err(format!(
+                "--cw-limit {cw} must lie below --ccw-limit {ccw} (CW is the negative side, SPEC §8.6)"
+            ));
+        }
+    }
+    Ok(Command::Run(o))
+}
+
+fn parse_drives(v: &str) -> Result<Vec<u8>, UsageError> {
+    let mut out = Vec::new();
+    for part in v.split(',') {
+        let a = match part.trim().parse::<u8>() {
+            Ok(a @ 1..=247) => a,
+            _ => {
+                return err(format!(
+                    "--drives {v}: `{part}` is not a unicast address 1..=247 (SPEC §2)"
+                ))
+            }
+        };
+        if out.contains(&a) {
+            return err(format!("--drives {v}: address {a} appears twice"));
+        }
+        out.push(a);
+    }
+    Ok(out)
+}
+
+fn parse_steps(flag: &str, v: &str) -> Result<i32, UsageError> {
+    v.trim()
+        .parse::<i32>()
+        .or_else(|_| err(format!("{flag} {v}: expected a position in steps (i32)")))
+}
+
+fn parse_window(v: &str) -> Result<HomeSwitch, UsageError> {
+    let Some((a, b)) = v.split_once(':') else {
+        return err(format!("--home-switch {v}: expected FROM:TO in steps"));
+    };
+    let from_steps = parse_steps("--home-switch", a)?;
+    let to_steps = parse_steps("--home-switch", b)?;
+    if from_steps > to_steps {
+        return err(format!("--home-switch {v}: FROM must not exceed TO"));
+    }
+    Ok(HomeSwitch {
+        from_steps,
+        to_steps,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run(args: &[&str]) -> Result<Options, UsageError> {
+        match parse(args.iter().map(|s| s.to_string()))? {
+            Command::Run(o) => Ok(o),
+            c => panic!("{c:?}"),
+        }
+    }
+
+    #[test]
+    fn defaults_are_one_drive_on_a_pty() {
+        let o = run(&[]).unwrap();
+        assert_eq!(o, Options::default());
+        assert!(o.pty);
+        assert_eq!(o.drives, vec![1]);
+    }
+
+    #[test]
+    fn every_flag_is_understood_in_both_spellings() {
+        let o = run(&[
+            "--pty-link=/tmp/x",
+            "--tcp",
+            "127.0.0.1:5020",
+            "--tcp=[::1]:0",
+            "--drives",
+            "3,1,247",
+            "--cw-limit",
+            "-50000",
+            "--ccw-limit=50000",
+            "--home-switch",
+            "-100:100",
+            "--state",
+            "s.bin",
+            "--trace",
+            "t.csv",
+            "--plot",
+            "p.svg",
+            "--no-status",
+        ])
+        .unwrap();
+        assert_eq!(o.pty_link, Some(PathBuf::from("/tmp/x")));
+        assert_eq!(o.tcp.len(), 2);
+        assert_eq!(o.drives, vec![3, 1, 247]);
+        assert_eq!(o.axis.cw_limit_steps, Some(-50000));
+        assert_eq!(o.axis.ccw_limit_steps, Some(50000));
+        assert_eq!(
+            o.axis.home_switch,
+            Some(HomeSwitch {
+                from_steps: -100,
+                to_steps: 100
+            })
+        );
+        assert!(o.state.is_some() && o.trace.is_some() && o.plot.is_some());
+        assert!(!o.status_line);
+    }
+
+    #[test]
+    fn bad_flags_are_refused_with_the_flag_named() {
+        for (args, needle) in [
+            (&["--bogus"][..], "--bogus"),
+            (&["--tcp"], "--tcp needs a value"),
+            (&["--tcp", "localhost"], "ADDR:PORT"),
+            (&["--drives", "0"], "1..=247"),
+            (&["--drives", "248"], "1..=247"),
+            (&["--drives", "1,x"], "`x`"),
+            (&["--drives", "2,2"], "twice"),
+            (&["--cw-limit", "ten"], "--cw-limit"),
+            (&["--cw-limit", "5", "--ccw-limit", "5"], "below"),
+            (&["--home-switch", "5"], "FROM:TO"),
+            (&["--home-switch", "5:4"], "FROM must not exceed"),
+            (&["--no-pty"], "no transport"),
+            (&["--no-pty", "--pty-link", "x", "--tcp", "127.0.0.1:1"], "contradict"),
+        ] {
+            let e = run(args).unwrap_err();
+            assert!(e.0.contains(needle), "{args:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn help_names_every_flag() {
+        for flag in [
+            "--pty-link",
+            "--no-pty",
+            "--tcp",
+            "--drives",
+            "--cw-limit",
+            "--ccw-limit",
+            "--home-switch",
+            "--state",
+            "--trace",
+            "--plot",
+            "--no-status",
+            "--help",
+            "--version",
+        ] {
+            assert!(HELP.contains(flag), "{flag}");
+        }
+        assert_eq!(
+            parse(["--help".to_string()]).unwrap(),
+            Command::Help
+        );
+    }
+}

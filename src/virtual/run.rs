@@ -1,0 +1,494 @@
+//! The event loop: one thread owns every drive and every line; `poll(2)`
+//! waits for bytes, new connections or the next deadline (a frame's t3.5,
+//! a reply's due time, the control loop).
+//!
+//! Frame path per line (SPEC §1):
+//! - bytes are stamped with the time they were read (end of character = read
+//!   time; a master writes a whole frame at once, so gaps inside it are ~0);
+//! - each drive frames the stream with its own [`FrameAssembler`] at its own
+//!   line timing (PA52/PA53), as each drive on a real bus has its own UART;
+//! - a frame closes after the drive's t3.5 of silence (`poll`), goes to
+//!   [`Device::handle_rx`], and a reply leaves in one write at
+//!   `last byte + Device::reply_delay_us()` at the earliest;
+//! - [`Device::reply_sent`] follows every handled frame, after the write.
+
+use std::collections::VecDeque;
+use std::io;
+use std::os::fd::BorrowedFd;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use modbus_drive::device::{Identity, Response};
+use modbus_drive::dictionary::DriveLayer;
+use modbus_drive::rtu::{FrameAssembler, RxEvent, MAX_FRAME};
+use modbus_drive::Device;
+use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+
+use super::cli::Options;
+use super::console::Console;
+use super::trace::{Sample, Trace};
+use super::transport::{Listener, Pty, ReadOutcome, Stream};
+
+/// Longest sleep of the loop: the status line and trace keep ticking.
+const IDLE_WAKE_US: u64 = 20_000;
+/// Output a peer does not read is dropped beyond this (a master that went
+/// away from the pty without reading its last reply).
+const OUT_LIMIT: usize = 64 * 1024;
+
+/// Microseconds since start, monotonic.
+struct Clock(Instant);
+
+impl Clock {
+    fn now_us(&self) -> u64 {
+        self.0.elapsed().as_micros() as u64
+    }
+}
+
+/// One simulated drive.
+struct DriveSlot {
+    device: Device,
+    last_statusword: u16,
+    last_mode: i16,
+}
+
+impl DriveSlot {
+    fn new(address: u8) -> Self {
+        let mut device = Device::new(Identity::new("virtual"));
+        set_address(&mut device, address);
+        let last_statusword = device.drive.statusword();
+        let last_mode = device.drive.mode_display();
+        Self {
+            device,
+            last_statusword,
+            last_mode,
+        }
+    }
+
+    fn label(&self) -> String {
+        format!("drive {}", self.device.address())
+    }
+}
+
+/// `--drives` gives each drive its address: PA51 (SPEC §7).
+fn set_address(device: &mut Device, address: u8) {
+    const PA51: usize = 51;
+    device.pa.set_unchecked(PA51, u16::from(address));
+}
+
+struct PendingReply {
+    due_us: u64,
+    drive: usize,
+    bytes: Vec<u8>,
+}
+
+/// One line: a byte stream and, per drive, that drive's receiver.
+struct Line {
+    label: String,
+    stream: Stream,
+    framers: Vec<FrameAssembler>,
+    last_rx_us: u64,
+    inbuf: Vec<u8>,
+    out: Vec<u8>,
+    pending: VecDeque<PendingReply>,
+}
+
+impl Line {
+    fn new(label: String, stream: Stream, drives: &[DriveSlot]) -> Self {
+        Self {
+            label,
+            stream,
+            framers: drives
+                .iter()
+                .map(|d| FrameAssembler::new(d.device.line().timing()))
+                .collect(),
+            last_rx_us: 0,
+            inbuf: Vec::new(),
+            out: Vec::new(),
+            pending: VecDeque::new(),
+        }
+    }
+}
+
+pub struct VirtualDrive {
+    clock: Clock,
+    drives: Vec<DriveSlot>,
+    lines: Vec<Line>,
+    listeners: Vec<Listener>,
+    console: Console,
+    trace: Trace,
+}
+
+/// Startup failure, reported with exit status 1.
+pub struct StartError(pub String);
+
+impl VirtualDrive {
+    /// Opens every transport; when this returns, frames are accepted.
+    pub fn start(opts: &Options) -> Result<Self, StartError> {
+        let mut console = Console::new(opts.status_line);
+        let drives: Vec<DriveSlot> = opts.drives.iter().map(|&a| DriveSlot::new(a)).collect();
+        let mut lines = Vec::new();
+        if opts.pty {
+            let pty = Pty::open(opts.pty_link.as_deref())
+                .map_err(|e| StartError(format!("cannot open a pseudo-terminal: {e}")))?;
+            let mut label = format!("pty {}", pty.path.display());
+            if let Some(l) = &opts.pty_link {
+                label.push_str(&format!(" (link {})", l.display()));
+            }
+            console.log(&format!("serial: {label}"));
+            lines.push(Line::new("pty".into(), Stream::Pty(pty), &drives));
+        }
+        let mut listeners = Vec::new();
+        for &addr in &opts.tcp {
+            let l = Listener::bind(addr)
+                .map_err(|e| StartError(format!("cannot listen on tcp {addr}: {e}")))?;
+            console.log(&format!("tcp: listening on {} (RTU framing)", l.addr));
+            listeners.push(l);
+        }
+        let trace = Trace::new(opts.trace.as_deref(), opts.plot.as_deref(), drives.len())
+            .map_err(|e| StartError(format!("cannot create the trace file: {e}")))?;
+        for d in &drives {
+            let line = d.device.line();
+            console.log(&format!(
+                "{}: {} baud, t3.5 = {} µs, reply delay {} µs",
+                d.label(),
+                line.baud,
+                line.timing().t35_us,
+                d.device.reply_delay_us()
+            ));
+        }
+        Ok(Self {
+            clock: Clock(Instant::now()),
+            drives,
+            lines,
+            listeners,
+            console,
+            trace,
+        })
+    }
+
+    /// Runs until `stop` is set (SIGINT / SIGTERM), then writes trace and plot.
+    pub fn run(mut self, stop: &Arc<AtomicBool>) -> Result<(), String> {
+        while !stop.load(Ordering::SeqCst) {
+            let now = self.clock.now_us();
+            self.close_frames(now);
+            self.send_due_replies(now);
+            self.observe(now);
+            let timeout = self.next_deadline(now).saturating_sub(self.clock.now_us());
+            self.wait_and_read(timeout)?;
+        }
+        self.console.finish();
+        match self.trace.finish() {
+            Ok(files) => {
+                for f in files {
+                    self.console.log(&format!("wrote {}", f.display()));
+                }
+                Ok(())
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Closes frames whose t3.5 has passed and hands them to their drive.
+    fn close_frames(&mut self, now: u64) {
+        for li in 0..self.lines.len() {
+            for di in 0..self.drives.len() {
+                let line = &mut self.lines[li];
+                let last_rx_us = line.last_rx_us;
+                if let Some(ev) = line.framers[di].poll(now as u32) {
+                    let out = handle(&mut self.drives[di], di, ev, last_rx_us, &mut line.pending);
+                    self.after_frame(li, di, out);
+                }
+            }
+        }
+    }
+
+    /// Logs what the frame was, and finishes a silent one at once.
+    fn after_frame(&mut self, li: usize, di: usize, out: Handled) {
+        if let Some(msg) = out.error {
+            let msg = format!("{} on {}: {msg}", self.drives[di].label(), self.lines[li].label);
+            self.console.log(&msg);
+        }
+        if !out.replied {
+            self.reply_done(di);
+        }
+    }
+
+    /// The reply (or silence) is out: deferred address / line changes apply.
+    fn reply_done(&mut self, di: usize) {
+        let before = self.drives[di].device.address();
+        let new_line = self.drives[di].device.reply_sent();
+        let after = self.drives[di].device.address();
+        if before != after {
+            self.console
+                .log(&format!("drive {before}: address is now {after} (PA51)"));
+        }
+        if let Some(cfg) = new_line {
+            let timing = cfg.timing();
+            for line in &mut self.lines {
+                line.framers[di].set_timing(timing);
+            }
+            self.console.log(&format!(
+                "{}: line now {} baud {:?}, t3.5 = {} µs",
+                self.drives[di].label(),
+                cfg.baud,
+                cfg.format,
+                timing.t35_us
+            ));
+        }
+    }
+
+    fn send_due_replies(&mut self, now: u64) {
+        let mut done = Vec::new();
+        for li in 0..self.lines.len() {
+            let line = &mut self.lines[li];
+            while line.pending.front().is_some_and(|p| p.due_us <= now) {
+                let Some(p) = line.pending.pop_front() else {
+                    break;
+                };
+                if line.out.len() + p.bytes.len() > OUT_LIMIT {
+                    line.out.clear();
+                }
+                line.out.extend_from_slice(&p.bytes);
+                done.push(p.drive);
+            }
+            if let Err(e) = line.stream.flush(&mut line.out) {
+                let msg = format!("{}: write failed: {e}", line.label);
+                line.out.clear();
+                self.console.log(&msg);
+            }
+        }
+        for di in done {
+            self.reply_done(di);
+        }
+    }
+
+    /// Status line and trace: what the drives report now.
+    fn observe(&mut self, now: u64) {
+        let mut status = Vec::new();
+        for (di, d) in self.drives.iter_mut().enumerate() {
+            let drive = &d.device.drive;
+            let sample = Sample {
+                time_us: now,
+                drive: di,
+                address: d.device.address(),
+                position_steps: drive.actual_position(),
+                velocity_rpm: drive.actual_velocity_rpm(),
+                statusword: drive.statusword(),
+                mode: drive.mode_display(),
+            };
+            if sample.statusword != d.last_statusword || sample.mode != d.last_mode {
+                let msg = format!(
+                    "drive {}: statusword 0x{:04X} -> 0x{:04X}, mode {} -> {}",
+                    sample.address, d.last_statusword, sample.statusword, d.last_mode, sample.mode
+                );
+                d.last_statusword = sample.statusword;
+                d.last_mode = sample.mode;
+                self.console.log(&msg);
+            }
+            if let Err(e) = self.trace.offer(sample) {
+                self.console.log(&format!("trace: {e}"));
+            }
+            status.push(format!(
+                "@{} sw 0x{:04X} mode {} pos {} vel {} r/min",
+                sample.address,
+                sample.statusword,
+                sample.mode,
+                sample.position_steps,
+                sample.velocity_rpm
+            ));
+        }
+        let conns = self
+            .lines
+            .iter()
+            .filter(|l| matches!(l.stream, Stream::Tcp(_)))
+            .count();
+        self.console
+            .status(format!("{} | tcp conns {conns}", status.join(" | ")));
+    }
+
+    /// The next time the loop must run even without input.
+    fn next_deadline(&self, now: u64) -> u64 {
+        let mut at = now + IDLE_WAKE_US;
+        for line in &self.lines {
+            if let Some(p) = line.pending.front() {
+                at = at.min(p.due_us);
+            }
+            for (di, f) in line.framers.iter().enumerate() {
+                if f.is_receiving() {
+                    let t35 = u64::from(self.drives[di].device.line().timing().t35_us);
+                    at = at.min(line.last_rx_us + t35);
+                }
+            }
+        }
+        if self.trace.is_active() {
+            at = at.min(now + super::trace::SAMPLE_PERIOD_US);
+        }
+        at
+    }
+
+    /// Waits up to `timeout_us` for input, then reads and frames it.
+    fn wait_and_read(&mut self, timeout_us: u64) -> Result<(), String> {
+        let (readable, writable, accept) = {
+            let mut fds: Vec<PollFd> = Vec::new();
+            for line in &self.lines {
+                let mut ev = PollFlags::POLLIN;
+                if !line.out.is_empty() {
+                    ev |= PollFlags::POLLOUT;
+                }
+                fds.push(PollFd::new(line.stream.fd(), ev));
+            }
+            for l in &self.listeners {
+                let fd: BorrowedFd<'_> = std::os::fd::AsFd::as_fd(&l.socket);
+                fds.push(PollFd::new(fd, PollFlags::POLLIN));
+            }
+            // Round up so a deadline is never missed by sleeping too little.
+            let ms = timeout_us.div_ceil(1000).min(u64::from(u16::MAX)) as u16;
+            match poll(&mut fds, PollTimeout::from(ms)) {
+                Ok(_) => {}
+                Err(nix::errno::Errno::EINTR) => return Ok(()),
+                Err(e) => return Err(format!("poll: {e}")),
+            }
+            let ready = |fd: &PollFd, f: PollFlags| fd.revents().is_some_and(|r| r.intersects(f));
+            let n = self.lines.len();
+            let in_flags = PollFlags::POLLIN | PollFlags::POLLHUP | PollFlags::POLLERR;
+            (
+                fds[..n].iter().map(|f| ready(f, in_flags)).collect::<Vec<_>>(),
+                fds[..n]
+                    .iter()
+                    .map(|f| ready(f, PollFlags::POLLOUT))
+                    .collect::<Vec<_>>(),
+                fds[n..]
+                    .iter()
+                    .map(|f| ready(f, PollFlags::POLLIN))
+                    .collect::<Vec<_>>(),
+            )
+        };
+
+        let mut closed = Vec::new();
+        for li in 0..self.lines.len() {
+            if writable[li] {
+                let line = &mut self.lines[li];
+                if let Err(e) = line.stream.flush(&mut line.out) {
+                    let msg = format!("{}: write failed: {e}", line.label);
+                    line.out.clear();
+                    self.console.log(&msg);
+                }
+            }
+            if readable[li] && !self.read_line(li) {
+                closed.push(li);
+            }
+        }
+        for li in closed.into_iter().rev() {
+            let line = self.lines.remove(li);
+            self.console.log(&format!("{}: closed", line.label));
+        }
+        for (i, ready) in accept.into_iter().enumerate() {
+            if ready {
+                self.accept(i);
+            }
+        }
+        Ok(())
+    }
+
+    /// Reads a ready line and feeds the bytes to every drive's receiver.
+    /// Returns false when the line is gone.
+    fn read_line(&mut self, li: usize) -> bool {
+        let mut buf = std::mem::take(&mut self.lines[li].inbuf);
+        buf.clear();
+        let outcome = self.lines[li].stream.read_available(&mut buf);
+        let alive = match outcome {
+            Ok(ReadOutcome::Data) => true,
+            Ok(ReadOutcome::Closed) => false,
+            Err(e) => {
+                let msg = format!("{}: read failed: {e}", self.lines[li].label);
+                self.console.log(&msg);
+                !matches!(self.lines[li].stream, Stream::Tcp(_))
+            }
+        };
+        if !buf.is_empty() {
+            let now = self.clock.now_us();
+            // Frames whose t3.5 ran out before these bytes came close first.
+            self.close_frames(now);
+            for di in 0..self.drives.len() {
+                for &b in &buf {
+                    let line = &mut self.lines[li];
+                    let last_rx_us = line.last_rx_us;
+                    let ev = line.framers[di].push(b, now as u32, modbus_drive::rtu::RxFlags::NONE);
+                    if let Some(ev) = ev {
+                        let out = handle(&mut self.drives[di], di, ev, last_rx_us, &mut line.pending);
+                        self.after_frame(li, di, out);
+                    }
+                }
+            }
+            self.lines[li].last_rx_us = now;
+        }
+        self.lines[li].inbuf = buf;
+        alive
+    }
+
+    fn accept(&mut self, i: usize) {
+        loop {
+            match self.listeners[i].accept() {
+                Ok(Some((stream, peer))) => {
+                    let label = format!("tcp {peer}");
+                    self.console.log(&format!("{label}: connected"));
+                    self.lines
+                        .push(Line::new(label, Stream::Tcp(stream), &self.drives));
+                }
+                Ok(None) => return,
+                Err(e) => {
+                    let msg = format!("tcp {}: accept failed: {e}", self.listeners[i].addr);
+                    self.console.log(&msg);
+                    return;
+                }
+            }
+        }
+    }
+}
+
+/// What handling one closed frame produced.
+struct Handled {
+    replied: bool,
+    error: Option<&'static str>,
+}
+
+/// Hands a closed frame to its drive and queues the reply.
+fn handle(
+    slot: &mut DriveSlot,
+    di: usize,
+    ev: RxEvent<'_>,
+    last_rx_us: u64,
+    pending: &mut VecDeque<PendingReply>,
+) -> Handled {
+    let error = match &ev {
+        RxEvent::Frame { .. } => None,
+        RxEvent::Broken => Some("broken frame (silence > t1.5 inside it)"),
+        RxEvent::TooShort => Some("frame shorter than 4 bytes"),
+        RxEvent::Overrun => Some("frame longer than 256 bytes"),
+    };
+    let mut reply = [0u8; MAX_FRAME];
+    match slot.device.handle_rx(ev, &mut reply) {
+        Response::Reply(n) => {
+            pending.push_back(PendingReply {
+                due_us: last_rx_us + u64::from(slot.device.reply_delay_us()),
+                drive: di,
+                bytes: reply[..n.min(MAX_FRAME)].to_vec(),
+            });
+            Handled {
+                replied: true,
+                error,
+            }
+        }
+        Response::Silent => Handled {
+            replied: false,
+            error,
+        },
+    }
+}
+
+impl From<io::Error> for StartError {
+    fn from(e: io::Error) -> Self {
+        Self(e.to_string())
+    }
+}

@@ -1,0 +1,310 @@
+"""Harness for the end-to-end tests (issue 4): the release binary, started
+as a user starts it, driven by real Modbus masters over its pseudo-terminal
+and over TCP. Every started process is stopped in a `finally`, whatever the
+test did; every wait has a timeout."""
+
+from __future__ import annotations
+
+import os
+import re
+import select
+import signal
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import serial
+from pymodbus import FramerType
+from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+
+ROOT = Path(__file__).resolve().parents[2]
+BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
+READY_TIMEOUT_S = 10.0
+STOP_TIMEOUT_S = 5.0
+BAUD = 115200
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/MODBUS (SPEC §1), independent of the drive's implementation."""
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+def with_crc(body: bytes) -> bytes:
+    c = crc16(body)
+    return body + bytes([c & 0xFF, c >> 8])
+
+
+def hexb(s: str) -> bytes:
+    return bytes.fromhex(s.replace(" ", ""))
+
+
+class VirtualDrive:
+    """One run of `modbus-drive`."""
+
+    def __init__(self, workdir: Path, args: list[str], tcp: bool = True, pty: bool = True):
+        self.workdir = workdir
+        self.link = workdir / "ttyVD"
+        self.args = list(args)
+        if pty:
+            self.args = ["--pty-link", str(self.link)] + self.args
+        else:
+            self.args = ["--no-pty"] + self.args
+        if tcp:
+            self.args += ["--tcp", "127.0.0.1:0"]
+        self.stderr_path = workdir / f"stderr-{time.monotonic_ns()}.log"
+        self.proc: subprocess.Popen | None = None
+        self.tcp_port: int | None = None
+        self.returncode: int | None = None
+
+    def start(self) -> "VirtualDrive":
+        self._stderr = open(self.stderr_path, "wb")
+        self.proc = subprocess.Popen(
+            [str(BIN), *self.args],
+            stdout=subprocess.PIPE,
+            stderr=self._stderr,
+            cwd=self.workdir,
+        )
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        line = b""
+        while time.monotonic() < deadline:
+            r, _, _ = select.select([self.proc.stdout], [], [], 0.1)
+            if r:
+                line = self.proc.stdout.readline()
+                break
+            if self.proc.poll() is not None:
+                break
+        if line != b"ready\n":
+            self.stop()
+            raise RuntimeError(f"no `ready` from {self.args}: {line!r}\n{self.stderr()}")
+        m = re.search(r"tcp: listening on 127\.0\.0\.1:(\d+)", self.stderr())
+        if m:
+            self.tcp_port = int(m.group(1))
+        return self
+
+    def stderr(self) -> str:
+        return self.stderr_path.read_text(errors="replace")
+
+    def stop(self, sig: int = signal.SIGTERM) -> int | None:
+        """Stops the process (signal, then kill after a timeout)."""
+        if self.proc is None:
+            return self.returncode
+        try:
+            if self.proc.poll() is None:
+                self.proc.send_signal(sig)
+                try:
+                    self.proc.wait(STOP_TIMEOUT_S)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+                    self.proc.wait(STOP_TIMEOUT_S)
+            self.returncode = self.proc.returncode
+        finally:
+            if self.proc.stdout:
+                self.proc.stdout.close()
+            self._stderr.close()
+            self.proc = None
+        return self.returncode
+
+    # masters -----------------------------------------------------------
+
+    def client(self, transport: str):
+        """A pymodbus RTU client over `transport` ("pty" or "tcp")."""
+        if transport == "pty":
+            c = ModbusSerialClient(str(self.link), framer=FramerType.RTU, baudrate=BAUD,
+                                   parity="N", timeout=1, retries=0)
+        else:
+            c = ModbusTcpClient("127.0.0.1", port=self.tcp_port, framer=FramerType.RTU,
+                                timeout=1, retries=0)
+        assert c.connect(), f"cannot connect over {transport}"
+        return c
+
+    def raw(self, transport: str) -> "RawBus":
+        return RawBus(self, transport)
+
+
+class RawBus:
+    """Raw bytes to and from the drive: a frame out, whatever comes back."""
+
+    def __init__(self, drive: VirtualDrive, transport: str):
+        self.transport = transport
+        if transport == "pty":
+            self.port = serial.Serial(str(drive.link), BAUD, timeout=0)
+            self.sock = None
+        else:
+            self.sock = socket.create_connection(("127.0.0.1", drive.tcp_port), timeout=2)
+            self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self.sock.setblocking(False)
+            self.port = None
+
+    def close(self):
+        if self.port:
+            self.port.close()
+        if self.sock:
+            self.sock.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def write(self, frame: bytes):
+        if self.port:
+            self.port.write(frame)
+            self.port.flush()
+        else:
+            self.sock.sendall(frame)
+
+    def _read_some(self, timeout: float) -> bytes:
+        if self.port:
+            r, _, _ = select.select([self.port.fileno()], [], [], timeout)
+            return self.port.read(4096) if r else b""
+        r, _, _ = select.select([self.sock], [], [], timeout)
+        if not r:
+            return b""
+        try:
+            return self.sock.recv(4096)
+        except BlockingIOError:
+            return b""
+
+    def read_reply(self, timeout: float = 1.0, quiet: float = 0.05) -> bytes:
+        """Everything that arrives until `quiet` s of silence after the first
+        byte, or nothing after `timeout` s."""
+        first = self._read_some(timeout)
+        if not first:
+            return b""
+        out = first
+        while True:
+            more = self._read_some(quiet)
+            if not more:
+                return out
+            out += more
+
+    def exchange(self, frame: bytes, timeout: float = 1.0) -> bytes:
+        self.drain()
+        self.write(frame)
+        return self.read_reply(timeout)
+
+    def drain(self):
+        while self._read_some(0.0):
+            pass
+
+
+@pytest.fixture
+def start_drive(tmp_path):
+    """`start_drive(*flags)` starts the binary; all are stopped afterwards."""
+    started: list[VirtualDrive] = []
+
+    def start(*flags: str, tcp: bool = True, pty: bool = True) -> VirtualDrive:
+        d = VirtualDrive(tmp_path, list(flags), tcp=tcp, pty=pty)
+        started.append(d)
+        return d.start()
+
+    try:
+        yield start
+    finally:
+        for d in started:
+            d.stop()
+
+
+@pytest.fixture(params=["pty", "tcp"])
+def transport(request):
+    return request.param
+
+
+# registers (SPEC §5) --------------------------------------------------------
+WORD_ORDER = 0x6000
+QUICK_STOP_OPTION = 0x605A
+CONTROLWORD = 0x6040
+MODE = 0x6060
+PROFILE_VELOCITY = 0x6081
+ACCELERATION = 0x6083
+DECELERATION = 0x6084
+QUICK_STOP_DECELERATION = 0x6085
+TARGET_POSITION = 0x607A
+HOME_OFFSET = 0x607C
+HOMING_METHOD = 0x6098
+HOMING_SPEED = 0x6099
+HOMING_ACCELERATION = 0x609A
+HOMING_ZERO_SPEED = 0x609B
+STATUSWORD = 0x6041
+MODE_DISPLAY = 0x6061
+ACTUAL_POSITION = 0x6064
+ACTUAL_VELOCITY = 0x606C
+PA_BASE = 0x0064  # PA0 (SPEC §9)
+
+# statusword (SPEC §8.1/§8.2)
+STATE_MASK = 0x006F
+SWITCH_ON_DISABLED = 0x0040
+READY_TO_SWITCH_ON = 0x0021
+SWITCHED_ON = 0x0023
+OPERATION_ENABLED = 0x0027
+VOLTAGE_ENABLED = 1 << 4
+MOTOR_RUNNING = 1 << 9
+TARGET_REACHED = 1 << 10
+HOME_SWITCH = 1 << 11
+BIT12 = 1 << 12
+BIT13 = 1 << 13
+CW_LIMIT = 1 << 14
+CCW_LIMIT = 1 << 15
+
+
+class Master:
+    """The client API calls a PLC programmer would make (pymodbus)."""
+
+    def __init__(self, client, device_id: int = 1):
+        self.c = client
+        self.id = device_id
+
+    def write(self, reg: int, value: int):
+        r = self.c.write_register(reg, value & 0xFFFF, device_id=self.id)
+        assert not r.isError(), f"write 0x{reg:04X} = {value}: {r}"
+
+    def write32(self, reg: int, value: int, signed: bool = True):
+        t = self.c.DATATYPE.INT32 if signed else self.c.DATATYPE.UINT32
+        regs = self.c.convert_to_registers(value, t)
+        r = self.c.write_registers(reg, regs, device_id=self.id)
+        assert not r.isError(), f"write 0x{reg:04X} = {value}: {r}"
+
+    def read(self, reg: int) -> int:
+        r = self.c.read_holding_registers(reg, count=1, device_id=self.id)
+        assert not r.isError(), f"read 0x{reg:04X}: {r}"
+        return r.registers[0]
+
+    def read_i16(self, reg: int) -> int:
+        return self.c.convert_from_registers([self.read(reg)], self.c.DATATYPE.INT16)
+
+    def read32(self, reg: int) -> int:
+        r = self.c.read_holding_registers(reg, count=2, device_id=self.id)
+        assert not r.isError(), f"read 0x{reg:04X}: {r}"
+        return self.c.convert_from_registers(r.registers, self.c.DATATYPE.INT32)
+
+    def statusword(self) -> int:
+        return self.read(STATUSWORD)
+
+    def enable(self):
+        """Seed 000's power-up sequence (SPEC §8.1): 0x01, 0x03, 0x0F."""
+        for cw, state in ((0x0001, READY_TO_SWITCH_ON), (0x0003, SWITCHED_ON),
+                          (0x000F, OPERATION_ENABLED)):
+            self.write(CONTROLWORD, cw)
+            sw = self.statusword()
+            assert sw & STATE_MASK == state, f"after 0x{cw:04X}: statusword 0x{sw:04X}"
+
+    def wait(self, pred, timeout: float, what: str, period: float = 0.02):
+        """Polls the statusword until pred(sw) holds; returns the samples."""
+        deadline = time.monotonic() + timeout
+        seen = []
+        while time.monotonic() < deadline:
+            sw = self.statusword()
+            seen.append(sw)
+            if pred(sw):
+                return seen
+            time.sleep(period)
+        raise AssertionError(f"timeout waiting for {what}; last statuswords "
+                             f"{[hex(s) for s in seen[-5:]]}")
