@@ -153,7 +153,9 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
                 }
             }
             "--drives" => o.drives = parse_drives(&value("--drives")?)?,
-            "--cw-limit" => o.axis.cw_limit_steps = Some(parse_steps("--cw-limit", &value("--cw-limit")?)?),
+            "--cw-limit" => {
+                o.axis.cw_limit_steps = Some(parse_steps("--cw-limit", &value("--cw-limit")?)?)
+            }
             "--ccw-limit" => {
                 o.axis.ccw_limit_steps = Some(parse_steps("--ccw-limit", &value("--ccw-limit")?)?)
             }
@@ -293,7 +295,10 @@ mod tests {
             (&["--home-switch", "5"], "FROM:TO"),
             (&["--home-switch", "5:4"], "FROM must not exceed"),
             (&["--no-pty"], "no transport"),
-            (&["--no-pty", "--pty-link", "x", "--tcp", "127.0.0.1:1"], "contradict"),
+            (
+                &["--no-pty", "--pty-link", "x", "--tcp", "127.0.0.1:1"],
+                "contradict",
+            ),
         ] {
             let e = run(args).unwrap_err();
             assert!(e.0.contains(needle), "{args:?}: {e}");
@@ -319,9 +324,6 @@ mod tests {
         ] {
             assert!(HELP.contains(flag), "{flag}");
         }
-        assert_eq!(
-            parse(["--help".to_string()]).unwrap(),
-            Command::Help
-        );
+        assert_eq!(parse(["--help".to_string()]).unwrap(), Command::Help);
     }
 }

@@ -34,15 +34,17 @@ pub const REGION_BYTES: usize = 4 * ERASE_SIZE;
 pub enum FlashError {
     /// Misaligned or out-of-range request (a bug in the caller).
     Nor(NorFlashErrorKind),
-    /// The file could not be read or written: the "flash" failed.
-    Io(io::ErrorKind),
+    /// The file could not be read or written: the "flash" failed. The cause
+    /// is kept in [`FileFlash::take_io_error`] for the log, since the
+    /// storage layer reduces every flash error to its kind.
+    Io,
 }
 
 impl NorFlashError for FlashError {
     fn kind(&self) -> NorFlashErrorKind {
         match self {
             Self::Nor(k) => *k,
-            Self::Io(_) => NorFlashErrorKind::Other,
+            Self::Io => NorFlashErrorKind::Other,
         }
     }
 }
@@ -53,17 +55,12 @@ impl From<NorFlashErrorKind> for FlashError {
     }
 }
 
-impl From<io::Error> for FlashError {
-    fn from(e: io::Error) -> Self {
-        Self::Io(e.kind())
-    }
-}
-
 /// One drive's region of the state file.
 pub struct FileFlash {
     file: File,
     base: u64,
     capacity: usize,
+    io_error: Option<io::Error>,
 }
 
 impl FileFlash {
@@ -89,6 +86,19 @@ impl FileFlash {
             file,
             base,
             capacity,
+            io_error: None,
+        })
+    }
+
+    /// The file error behind the last [`FlashError::Io`], once.
+    pub fn take_io_error(&mut self) -> Option<io::Error> {
+        self.io_error.take()
+    }
+
+    fn io<T>(&mut self, r: io::Result<T>) -> Result<T, FlashError> {
+        r.map_err(|e| {
+            self.io_error = Some(e);
+            FlashError::Io
         })
     }
 }
@@ -102,8 +112,10 @@ impl ReadNorFlash for FileFlash {
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
         check_read(self, offset, bytes.len())?;
-        self.file.read_exact_at(bytes, self.base + u64::from(offset))?;
-        Ok(())
+        let r = self
+            .file
+            .read_exact_at(bytes, self.base + u64::from(offset));
+        self.io(r)
     }
 
     fn capacity(&self) -> usize {
@@ -118,24 +130,27 @@ impl NorFlash for FileFlash {
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
         check_erase(self, from, to)?;
         let erased = vec![0xFF; (to - from) as usize];
-        self.file
-            .write_all_at(&erased, self.base + u64::from(from))?;
-        self.file.sync_data()?;
-        Ok(())
+        let at = self.base + u64::from(from);
+        let r = self
+            .file
+            .write_all_at(&erased, at)
+            .and_then(|()| self.file.sync_data());
+        self.io(r)
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
         check_write(self, offset, bytes.len())?;
         let at = self.base + u64::from(offset);
         let mut cells = vec![0u8; bytes.len()];
-        self.file.read_exact_at(&mut cells, at)?;
-        // NOR programming only pulls bits to 0.
-        for (cell, &b) in cells.iter_mut().zip(bytes) {
-            *cell &= b;
-        }
-        self.file.write_all_at(&cells, at)?;
-        self.file.sync_data()?;
-        Ok(())
+        let r = self.file.read_exact_at(&mut cells, at).and_then(|()| {
+            // NOR programming only pulls bits to 0.
+            for (cell, &b) in cells.iter_mut().zip(bytes) {
+                *cell &= b;
+            }
+            self.file.write_all_at(&cells, at)?;
+            self.file.sync_data()
+        });
+        self.io(r)
     }
 }
 
@@ -179,7 +194,10 @@ mod tests {
             a.write(0, &[1; 8]).unwrap();
             b.write(0, &[2; 8]).unwrap();
         }
-        assert_eq!(std::fs::metadata(&p).unwrap().len(), 2 * REGION_BYTES as u64);
+        assert_eq!(
+            std::fs::metadata(&p).unwrap().len(),
+            2 * REGION_BYTES as u64
+        );
         let mut a = FileFlash::open(&p, 0, REGION_BYTES).unwrap();
         let mut b = FileFlash::open(&p, 1, REGION_BYTES).unwrap();
         let mut buf = [0u8; 8];

@@ -10,7 +10,6 @@
 
 mod cli;
 mod console;
-#[allow(dead_code)] // wired to the parameter storage when it lands (issue 5)
 mod flash;
 mod run;
 mod trace;

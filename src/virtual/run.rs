@@ -21,12 +21,15 @@ use std::time::Instant;
 
 use modbus_drive::device::{Identity, Response};
 use modbus_drive::dictionary::DriveLayer;
-use modbus_drive::rtu::{FrameAssembler, RxEvent, MAX_FRAME};
+use modbus_drive::event::{Event, FrameError};
+use modbus_drive::params::{BootOutcome, ParamStore};
+use modbus_drive::rtu::{FrameAssembler, RxEvent, RxFlags, MAX_FRAME};
 use modbus_drive::Device;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
 use super::cli::Options;
 use super::console::Console;
+use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
 use super::transport::{Listener, Pty, ReadOutcome, Stream};
 
@@ -48,6 +51,8 @@ impl Clock {
 /// One simulated drive.
 struct DriveSlot {
     device: Device,
+    /// Its parameter flash (`--state`), if any.
+    store: Option<ParamStore<FileFlash>>,
     last_statusword: u16,
     last_mode: i16,
 }
@@ -56,13 +61,50 @@ impl DriveSlot {
     fn new(address: u8) -> Self {
         let mut device = Device::new(Identity::new("virtual"));
         set_address(&mut device, address);
+        // Nothing to log yet: the address a drive starts with is not a change.
+        while device.take_event().is_some() {}
         let last_statusword = device.drive.statusword();
         let last_mode = device.drive.mode_display();
         Self {
             device,
+            store: None,
             last_statusword,
             last_mode,
         }
+    }
+
+    /// Attaches region `index` of the state file and loads what was saved
+    /// there (SPEC §9). A saved set wins over `--drives`, PA51 included: it
+    /// is what the drive's flash holds. A blank region keeps the
+    /// `--drives` address. Returns what to log.
+    fn attach_state(&mut self, path: &std::path::Path, index: usize) -> Result<String, String> {
+        let flash = FileFlash::open(path, index, REGION_BYTES)
+            .map_err(|e| format!("state file {}: {e}", path.display()))?;
+        let mut store = ParamStore::new(flash, 0..REGION_BYTES as u32)
+            .map_err(|e| format!("state file {}: {e:?}", path.display()))?;
+        let boot = store.boot();
+        let msg = match boot.outcome {
+            BootOutcome::Loaded { fixed } => {
+                boot.set.apply_to(&mut self.device.pa, &mut self.device.od);
+                self.device.reply_sent();
+                while self.device.take_event().is_some() {}
+                format!("saved parameters loaded ({fixed} out of range, set to default)")
+            }
+            BootOutcome::Blank => "nothing saved yet: defaults".into(),
+            BootOutcome::Unreadable(e) => {
+                let cause = store
+                    .flash()
+                    .take_io_error()
+                    .map_or(String::new(), |io| format!(": {io}"));
+                format!("saved parameters unreadable ({e:?}{cause}): defaults")
+            }
+        };
+        self.store = Some(store);
+        Ok(format!(
+            "{} (state region {index} of {}): {msg}",
+            self.label(),
+            path.display()
+        ))
     }
 
     fn label(&self) -> String {
@@ -70,10 +112,12 @@ impl DriveSlot {
     }
 }
 
-/// `--drives` gives each drive its address: PA51 (SPEC §7).
+/// `--drives` gives each drive its address: PA51 (SPEC §7), put in force
+/// the way the core applies a new PA51 (as after a reply).
 fn set_address(device: &mut Device, address: u8) {
     const PA51: usize = 51;
     device.pa.set_unchecked(PA51, u16::from(address));
+    device.reply_sent();
 }
 
 struct PendingReply {
@@ -126,7 +170,12 @@ impl VirtualDrive {
     /// Opens every transport; when this returns, frames are accepted.
     pub fn start(opts: &Options) -> Result<Self, StartError> {
         let mut console = Console::new(opts.status_line);
-        let drives: Vec<DriveSlot> = opts.drives.iter().map(|&a| DriveSlot::new(a)).collect();
+        let mut drives: Vec<DriveSlot> = opts.drives.iter().map(|&a| DriveSlot::new(a)).collect();
+        if let Some(path) = &opts.state {
+            for (i, d) in drives.iter_mut().enumerate() {
+                console.log(&d.attach_state(path, i).map_err(StartError)?);
+            }
+        }
         let mut lines = Vec::new();
         if opts.pty {
             let pty = Pty::open(opts.pty_link.as_deref())
@@ -196,45 +245,38 @@ impl VirtualDrive {
                 let line = &mut self.lines[li];
                 let last_rx_us = line.last_rx_us;
                 if let Some(ev) = line.framers[di].poll(now as u32) {
-                    let out = handle(&mut self.drives[di], di, ev, last_rx_us, &mut line.pending);
-                    self.after_frame(li, di, out);
+                    let replied =
+                        handle(&mut self.drives[di], di, ev, last_rx_us, &mut line.pending);
+                    self.after_frame(li, di, replied);
                 }
             }
         }
     }
 
-    /// Logs what the frame was, and finishes a silent one at once.
-    fn after_frame(&mut self, li: usize, di: usize, out: Handled) {
-        if let Some(msg) = out.error {
-            let msg = format!("{} on {}: {msg}", self.drives[di].label(), self.lines[li].label);
-            self.console.log(&msg);
-        }
-        if !out.replied {
+    /// Logs what the core reported, and finishes a silent frame at once.
+    fn after_frame(&mut self, li: usize, di: usize, replied: bool) {
+        self.log_events(di, Some(li));
+        if !replied {
             self.reply_done(di);
         }
     }
 
     /// The reply (or silence) is out: deferred address / line changes apply.
     fn reply_done(&mut self, di: usize) {
-        let before = self.drives[di].device.address();
-        let new_line = self.drives[di].device.reply_sent();
-        let after = self.drives[di].device.address();
-        if before != after {
-            self.console
-                .log(&format!("drive {before}: address is now {after} (PA51)"));
-        }
-        if let Some(cfg) = new_line {
-            let timing = cfg.timing();
+        if let Some(cfg) = self.drives[di].device.reply_sent() {
             for line in &mut self.lines {
-                line.framers[di].set_timing(timing);
+                line.framers[di].set_timing(cfg.timing());
             }
-            self.console.log(&format!(
-                "{}: line now {} baud {:?}, t3.5 = {} µs",
-                self.drives[di].label(),
-                cfg.baud,
-                cfg.format,
-                timing.t35_us
-            ));
+        }
+        self.log_events(di, None);
+    }
+
+    /// Drains drive `di`'s core events to the log.
+    fn log_events(&mut self, di: usize, line: Option<usize>) {
+        while let Some(ev) = self.drives[di].device.take_event() {
+            let on = line.map_or(String::new(), |li| format!(" on {}", self.lines[li].label));
+            let msg = format!("{}{on}: {}", self.drives[di].label(), describe(&ev));
+            self.console.log(&msg);
         }
     }
 
@@ -353,7 +395,10 @@ impl VirtualDrive {
             let n = self.lines.len();
             let in_flags = PollFlags::POLLIN | PollFlags::POLLHUP | PollFlags::POLLERR;
             (
-                fds[..n].iter().map(|f| ready(f, in_flags)).collect::<Vec<_>>(),
+                fds[..n]
+                    .iter()
+                    .map(|f| ready(f, in_flags))
+                    .collect::<Vec<_>>(),
                 fds[..n]
                     .iter()
                     .map(|f| ready(f, PollFlags::POLLOUT))
@@ -414,10 +459,11 @@ impl VirtualDrive {
                 for &b in &buf {
                     let line = &mut self.lines[li];
                     let last_rx_us = line.last_rx_us;
-                    let ev = line.framers[di].push(b, now as u32, modbus_drive::rtu::RxFlags::NONE);
+                    let ev = line.framers[di].push(b, now as u32, RxFlags::NONE);
                     if let Some(ev) = ev {
-                        let out = handle(&mut self.drives[di], di, ev, last_rx_us, &mut line.pending);
-                        self.after_frame(li, di, out);
+                        let replied =
+                            handle(&mut self.drives[di], di, ev, last_rx_us, &mut line.pending);
+                        self.after_frame(li, di, replied);
                     }
                 }
             }
@@ -447,26 +493,15 @@ impl VirtualDrive {
     }
 }
 
-/// What handling one closed frame produced.
-struct Handled {
-    replied: bool,
-    error: Option<&'static str>,
-}
-
-/// Hands a closed frame to its drive and queues the reply.
+/// Hands a closed frame to its drive and queues the reply. Returns whether
+/// a reply was queued.
 fn handle(
     slot: &mut DriveSlot,
     di: usize,
     ev: RxEvent<'_>,
     last_rx_us: u64,
     pending: &mut VecDeque<PendingReply>,
-) -> Handled {
-    let error = match &ev {
-        RxEvent::Frame { .. } => None,
-        RxEvent::Broken => Some("broken frame (silence > t1.5 inside it)"),
-        RxEvent::TooShort => Some("frame shorter than 4 bytes"),
-        RxEvent::Overrun => Some("frame longer than 256 bytes"),
-    };
+) -> bool {
     let mut reply = [0u8; MAX_FRAME];
     match slot.device.handle_rx(ev, &mut reply) {
         Response::Reply(n) => {
@@ -475,15 +510,51 @@ fn handle(
                 drive: di,
                 bytes: reply[..n.min(MAX_FRAME)].to_vec(),
             });
-            Handled {
-                replied: true,
-                error,
-            }
+            true
         }
-        Response::Silent => Handled {
-            replied: false,
-            error,
-        },
+        Response::Silent => false,
+    }
+}
+
+/// A core event in words.
+fn describe(ev: &Event) -> String {
+    match *ev {
+        Event::FrameError {
+            kind,
+            address,
+            answered,
+        } => {
+            let what = match kind {
+                FrameError::Crc => "CRC error",
+                FrameError::Parity => "parity error",
+                FrameError::Broken => "broken frame (silence > t1.5 inside it)",
+                FrameError::TooShort => "frame shorter than 4 bytes",
+                FrameError::Overrun => "frame longer than 256 bytes",
+            };
+            let from = address.map_or(String::new(), |a| format!(" (address byte {a})"));
+            let answer = if answered { ", answered" } else { "" };
+            format!("{what}{from}{answer}")
+        }
+        Event::Exception {
+            function,
+            exception,
+            answered,
+        } => format!(
+            "function 0x{function:02X} refused: exception {} ({exception:?}){}",
+            exception.vendor_code(),
+            if answered { "" } else { ", not answered" }
+        ),
+        Event::AddressChanged { address } => format!("address is now {address} (PA51)"),
+        Event::LineChanged(line) => format!(
+            "line is now {} baud {:?}, t3.5 = {} µs",
+            line.baud,
+            line.format,
+            line.timing().t35_us
+        ),
+        Event::ListenOnly(true) => "listen-only mode (diagnostics 0x04)".into(),
+        Event::ListenOnly(false) => "listen-only mode ended".into(),
+        Event::CountersCleared => "diagnostic counters cleared".into(),
+        other => format!("{other:?}"),
     }
 }
 

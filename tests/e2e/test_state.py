@@ -2,12 +2,13 @@
 parameters survive a restart (SPEC §9: EE-Set saves PA0..PA59 and the RW
 entries of §5 except 0x607A)."""
 
-from conftest import ACCELERATION, PA_BASE, Master, hexb, with_crc
+from conftest import ACCELERATION, NEEDS_EE_FRAMES, PA_BASE, Master, hexb, with_crc
 
 MAX_SPEED_PA12 = PA_BASE + 12
 EE_SET = with_crc(hexb("01 10 00 3A 00 01 02 00 01"))  # new format, k = 1
 
 
+@NEEDS_EE_FRAMES
 def test_a_saved_parameter_survives_a_restart(start_drive, tmp_path):
     state = tmp_path / "drive.flash"
     d = start_drive("--no-status", "--state", str(state))
@@ -37,6 +38,7 @@ def test_without_a_save_nothing_survives(start_drive, tmp_path):
     assert Master(d.client("tcp")).read(MAX_SPEED_PA12) == 3000
 
 
+@NEEDS_EE_FRAMES
 def test_each_drive_keeps_its_own_saved_parameters(start_drive, tmp_path):
     state = tmp_path / "drives.flash"
     d = start_drive("--no-status", "--state", str(state), "--drives", "1,2")
