@@ -15,6 +15,7 @@
 use std::collections::VecDeque;
 use std::io;
 use std::os::fd::BorrowedFd;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
@@ -51,60 +52,46 @@ impl Clock {
 /// One simulated drive.
 struct DriveSlot {
     device: Device,
-    /// Its parameter flash (`--state`), if any.
-    store: Option<ParamStore<FileFlash>>,
+    /// Its parameter flash: region of the `--state` file, or memory only.
+    store: ParamStore<FileFlash>,
     last_statusword: u16,
     last_mode: i16,
 }
 
 impl DriveSlot {
-    fn new(address: u8) -> Self {
+    /// Drive number `index` of `--drives`, at `address`, with its flash.
+    /// At power-up it loads what its flash holds (SPEC §9). A saved set wins
+    /// over `--drives`, PA51 included — it is what the drive's flash says;
+    /// a blank or unreadable flash keeps the `--drives` address.
+    fn new(address: u8, index: usize, state: Option<&Path>) -> Result<Self, String> {
+        let flash = match state {
+            Some(path) => FileFlash::open(path, index)
+                .map_err(|e| format!("state file {}: {e}", path.display()))?,
+            None => FileFlash::in_memory(),
+        };
+        let mut store = ParamStore::new(flash, 0..REGION_BYTES as u32)
+            .map_err(|e| format!("parameter store: {e:?}"))?;
         let mut device = Device::new(Identity::new("virtual"));
-        set_address(&mut device, address);
-        // Nothing to log yet: the address a drive starts with is not a change.
-        while device.take_event().is_some() {}
+        let boot = store.boot();
+        device.apply_boot(&boot);
+        if !matches!(boot.outcome, BootOutcome::Loaded { .. }) {
+            set_address(&mut device, address);
+            // The address a drive starts with is not a change worth logging.
+            let events: Vec<Event> = std::iter::from_fn(|| device.take_event()).collect();
+            for ev in events {
+                if !matches!(ev, Event::AddressChanged { .. }) {
+                    device.push_event(ev);
+                }
+            }
+        }
         let last_statusword = device.drive.statusword();
         let last_mode = device.drive.mode_display();
-        Self {
+        Ok(Self {
             device,
-            store: None,
+            store,
             last_statusword,
             last_mode,
-        }
-    }
-
-    /// Attaches region `index` of the state file and loads what was saved
-    /// there (SPEC §9). A saved set wins over `--drives`, PA51 included: it
-    /// is what the drive's flash holds. A blank region keeps the
-    /// `--drives` address. Returns what to log.
-    fn attach_state(&mut self, path: &std::path::Path, index: usize) -> Result<String, String> {
-        let flash = FileFlash::open(path, index, REGION_BYTES)
-            .map_err(|e| format!("state file {}: {e}", path.display()))?;
-        let mut store = ParamStore::new(flash, 0..REGION_BYTES as u32)
-            .map_err(|e| format!("state file {}: {e:?}", path.display()))?;
-        let boot = store.boot();
-        let msg = match boot.outcome {
-            BootOutcome::Loaded { fixed } => {
-                boot.set.apply_to(&mut self.device.pa, &mut self.device.od);
-                self.device.reply_sent();
-                while self.device.take_event().is_some() {}
-                format!("saved parameters loaded ({fixed} out of range, set to default)")
-            }
-            BootOutcome::Blank => "nothing saved yet: defaults".into(),
-            BootOutcome::Unreadable(e) => {
-                let cause = store
-                    .flash()
-                    .take_io_error()
-                    .map_or(String::new(), |io| format!(": {io}"));
-                format!("saved parameters unreadable ({e:?}{cause}): defaults")
-            }
-        };
-        self.store = Some(store);
-        Ok(format!(
-            "{} (state region {index} of {}): {msg}",
-            self.label(),
-            path.display()
-        ))
+        })
     }
 
     fn label(&self) -> String {
@@ -123,7 +110,10 @@ fn set_address(device: &mut Device, address: u8) {
 struct PendingReply {
     due_us: u64,
     drive: usize,
+    /// Empty: nothing to send (a broadcast EE operation).
     bytes: Vec<u8>,
+    /// The deferred reply of an EE operation: the drive is busy until it is out.
+    ee: bool,
 }
 
 /// One line: a byte stream and, per drive, that drive's receiver.
@@ -170,11 +160,9 @@ impl VirtualDrive {
     /// Opens every transport; when this returns, frames are accepted.
     pub fn start(opts: &Options) -> Result<Self, StartError> {
         let mut console = Console::new(opts.status_line);
-        let mut drives: Vec<DriveSlot> = opts.drives.iter().map(|&a| DriveSlot::new(a)).collect();
-        if let Some(path) = &opts.state {
-            for (i, d) in drives.iter_mut().enumerate() {
-                console.log(&d.attach_state(path, i).map_err(StartError)?);
-            }
+        let mut drives = Vec::new();
+        for (i, &address) in opts.drives.iter().enumerate() {
+            drives.push(DriveSlot::new(address, i, opts.state.as_deref()).map_err(StartError)?);
         }
         let mut lines = Vec::new();
         if opts.pty {
@@ -193,6 +181,9 @@ impl VirtualDrive {
                 .map_err(|e| StartError(format!("cannot listen on tcp {addr}: {e}")))?;
             console.log(&format!("tcp: listening on {} (RTU framing)", l.addr));
             listeners.push(l);
+        }
+        for d in &mut drives {
+            log_events(&mut console, d, None);
         }
         let trace = Trace::new(opts.trace.as_deref(), opts.plot.as_deref(), drives.len())
             .map_err(|e| StartError(format!("cannot create the trace file: {e}")))?;
@@ -246,7 +237,7 @@ impl VirtualDrive {
                 let last_rx_us = line.last_rx_us;
                 if let Some(ev) = line.framers[di].poll(now as u32) {
                     let replied =
-                        handle(&mut self.drives[di], di, ev, last_rx_us, &mut line.pending);
+                        handle(&mut self.drives[di], di, ev, last_rx_us, now, &mut line.pending);
                     self.after_frame(li, di, replied);
                 }
             }
@@ -273,11 +264,8 @@ impl VirtualDrive {
 
     /// Drains drive `di`'s core events to the log.
     fn log_events(&mut self, di: usize, line: Option<usize>) {
-        while let Some(ev) = self.drives[di].device.take_event() {
-            let on = line.map_or(String::new(), |li| format!(" on {}", self.lines[li].label));
-            let msg = format!("{}{on}: {}", self.drives[di].label(), describe(&ev));
-            self.console.log(&msg);
-        }
+        let on = line.map(|li| self.lines[li].label.as_str());
+        log_events(&mut self.console, &mut self.drives[di], on);
     }
 
     fn send_due_replies(&mut self, now: u64) {
@@ -292,7 +280,7 @@ impl VirtualDrive {
                     line.out.clear();
                 }
                 line.out.extend_from_slice(&p.bytes);
-                done.push(p.drive);
+                done.push((p.drive, p.ee));
             }
             if let Err(e) = line.stream.flush(&mut line.out) {
                 let msg = format!("{}: write failed: {e}", line.label);
@@ -300,7 +288,10 @@ impl VirtualDrive {
                 self.console.log(&msg);
             }
         }
-        for di in done {
+        for (di, ee) in done {
+            if ee {
+                self.drives[di].device.storage_busy = false;
+            }
             self.reply_done(di);
         }
     }
@@ -461,8 +452,14 @@ impl VirtualDrive {
                     let last_rx_us = line.last_rx_us;
                     let ev = line.framers[di].push(b, now as u32, RxFlags::NONE);
                     if let Some(ev) = ev {
-                        let replied =
-                            handle(&mut self.drives[di], di, ev, last_rx_us, &mut line.pending);
+                        let replied = handle(
+                            &mut self.drives[di],
+                            di,
+                            ev,
+                            last_rx_us,
+                            now,
+                            &mut line.pending,
+                        );
                         self.after_frame(li, di, replied);
                     }
                 }
@@ -493,26 +490,58 @@ impl VirtualDrive {
     }
 }
 
-/// Hands a closed frame to its drive and queues the reply. Returns whether
-/// a reply was queued.
+/// Hands a closed frame to its drive and queues what it answers. Returns
+/// whether something was queued (then `reply_sent` waits until it is out).
+///
+/// An accepted EE operation (SPEC §9) runs on the flash at once; its reply
+/// leaves no earlier than the chip would have finished (the flash's time
+/// tally) and the drive answers exception 6 to other requests until then.
 fn handle(
     slot: &mut DriveSlot,
     di: usize,
     ev: RxEvent<'_>,
     last_rx_us: u64,
+    now_us: u64,
     pending: &mut VecDeque<PendingReply>,
 ) -> bool {
     let mut reply = [0u8; MAX_FRAME];
-    match slot.device.handle_rx(ev, &mut reply) {
-        Response::Reply(n) => {
-            pending.push_back(PendingReply {
-                due_us: last_rx_us + u64::from(slot.device.reply_delay_us()),
-                drive: di,
-                bytes: reply[..n.min(MAX_FRAME)].to_vec(),
-            });
-            true
-        }
-        Response::Silent => false,
+    let mut due_us = last_rx_us + u64::from(slot.device.reply_delay_us());
+    let mut response = slot.device.handle_rx(ev, &mut reply);
+    let mut ee = false;
+    if let Some(r) = slot.device.poll_storage(&mut slot.store, &mut reply) {
+        response = r;
+        ee = true;
+        due_us = due_us.max(now_us + slot.store.flash().take_busy_us());
+        slot.device.storage_busy = true;
+    }
+    let bytes = match response {
+        Response::Reply(n) => reply[..n.min(MAX_FRAME)].to_vec(),
+        Response::Silent if ee => Vec::new(),
+        Response::Silent => return false,
+    };
+    pending.push_back(PendingReply {
+        due_us,
+        drive: di,
+        bytes,
+        ee,
+    });
+    true
+}
+
+/// Logs the core events of `slot` (and the file error behind a failed
+/// flash operation, which the core only knows as "flash failed").
+fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
+    while let Some(ev) = slot.device.take_event() {
+        let on = line.map_or(String::new(), |l| format!(" on {l}"));
+        let failed = matches!(
+            ev,
+            Event::EeDone { error: Some(_), .. } | Event::ParamsLoaded(BootOutcome::Unreadable(_))
+        );
+        let cause = match slot.store.flash().take_io_error() {
+            Some(e) if failed => format!(": {e}"),
+            _ => String::new(),
+        };
+        console.log(&format!("{}{on}: {}{cause}", slot.label(), describe(&ev)));
     }
 }
 
@@ -554,6 +583,19 @@ fn describe(ev: &Event) -> String {
         Event::ListenOnly(true) => "listen-only mode (diagnostics 0x04)".into(),
         Event::ListenOnly(false) => "listen-only mode ended".into(),
         Event::CountersCleared => "diagnostic counters cleared".into(),
+        Event::ParamsLoaded(BootOutcome::Loaded { fixed: 0 }) => "saved parameters loaded".into(),
+        Event::ParamsLoaded(BootOutcome::Loaded { fixed }) => {
+            format!("saved parameters loaded, {fixed} out of range set to default")
+        }
+        Event::ParamsLoaded(BootOutcome::Blank) => "no saved parameters: defaults".into(),
+        Event::ParamsLoaded(BootOutcome::Unreadable(e)) => {
+            format!("saved parameters unreadable ({e:?}): defaults")
+        }
+        Event::EeDone { op, error: None } => format!("EE operation {op:?} done"),
+        Event::EeDone {
+            op,
+            error: Some(e),
+        } => format!("EE operation {op:?} failed ({e:?})"),
         other => format!("{other:?}"),
     }
 }

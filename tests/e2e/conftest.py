@@ -223,9 +223,6 @@ def transport(request):
 NEEDS_DRIVE_LAYER = pytest.mark.xfail(
     reason="needs the drive layer and simulated axis (issue 3): power state machine, "
     "modes, step output", strict=False)
-NEEDS_EE_FRAMES = pytest.mark.xfail(
-    reason="needs the EE operation frames wired to the store (issue 5: Device::poll_storage)",
-    strict=False)
 
 
 # registers (SPEC §5) --------------------------------------------------------

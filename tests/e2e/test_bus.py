@@ -19,7 +19,7 @@ def exception(addr: int, function: int, code: int) -> bytes:
 
 # One request per exception code the bus can produce over a pty or TCP.
 # 9 (parity) cannot: neither carries parity bits, so no byte ever has a
-# parity error; the slave's unit tests cover it. 4 and 6 need the parameter
+# parity error; the slave's unit tests cover it. 4 and 6 come from the parameter
 # storage (test_state.py).
 EXCEPTIONS = [
     (1, "01 05 00 00 FF 00", "function 0x05 is not supported"),
