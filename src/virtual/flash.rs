@@ -78,9 +78,9 @@ impl FileFlash {
         }
     }
 
-    /// Region `index` of the state file `path`, created erased (0xFF) where
-    /// the file is missing or shorter; bytes beyond the region are left
-    /// alone.
+    /// Region `index` of the state file `path`. A missing or shorter file is
+    /// extended with erased bytes (0xFF) up to the end of the region; bytes
+    /// beyond it are left alone.
     pub fn open(path: &Path, index: usize) -> io::Result<Self> {
         let mut file = OpenOptions::new()
             .read(true)
@@ -89,20 +89,19 @@ impl FileFlash {
             .truncate(false)
             .open(path)?;
         let base = (index * REGION_BYTES) as u64;
+        let end = base + REGION_BYTES as u64;
         let len = file.metadata()?.len();
-        let mut image = Vec::with_capacity(REGION_BYTES);
-        if len > base {
-            file.seek(SeekFrom::Start(base))?;
-            (&mut file)
-                .take(REGION_BYTES as u64)
-                .read_to_end(&mut image)?;
-        }
-        if image.len() < REGION_BYTES {
-            let have = image.len();
-            image.resize(REGION_BYTES, 0xFF);
-            file.write_all_at(&image[have..], base + have as u64)?;
+        if len < end {
+            // Erased up to the end of this region, including the regions of
+            // drives before it that were never opened (no zero-filled holes).
+            file.write_all_at(&vec![0xFF; (end - len) as usize], len)?;
             file.sync_data()?;
         }
+        let mut image = Vec::with_capacity(REGION_BYTES);
+        file.seek(SeekFrom::Start(base))?;
+        (&mut file)
+            .take(REGION_BYTES as u64)
+            .read_to_end(&mut image)?;
         Ok(Self {
             cells: SimFlash::from_image(&image),
             file: Some((path.to_path_buf(), base)),
@@ -210,7 +209,10 @@ mod tests {
     #[test]
     fn nor_rules_hold_after_a_restart() {
         let p = temp("rules");
-        FileFlash::open(&p, 0).unwrap().write(0, &[0x0F; 8]).unwrap();
+        FileFlash::open(&p, 0)
+            .unwrap()
+            .write(0, &[0x0F; 8])
+            .unwrap();
         let mut f = FileFlash::open(&p, 0).unwrap();
         let mut buf = [0u8; 8];
         f.read(0, &mut buf).unwrap();
@@ -220,7 +222,10 @@ mod tests {
             f.write(0, &[0x03; 8]),
             Err(FlashError::Cells(SimFlashError::AlreadyProgrammed))
         ));
-        assert_eq!(f.write(4, &[0; 8]).unwrap_err().kind(), NorFlashErrorKind::NotAligned);
+        assert_eq!(
+            f.write(4, &[0; 8]).unwrap_err().kind(),
+            NorFlashErrorKind::NotAligned
+        );
         assert_eq!(
             f.write(REGION_BYTES as u32, &[0; 8]).unwrap_err().kind(),
             NorFlashErrorKind::OutOfBounds
@@ -245,7 +250,10 @@ mod tests {
         let p = temp("vanished");
         let mut f = FileFlash::open(&p, 0).unwrap();
         std::fs::remove_file(&p).unwrap();
-        assert_eq!(f.write(0, &[0; 8]).unwrap_err().kind(), NorFlashErrorKind::Other);
+        assert_eq!(
+            f.write(0, &[0; 8]).unwrap_err().kind(),
+            NorFlashErrorKind::Other
+        );
         assert_eq!(
             f.take_io_error().map(|e| e.kind()),
             Some(io::ErrorKind::NotFound)

@@ -236,8 +236,14 @@ impl VirtualDrive {
                 let line = &mut self.lines[li];
                 let last_rx_us = line.last_rx_us;
                 if let Some(ev) = line.framers[di].poll(now as u32) {
-                    let replied =
-                        handle(&mut self.drives[di], di, ev, last_rx_us, now, &mut line.pending);
+                    let replied = handle(
+                        &mut self.drives[di],
+                        di,
+                        ev,
+                        last_rx_us,
+                        now,
+                        &mut line.pending,
+                    );
                     self.after_frame(li, di, replied);
                 }
             }
@@ -592,10 +598,7 @@ fn describe(ev: &Event) -> String {
             format!("saved parameters unreadable ({e:?}): defaults")
         }
         Event::EeDone { op, error: None } => format!("EE operation {op:?} done"),
-        Event::EeDone {
-            op,
-            error: Some(e),
-        } => format!("EE operation {op:?} failed ({e:?})"),
+        Event::EeDone { op, error: Some(e) } => format!("EE operation {op:?} failed ({e:?})"),
         other => format!("{other:?}"),
     }
 }
