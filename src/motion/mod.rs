@@ -1,2 +1,29 @@
 //! Trapezoid planner, step schedule and homing sequencer (SPEC §8.4–§8.6).
-//! Filled by issue 3.
+//!
+//! Follow one set-point: [`planner::Planner`] turns goals (move to a
+//! position, run at a velocity, stop) into [`profile::Profile`]s, times
+//! their steps exactly and compresses the times into [`schedule::Segment`]s
+//! in the shared [`schedule::StepSchedule`]; the step-timer interrupt's
+//! [`schedule::StepSource`] turns them into timer delays. [`sim::SimAxis`]
+//! plays the interrupt and the motor on a host.
+
+pub mod homing;
+pub mod planner;
+pub mod profile;
+pub mod schedule;
+pub mod sim;
+
+pub use homing::{Homing, HomingMethod};
+pub use planner::{Fill, Goal, Planner, PlannerConfig, Ramp, MAX_ACCEL, MAX_STEP_RATE};
+pub use schedule::{NextStep, Segment, StepSchedule, StepSource, SCHEDULE_SLOTS};
+
+/// Logical switch states, after the polarity of PA13 (true = active).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Switches {
+    /// CW limit: the negative ("left") end of travel (SPEC §8.6).
+    pub cw_limit: bool,
+    /// CCW limit: the positive ("right") end.
+    pub ccw_limit: bool,
+    pub home: bool,
+}

@@ -300,3 +300,6 @@ pub fn decode_read(reply: &[u8]) -> Result<Vec<u16>, u8> {
         .map(|c| u16::from_be_bytes([c[0], c[1]]))
         .collect())
 }
+
+/// Motion harness: planner / device on a simulated axis.
+pub mod axis;

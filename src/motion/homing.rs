@@ -1,0 +1,2 @@
+//! placeholder
+pub struct Homing; pub struct HomingMethod;

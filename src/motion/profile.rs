@@ -1,0 +1,315 @@
+//! One planned motion in one direction, and the exact time of each of its
+//! steps (SPEC §8.4, §8.5).
+//!
+//! A trapezoid with constant accelerations is a piecewise *linear* function
+//! of position for v²: `v² = v0² + 2·a·x` on every piece. So the profile is
+//! stored as up to three pieces (ramp to cruise, cruise, ramp to the end
+//! velocity) with real-valued boundaries (Q32 steps), and the time between
+//! two positions of one piece is `Δt = 2·Δx / (v1 + v2)` — one square root
+//! and one division, no cancellation, no accumulation: every step time is
+//! computed from the continuous profile, not from the previous interval.
+//!
+//! Units: velocity `V` in 0.1 steps/s (register 0.1 rev/s × PA10), held as
+//! `V · 2^20`; v² as `V² · 2^40`; acceleration `A` in 0.1 steps/s², which
+//! makes the v² slope `20·A` per step (`20·A·2^8` per Q32 position unit);
+//! times in timer ticks, Q32.32, wrapping.
+//!
+//! This runs in thread mode once per schedule segment (u128 maths), never in
+//! the step interrupt.
+
+/// Fractional bits of fixed-point velocities.
+pub const V_FRAC: u32 = 20;
+/// Fractional bits of fixed-point v².
+pub const W_FRAC: u32 = 2 * V_FRAC;
+/// Fractional bits of positions inside a profile.
+pub const X_FRAC: u32 = 32;
+/// v² slope per Q32 position unit for a slope of 1 (V² per step).
+const SLOPE_SHIFT: u32 = W_FRAC - X_FRAC;
+
+/// Relative velocity change allowed within one segment: 2^-5 ≈ 3 %. The
+/// segment's intervals are a quadratic in the step number matched to the
+/// exact ones at both ends; the ideal ones go as 1/v, whose next term makes
+/// the shown acceleration deviate by about 15·δ²/12 ≈ 0.1 % (SPEC
+/// exactness: ≤ +2 %).
+const SEGMENT_DV_SHIFT: u32 = 5;
+
+/// v² in fixed point from a velocity in 0.1 steps/s.
+pub const fn w_of(v: u64) -> u128 {
+    (v as u128 * v as u128) << W_FRAC
+}
+
+/// v² slope per Q32 position unit from an acceleration in 0.1 steps/s².
+pub const fn slope_of(a: u64) -> u128 {
+    (20 * a as u128) << SLOPE_SHIFT
+}
+
+/// Steps needed to stop from `w` with slope `sd` (rounded up: stops end
+/// on a whole step, with a deceleration at most the commanded one).
+pub fn stop_steps(w: u128, sd: u128) -> u64 {
+    if sd == 0 {
+        return 0;
+    }
+    let per_step = sd << X_FRAC;
+    w.div_ceil(per_step) as u64
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Piece {
+    /// End position, Q32 steps from the profile origin.
+    end: u128,
+    /// v² slope per Q32 unit (0 = cruise).
+    slope: i128,
+}
+
+/// See the module docs.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Profile {
+    pub forward: bool,
+    /// Whole steps to the end; `None` runs forever (velocity mode).
+    pub steps: Option<u64>,
+    pieces: [Piece; 3],
+    n_pieces: usize,
+    idx: usize,
+    /// Steps already timed from the origin.
+    done: u64,
+    /// Anchor: Q32 position, v², v (fixed point) and time of a point on the
+    /// current piece. Re-anchored at every timed step, so that the numbers
+    /// stay small and cruise times stay exact.
+    ax: u128,
+    aw: u128,
+    av: u128,
+    at: u64,
+    /// 20 × tick frequency.
+    k_time: u128,
+    /// v² at the end (exact; the pieces' rounded boundaries would leave a
+    /// remainder of less than one slope unit).
+    w_end: u128,
+}
+
+impl Profile {
+    /// A move of `steps` whole steps from v² = `w0` to v² = `we`, cruising at
+    /// `wc`, with rise slope `su` and fall slope `sd` (see [`slope_of`]),
+    /// starting at time `t0` (Q32.32 ticks).
+    ///
+    /// The caller guarantees it can stop in time (`w0 ≤ we + sd·steps`),
+    /// `wc > 0` and `sd > 0`, and `su > 0` if `w0 < wc`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new_move(forward: bool, w0: u128, wc: u128, we: u128, su: u128, sd: u128, steps: u64, t0: u64, tick_hz: u32) -> Self {
+        let we = we.min(wc);
+        let d = u128::from(steps) << X_FRAC;
+        let sd_i = sd as i128;
+        let fall_len = (wc - we) / sd.max(1);
+        let x_ce = d.saturating_sub(fall_len);
+        let mut p = Self::start(forward, Some(steps), w0, t0, tick_hz);
+        p.w_end = we;
+        if w0 <= wc {
+            let x_rc = if su == 0 { 0 } else { (wc - w0) / su };
+            if x_rc <= x_ce {
+                p.push(x_rc, su as i128);
+                p.push(x_ce, 0);
+                p.push(d, -sd_i);
+            } else {
+                let x_p = ((we + sd * d).saturating_sub(w0) / (su + sd)).min(d);
+                p.push(x_p, su as i128);
+                p.push(d, -sd_i);
+            }
+        } else {
+            let x_fc = ((w0 - wc) / sd.max(1)).min(x_ce);
+            p.push(x_fc, -sd_i);
+            p.push(x_ce, 0);
+            p.push(d, -sd_i);
+        }
+        p
+    }
+
+    /// Ramp from `w0` to `wc` (rise `su` or fall `sd`) and cruise for ever.
+    pub fn new_run(forward: bool, w0: u128, wc: u128, su: u128, sd: u128, t0: u64, tick_hz: u32) -> Self {
+        let mut p = Self::start(forward, None, w0, t0, tick_hz);
+        if w0 <= wc {
+            p.push(if su == 0 { 0 } else { (wc - w0) / su }, su as i128);
+        } else {
+            p.push((w0 - wc) / sd.max(1), -(sd as i128));
+        }
+        p.push(u128::MAX, 0);
+        p
+    }
+
+    /// Cruise at `w0` until the latest point from which slope `sd` stops on
+    /// a whole step, then decelerate to rest there.
+    pub fn new_stop(forward: bool, w0: u128, sd: u128, t0: u64, tick_hz: u32) -> Self {
+        let steps = stop_steps(w0, sd);
+        Self::new_move(forward, w0, w0, 0, 0, sd, steps, t0, tick_hz)
+    }
+
+    fn start(forward: bool, steps: Option<u64>, w0: u128, t0: u64, tick_hz: u32) -> Self {
+        Self {
+            forward,
+            steps,
+            pieces: [Piece::default(); 3],
+            n_pieces: 0,
+            idx: 0,
+            done: 0,
+            ax: 0,
+            aw: w0,
+            av: w0.isqrt(),
+            at: t0,
+            k_time: 20 * u128::from(tick_hz),
+            w_end: 0,
+        }
+    }
+
+    fn push(&mut self, end: u128, slope: i128) {
+        self.pieces[self.n_pieces] = Piece { end, slope };
+        self.n_pieces += 1;
+    }
+
+    /// Steps timed so far.
+    pub fn done(&self) -> u64 {
+        self.done
+    }
+
+    /// Whole steps left (`u64::MAX` when endless).
+    pub fn remaining(&self) -> u64 {
+        self.steps.map_or(u64::MAX, |s| s - self.done)
+    }
+
+    /// v² at the last timed step (or the start).
+    pub fn w(&self) -> u128 {
+        self.aw
+    }
+
+    /// Velocity at the last timed step, 0.1 steps/s (rounded down).
+    pub fn velocity(&self) -> u64 {
+        (self.av >> V_FRAC) as u64
+    }
+
+    /// The current piece changes speed (for statusword bit 13 in velocity
+    /// mode).
+    pub fn ramping(&self) -> bool {
+        self.pieces[self.idx].slope != 0 && u128::from(self.done) < self.pieces[self.idx].end >> X_FRAC
+    }
+
+    /// How many steps the next schedule segment should hold: whole steps
+    /// inside the current piece, short enough that the velocity changes by at
+    /// most 2^-8 over it (1 if the next step crosses a piece boundary).
+    pub fn segment_len(&self, max_steps: u64) -> u64 {
+        let piece = self.pieces[self.idx];
+        let piece_end = (piece.end >> X_FRAC).min(u128::from(u64::MAX)) as u64;
+        let avail = piece_end.saturating_sub(self.done).min(self.remaining());
+        if avail == 0 {
+            return 1;
+        }
+        let n = if piece.slope == 0 {
+            avail
+        } else {
+            let s = piece.slope.unsigned_abs();
+            let n = self.aw / (s << (X_FRAC + SEGMENT_DV_SHIFT - 1));
+            let n = if piece.slope < 0 { n - (n >> 6) } else { n };
+            n.min(u128::from(avail)) as u64
+        };
+        n.clamp(1, max_steps.max(1))
+    }
+
+    /// Time (Q32.32 ticks) of step `done + n`, which becomes the new anchor.
+    pub fn advance(&mut self, n: u64) -> u64 {
+        self.done += n;
+        let x = u128::from(self.done) << X_FRAC;
+        while x > self.pieces[self.idx].end && self.idx + 1 < self.n_pieces {
+            let end = self.pieces[self.idx].end;
+            self.move_anchor(end);
+            self.idx += 1;
+        }
+        self.move_anchor(x);
+        self.at
+    }
+
+    fn move_anchor(&mut self, x: u128) {
+        let slope = self.pieces[self.idx].slope;
+        let dx = x - self.ax;
+        let w = if self.steps.is_some_and(|s| x == u128::from(s) << X_FRAC) {
+            self.w_end
+        } else if slope >= 0 {
+            self.aw + slope as u128 * dx
+        } else {
+            self.aw.saturating_sub(slope.unsigned_abs() * dx)
+        };
+        let v = w.isqrt();
+        let den = self.av + v;
+        if dx > 0 && den > 0 {
+            let dt = self.k_time * dx * (1u128 << V_FRAC) / den;
+            self.at = self.at.wrapping_add(dt as u64);
+        }
+        self.ax = x;
+        self.aw = w;
+        self.av = v;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const F: u32 = 10_000_000;
+
+    fn ticks(t: u64) -> f64 {
+        t as f64 / 4294967296.0
+    }
+
+    #[test]
+    fn triangle_from_rest_matches_closed_form() {
+        // 1000 steps/s² (A = 10000), cruise far above: a triangle. The peak
+        // is at 50 steps.
+        let su = slope_of(10_000);
+        let mut p = Profile::new_move(true, 0, w_of(1_000_000), 0, su, su, 100, 0, F);
+        let a: f64 = 1000.0;
+        for k in 1..=100u64 {
+            let t = ticks(p.advance(1)) / f64::from(F);
+            let peak = (2.0 * 50.0 / a).sqrt();
+            let ideal = if k <= 50 {
+                (2.0 * k as f64 / a).sqrt()
+            } else {
+                2.0 * peak - (2.0 * (100 - k) as f64 / a).sqrt()
+            };
+            assert!((t - ideal).abs() < 1e-9, "step {k}: {t} vs {ideal}");
+        }
+        assert_eq!(p.remaining(), 0);
+        assert_eq!(p.w(), 0);
+    }
+
+    #[test]
+    fn cruise_times_are_exact_over_long_runs() {
+        // 123.4 steps/s from the start (w0 = wc): every step 1/123.4 s.
+        let w = w_of(1234);
+        let mut p = Profile::new_run(true, w, w, slope_of(1), slope_of(1), 0, F);
+        let mut t = 0;
+        // 300 × 100 steps = 243 s, inside the 2^32-tick wrap of Q32.32 times
+        for _ in 0..300 {
+            let n = p.segment_len(100);
+            t = p.advance(n);
+        }
+        let expect = p.done() as f64 / 123.4 * f64::from(F);
+        assert!((ticks(t) - expect).abs() < 1e-3, "{} vs {expect}", ticks(t));
+    }
+
+    #[test]
+    fn stop_ends_on_a_whole_step_at_rest() {
+        let w0 = w_of(5000); // 500 steps/s
+        let sd = slope_of(10_000); // 1000 steps/s²: 125 steps to stop
+        assert_eq!(stop_steps(w0, sd), 125);
+        let mut p = Profile::new_stop(false, w0, sd, 0, F);
+        assert_eq!(p.steps, Some(125));
+        while p.remaining() > 0 {
+            let n = p.segment_len(1000);
+            p.advance(n);
+        }
+        assert_eq!(p.w(), 0);
+    }
+
+    #[test]
+    fn segments_stay_inside_pieces() {
+        let su = slope_of(100_000);
+        let p = Profile::new_move(true, 0, w_of(100_000), 0, su, su, 1_000_000, 0, F);
+        // at rest: single steps
+        assert_eq!(p.segment_len(1 << 20), 1);
+    }
+}

@@ -1,0 +1,215 @@
+//! A simulated axis: the step interrupt, the motor and three switches, for
+//! the host tests and the virtual drive (no_std, no heap, no clock).
+//!
+//! # API
+//!
+//! - [`SimAxis::new`]`(tick_hz)` then the builders
+//!   [`SimAxis::with_cw_limit`]`(edge)` (active at and below `edge`: "left",
+//!   negative), [`SimAxis::with_ccw_limit`]`(edge)` (active at and above),
+//!   [`SimAxis::with_home`]`(from, to)` (active on `from..=to`),
+//!   [`SimAxis::at`]`(position)` (physical start position, steps).
+//! - [`SimAxis::run_until`]`(sched, tick, on_step)`: plays the
+//!   [`StepSource`] as the step-timer interrupt would, making every step
+//!   whose time is `≤ tick` and calling `on_step` with each
+//!   [`StepRecord`]. It returns early, right after the step, when that step
+//!   changed a switch state ([`RunStop::SwitchChanged`]) so that the caller
+//!   can hand the new states to the drive at the exact step (SPEC §8.6: the
+//!   origin is the step where the edge was seen).
+//! - [`SimAxis::kick`]`(sched)`: what the glue does after each control call:
+//!   start the idle interrupt when the schedule holds segments.
+//! - [`SimAxis::switches`]: the logical switch states at the current
+//!   position; [`SimAxis::position`], [`SimAxis::now_ticks`],
+//!   [`SimAxis::now_us`], [`SimAxis::us_to_ticks`].
+//!
+//! A typical loop (see `tests/common`):
+//! ```ignore
+//! loop {
+//!     let stop = axis.run_until(&sched, axis.us_to_ticks(next_us), |s| ...);
+//!     let now = if stop == RunStop::SwitchChanged { axis.now_us() } else { next_us };
+//!     device.control(now, axis.switches(), &sched);
+//!     axis.kick(&sched);
+//! }
+//! ```
+
+use super::schedule::{StepSchedule, StepSource};
+use super::Switches;
+
+/// One step the simulated motor made.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepRecord {
+    /// Timer tick at which the step was made.
+    pub tick: u64,
+    /// The exact time the schedule asked for, Q32.32 ticks (wrapping).
+    pub exact: u64,
+    /// Physical position after the step.
+    pub position: i64,
+    pub forward: bool,
+}
+
+/// Why [`SimAxis::run_until`] returned.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunStop {
+    /// Time reached `until`.
+    Reached,
+    /// The last step changed a switch state; time is that step's.
+    SwitchChanged,
+}
+
+/// See the module docs.
+#[derive(Clone, Debug)]
+pub struct SimAxis {
+    source: StepSource,
+    tick_hz: u32,
+    now: u64,
+    /// Tick and direction of the step the interrupt has announced.
+    next: Option<(u64, bool)>,
+    /// Q32.32 tick at which the interrupt's current run started.
+    run_origin: u64,
+    position: i64,
+    cw_limit: Option<i64>,
+    ccw_limit: Option<i64>,
+    home: Option<(i64, i64)>,
+    /// Steps made.
+    pub steps: u64,
+}
+
+impl SimAxis {
+    pub fn new(tick_hz: u32) -> Self {
+        Self {
+            source: StepSource::new(),
+            tick_hz,
+            now: 0,
+            next: None,
+            run_origin: 0,
+            position: 0,
+            cw_limit: None,
+            ccw_limit: None,
+            home: None,
+            steps: 0,
+        }
+    }
+
+    pub fn with_cw_limit(mut self, edge: i64) -> Self {
+        self.cw_limit = Some(edge);
+        self
+    }
+
+    pub fn with_ccw_limit(mut self, edge: i64) -> Self {
+        self.ccw_limit = Some(edge);
+        self
+    }
+
+    pub fn with_home(mut self, from: i64, to: i64) -> Self {
+        self.home = Some((from, to));
+        self
+    }
+
+    pub fn at(mut self, position: i64) -> Self {
+        self.position = position;
+        self
+    }
+
+    /// Physical position, steps.
+    pub fn position(&self) -> i64 {
+        self.position
+    }
+
+    pub fn now_ticks(&self) -> u64 {
+        self.now
+    }
+
+    /// Current time in µs, rounded up (never before the last step).
+    pub fn now_us(&self) -> u64 {
+        (u128::from(self.now) * 1_000_000).div_ceil(u128::from(self.tick_hz)) as u64
+    }
+
+    /// The planner's conversion (rounded down).
+    pub fn us_to_ticks(&self, us: u64) -> u64 {
+        (u128::from(us) * u128::from(self.tick_hz) / 1_000_000) as u64
+    }
+
+    /// A step is announced on the timer.
+    pub fn is_running(&self) -> bool {
+        self.next.is_some()
+    }
+
+    pub fn switches(&self) -> Switches {
+        let p = self.position;
+        Switches {
+            cw_limit: self.cw_limit.is_some_and(|e| p <= e),
+            ccw_limit: self.ccw_limit.is_some_and(|e| p >= e),
+            home: self.home.is_some_and(|(a, b)| a <= p && p <= b),
+        }
+    }
+
+    /// Starts the idle interrupt if the schedule has work (see module docs).
+    pub fn kick(&mut self, sched: &StepSchedule) {
+        if self.next.is_none() && !sched.is_empty() {
+            let now = self.now;
+            self.run_origin = now << 32;
+            self.next = self
+                .source
+                .advance(sched)
+                .map(|s| (now + u64::from(s.delay_ticks), s.forward));
+        }
+    }
+
+    /// See the module docs.
+    pub fn run_until(&mut self, sched: &StepSchedule, until: u64, mut on_step: impl FnMut(StepRecord)) -> RunStop {
+        loop {
+            let Some((tick, forward)) = self.next else {
+                self.now = self.now.max(until);
+                return RunStop::Reached;
+            };
+            if tick > until {
+                self.now = self.now.max(until);
+                return RunStop::Reached;
+            }
+            self.now = tick;
+            let before = self.switches();
+            self.position += if forward { 1 } else { -1 };
+            self.steps += 1;
+            on_step(StepRecord {
+                tick,
+                exact: self.run_origin.wrapping_add(self.source.scheduled_time()),
+                position: self.position,
+                forward,
+            });
+            self.next = self
+                .source
+                .advance(sched)
+                .map(|s| (tick + u64::from(s.delay_ticks), s.forward));
+            if self.switches() != before {
+                return RunStop::SwitchChanged;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::motion::Segment;
+
+    #[test]
+    fn steps_and_switch_windows() {
+        let sched = StepSchedule::new();
+        let mut axis = SimAxis::new(1_000_000).with_home(3, 5).with_ccw_limit(8).at(0);
+        sched
+            .push(Segment { interval: 10 << 32, add: 0, add2: 0, count: 10, forward: true })
+            .unwrap();
+        axis.kick(&sched);
+        let mut seen = 0;
+        assert_eq!(axis.run_until(&sched, 1000, |_| seen += 1), RunStop::SwitchChanged);
+        assert_eq!((axis.position(), axis.now_ticks()), (3, 30));
+        assert!(axis.switches().home);
+        assert_eq!(axis.run_until(&sched, 1000, |_| seen += 1), RunStop::SwitchChanged);
+        assert_eq!(axis.position(), 6);
+        assert!(!axis.switches().home);
+        assert_eq!(axis.run_until(&sched, 1000, |_| seen += 1), RunStop::SwitchChanged);
+        assert!(axis.switches().ccw_limit);
+        assert_eq!(axis.run_until(&sched, 1000, |_| seen += 1), RunStop::Reached);
+        assert_eq!((axis.position(), seen, sched.position()), (10, 10, 10));
+        assert_eq!(axis.now_ticks(), 1000);
+    }
+}

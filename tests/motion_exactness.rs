@@ -1,0 +1,149 @@
+//! Exactness of the planner and step schedule (issue 3, SPEC §8.4/§8.5):
+//! final position exact, step times within min(1 µs, 5 %) of the continuous
+//! profile, velocity ≤ +0.5 %, acceleration ≤ +2 % after the first 10
+//! steps, direction changes only at rest, nothing scheduled in the past.
+
+mod common;
+
+use common::axis::{check_dynamics, check_times, trapezoid_time, PlannerRun};
+use modbus_drive::motion::{Goal, Ramp};
+use proptest::prelude::*;
+
+/// `v` steps/s, `a`/`d` steps/s² → the planner's 0.1 units.
+fn ramp(v: f64, a: f64, d: f64) -> Ramp {
+    Ramp {
+        velocity: (v * 10.0) as u64,
+        accel: (a * 10.0) as u64,
+        decel: (d * 10.0) as u64,
+    }
+}
+
+fn single_move(tick_hz: u32, dist: i64, v10: u64, a10: u64, d10: u64) {
+    let mut run = PlannerRun::new(tick_hz, 1000);
+    let r = Ramp { velocity: v10, accel: a10, decel: d10 };
+    run.control();
+    assert!(run.planner.set_goal(Goal::Move { target: dist, ramp: r, end_velocity: 0 }));
+    run.control();
+    let t0 = run.axis.now_ticks();
+    run.run_until_rest(3_600_000_000);
+    assert_eq!(run.axis.position(), dist, "final position");
+    assert_eq!(run.steps.len() as i64, dist.abs());
+    let (v, a, d) = (v10 as f64 / 10.0, a10 as f64 / 10.0, d10 as f64 / 10.0);
+    check_times(&run.steps, tick_hz, t0, |k| trapezoid_time(dist.abs() as f64, v, a, d, k));
+    check_dynamics(&run.steps, tick_hz, v, a.max(d));
+    assert_eq!(run.planner.late_segments, 0);
+    assert_eq!(run.planner.underruns, 0);
+}
+
+#[test]
+fn seed_example_move_200000_steps() {
+    // seed 000 ch. 6.1: 200000 steps at 5 r/s, 10 r/s², PA10 = 10000
+    single_move(10_000_000, 200_000, 50 * 10_000, 100 * 10_000, 100 * 10_000);
+}
+
+#[test]
+fn short_triangles_and_single_steps() {
+    for dist in [1, 2, 3, 7, 10, 11, 64, 101] {
+        single_move(8_000_000, dist, 200_000, 100_000, 300_000);
+        single_move(8_000_000, -dist, 20_000, 100_000, 50_000);
+    }
+}
+
+#[test]
+fn at_the_maximum_step_rate() {
+    single_move(10_000_000, 300_000, 2_000_000, 20_000_000, 20_000_000);
+    single_move(4_000_000, -50_000, 2_000_000, 5_000_000, 20_000_000);
+}
+
+#[test]
+fn slowest_ramps() {
+    // 2 steps/s, 2 steps/s² (0.1 r/s and 0.1 r/s² at PA10 = 200)
+    single_move(10_000_000, 12, 20, 20, 20);
+}
+
+fn log_range(lo: f64, hi: f64) -> impl Strategy<Value = f64> {
+    (lo.ln()..hi.ln()).prop_map(f64::exp)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// Random single moves: exact end, times, velocity, acceleration.
+    #[test]
+    fn random_moves(
+        dist in prop_oneof![1i64..200, 200i64..20_000],
+        neg in any::<bool>(),
+        v in log_range(20.0, 200_000.0),
+        a in log_range(50.0, 2_000_000.0),
+        d in log_range(50.0, 2_000_000.0),
+        tick in prop_oneof![Just(4_000_000u32), Just(8_000_000), Just(10_000_000), Just(72_000_000)],
+    ) {
+        // keep each case short in simulated time
+        let dur = dist as f64 / v + v / a + v / d;
+        prop_assume!(dur < 20.0);
+        let r = ramp(v, a, d);
+        prop_assume!(r.velocity > 0 && r.accel > 0 && r.decel > 0);
+        single_move(tick, if neg { -dist } else { dist }, r.velocity, r.accel, r.decel);
+    }
+
+    /// Random changes of target while moving (bit 5 semantics: continue
+    /// from the current velocity, reverse if the target is behind).
+    #[test]
+    fn random_mid_move_changes(
+        targets in prop::collection::vec((-20_000i64..20_000, 1u64..40), 1..5),
+        v in log_range(200.0, 100_000.0),
+        a in log_range(1_000.0, 1_000_000.0),
+        d in log_range(1_000.0, 1_000_000.0),
+    ) {
+        let tick = 10_000_000;
+        let mut run = PlannerRun::new(tick, 1000);
+        let r = ramp(v, a, d);
+        run.control();
+        let mut last = 0;
+        for (target, after_ms) in &targets {
+            assert!(run.planner.set_goal(Goal::Move { target: *target, ramp: r, end_velocity: 0 }));
+            last = *target;
+            for _ in 0..*after_ms {
+                run.tick();
+            }
+        }
+        run.run_until_rest(600_000_000);
+        prop_assert_eq!(run.axis.position(), last);
+        check_dynamics(&run.steps, tick, v, a.max(d));
+        prop_assert_eq!(run.planner.late_segments, 0);
+        prop_assert_eq!(run.planner.underruns, 0);
+    }
+
+    /// Velocity mode: signed speed changes while running, reversal through
+    /// zero with the deceleration ramp (SPEC §8.5).
+    #[test]
+    fn random_velocity_changes(
+        speeds in prop::collection::vec((-50_000.0f64..50_000.0, 1u64..60), 1..5),
+        a in log_range(5_000.0, 1_000_000.0),
+    ) {
+        let tick = 8_000_000;
+        let mut run = PlannerRun::new(tick, 1000);
+        run.control();
+        let mut vmax: f64 = 0.0;
+        for (v, ms) in &speeds {
+            if v.abs() < 10.0 { continue; }
+            vmax = vmax.max(v.abs());
+            let g = Goal::Run { forward: *v > 0.0, ramp: ramp(v.abs(), a, a) };
+            assert!(run.planner.set_goal(g));
+            for _ in 0..*ms {
+                run.tick();
+            }
+        }
+        assert!(run.planner.set_goal(Goal::Stop { decel: (a * 10.0) as u64 }));
+        run.run_until_rest(600_000_000);
+        let net: i64 = run.steps.iter().map(|s| if s.forward { 1 } else { -1 }).sum();
+        prop_assert_eq!(run.axis.position(), net);
+        prop_assert_eq!(i64::from(run.sched.position()), net);
+        if vmax > 0.0 {
+            check_dynamics(&run.steps, tick, vmax, a);
+        }
+        prop_assert_eq!(run.planner.late_segments, 0);
+        prop_assert_eq!(run.planner.underruns, 0);
+    }
+}
+
