@@ -20,16 +20,26 @@ fn ramp(v: f64, a: f64, d: f64) -> Ramp {
 
 fn single_move(tick_hz: u32, dist: i64, v10: u64, a10: u64, d10: u64) {
     let mut run = PlannerRun::new(tick_hz, 1000);
-    let r = Ramp { velocity: v10, accel: a10, decel: d10 };
+    let r = Ramp {
+        velocity: v10,
+        accel: a10,
+        decel: d10,
+    };
     run.control();
-    assert!(run.planner.set_goal(Goal::Move { target: dist, ramp: r, end_velocity: 0 }));
+    assert!(run.planner.set_goal(Goal::Move {
+        target: dist,
+        ramp: r,
+        end_velocity: 0
+    }));
     run.control();
     let t0 = run.axis.now_ticks();
     run.run_until_rest(3_600_000_000);
     assert_eq!(run.axis.position(), dist, "final position");
     assert_eq!(run.steps.len() as i64, dist.abs());
     let (v, a, d) = (v10 as f64 / 10.0, a10 as f64 / 10.0, d10 as f64 / 10.0);
-    check_times(&run.steps, tick_hz, t0, |k| trapezoid_time(dist.abs() as f64, v, a, d, k));
+    check_times(&run.steps, tick_hz, t0, |k| {
+        trapezoid_time(dist.abs() as f64, v, a, d, k)
+    });
     check_dynamics(&run.steps, tick_hz, v, a.max(d));
     assert_eq!(run.planner.late_segments, 0);
     assert_eq!(run.planner.underruns, 0);
@@ -146,4 +156,3 @@ proptest! {
         prop_assert_eq!(run.planner.underruns, 0);
     }
 }
-

@@ -249,7 +249,9 @@ impl Planner {
         let ok = self.start(goal);
         if !ok && self.w > 0 {
             // keep the motor under control: stop with the last deceleration
-            self.start(Goal::Stop { decel: self.last_decel });
+            self.start(Goal::Stop {
+                decel: self.last_decel,
+            });
         }
         ok
     }
@@ -337,7 +339,13 @@ impl Planner {
                         return false;
                     }
                     self.last_decel = decel;
-                    self.profile = Some(Profile::new_stop(self.forward, self.w, slope_of(decel), self.t_ideal, hz));
+                    self.profile = Some(Profile::new_stop(
+                        self.forward,
+                        self.w,
+                        slope_of(decel),
+                        self.t_ideal,
+                        hz,
+                    ));
                 }
                 true
             }
@@ -357,18 +365,44 @@ impl Planner {
                 if self.w == 0 {
                     if dist != 0 {
                         self.forward = dist > 0;
-                        self.profile = Some(Profile::new_move(self.forward, 0, wc, we, su, sd, steps, self.t_ideal, hz));
+                        self.profile = Some(Profile::new_move(
+                            self.forward,
+                            0,
+                            wc,
+                            we,
+                            su,
+                            sd,
+                            steps,
+                            self.t_ideal,
+                            hz,
+                        ));
                     }
                     return true;
                 }
                 let toward = dist != 0 && (dist > 0) == self.forward;
                 if toward && self.w <= we.min(wc) + sd * (u128::from(steps) << 32) {
-                    self.profile = Some(Profile::new_move(self.forward, self.w, wc, we, su, sd, steps, self.t_ideal, hz));
+                    self.profile = Some(Profile::new_move(
+                        self.forward,
+                        self.w,
+                        wc,
+                        we,
+                        su,
+                        sd,
+                        steps,
+                        self.t_ideal,
+                        hz,
+                    ));
                 } else {
                     // Behind us or too close to stop: decelerate, then plan
                     // again from rest (SPEC §8.4 bit 5, "decelerates,
                     // reverses and arrives").
-                    self.profile = Some(Profile::new_stop(self.forward, self.w, sd, self.t_ideal, hz));
+                    self.profile = Some(Profile::new_stop(
+                        self.forward,
+                        self.w,
+                        sd,
+                        self.t_ideal,
+                        hz,
+                    ));
                     self.then = Some(goal);
                 }
                 true
@@ -380,11 +414,25 @@ impl Planner {
                 self.last_decel = ramp.decel;
                 let sd = slope_of(ramp.decel);
                 if self.w > 0 && forward != self.forward {
-                    self.profile = Some(Profile::new_stop(self.forward, self.w, sd, self.t_ideal, hz));
+                    self.profile = Some(Profile::new_stop(
+                        self.forward,
+                        self.w,
+                        sd,
+                        self.t_ideal,
+                        hz,
+                    ));
                     self.then = Some(goal);
                 } else {
                     self.forward = forward;
-                    let p = Profile::new_run(forward, self.w, w_of(ramp.velocity), slope_of(ramp.accel), sd, self.t_ideal, hz);
+                    let p = Profile::new_run(
+                        forward,
+                        self.w,
+                        w_of(ramp.velocity),
+                        slope_of(ramp.accel),
+                        sd,
+                        self.t_ideal,
+                        hz,
+                    );
                     self.profile = Some(p);
                 }
                 true
@@ -422,10 +470,16 @@ impl Planner {
             }
         };
         let n_i = i128::from(n);
-        let span = n_i * i128::from(first) + n_i * (n_i - 1) / 2 * i128::from(add) + n_i * (n_i - 1) * (n_i - 2) / 6 * i128::from(add2);
+        let span = n_i * i128::from(first)
+            + n_i * (n_i - 1) / 2 * i128::from(add)
+            + n_i * (n_i - 1) * (n_i - 2) / 6 * i128::from(add2);
         self.t_isr = self.t_isr.wrapping_add(span as u64);
         self.t_ideal = t_last;
-        self.pos += if profile.forward { n as i64 } else { -(n as i64) };
+        self.pos += if profile.forward {
+            n as i64
+        } else {
+            -(n as i64)
+        };
         self.w = profile.w();
         self.forward = profile.forward;
         let speed = profile.velocity() as i64;
@@ -457,7 +511,8 @@ fn fit_segment(n: u64, first: u64, last: u64, span: u64) -> (i64, i64) {
     let n = i128::from(n);
     let p = i128::from(last) - i128::from(first);
     let s = i128::from(span) - n * i128::from(first);
-    let round_div = |num: i128, den: i128| (2 * num + if num >= 0 { den } else { -den }) / (2 * den);
+    let round_div =
+        |num: i128, den: i128| (2 * num + if num >= 0 { den } else { -den }) / (2 * den);
     let add2 = round_div(6 * (n * p - 2 * s), n * (n - 1) * (n - 2));
     let c3 = n * (n - 1) * (n - 2) / 6;
     let add = round_div(s - c3 * add2, n * (n - 1) / 2);

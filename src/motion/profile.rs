@@ -94,7 +94,17 @@ impl Profile {
     /// The caller guarantees it can stop in time (`w0 ≤ we + sd·steps`),
     /// `wc > 0` and `sd > 0`, and `su > 0` if `w0 < wc`.
     #[allow(clippy::too_many_arguments)]
-    pub fn new_move(forward: bool, w0: u128, wc: u128, we: u128, su: u128, sd: u128, steps: u64, t0: u64, tick_hz: u32) -> Self {
+    pub fn new_move(
+        forward: bool,
+        w0: u128,
+        wc: u128,
+        we: u128,
+        su: u128,
+        sd: u128,
+        steps: u64,
+        t0: u64,
+        tick_hz: u32,
+    ) -> Self {
         let we = we.min(wc);
         let d = u128::from(steps) << X_FRAC;
         let sd_i = sd as i128;
@@ -103,7 +113,7 @@ impl Profile {
         let mut p = Self::start(forward, Some(steps), w0, t0, tick_hz);
         p.w_end = we;
         if w0 <= wc {
-            let x_rc = if su == 0 { 0 } else { (wc - w0) / su };
+            let x_rc = (wc - w0).checked_div(su).unwrap_or(0);
             if x_rc <= x_ce {
                 p.push(x_rc, su as i128);
                 p.push(x_ce, 0);
@@ -123,10 +133,18 @@ impl Profile {
     }
 
     /// Ramp from `w0` to `wc` (rise `su` or fall `sd`) and cruise for ever.
-    pub fn new_run(forward: bool, w0: u128, wc: u128, su: u128, sd: u128, t0: u64, tick_hz: u32) -> Self {
+    pub fn new_run(
+        forward: bool,
+        w0: u128,
+        wc: u128,
+        su: u128,
+        sd: u128,
+        t0: u64,
+        tick_hz: u32,
+    ) -> Self {
         let mut p = Self::start(forward, None, w0, t0, tick_hz);
         if w0 <= wc {
-            p.push(if su == 0 { 0 } else { (wc - w0) / su }, su as i128);
+            p.push((wc - w0).checked_div(su).unwrap_or(0), su as i128);
         } else {
             p.push((w0 - wc) / sd.max(1), -(sd as i128));
         }
@@ -186,7 +204,8 @@ impl Profile {
     /// The current piece changes speed (for statusword bit 13 in velocity
     /// mode).
     pub fn ramping(&self) -> bool {
-        self.pieces[self.idx].slope != 0 && u128::from(self.done) < self.pieces[self.idx].end >> X_FRAC
+        self.pieces[self.idx].slope != 0
+            && u128::from(self.done) < self.pieces[self.idx].end >> X_FRAC
     }
 
     /// How many steps the next schedule segment should hold: whole steps

@@ -267,7 +267,8 @@ impl StepSource {
         self.interval = self.interval.wrapping_add(self.add);
         self.add = self.add.wrapping_add(self.add2);
         self.pending = true;
-        let delay = ((self.time >> TICK_FRAC_BITS) as u32).wrapping_sub((before >> TICK_FRAC_BITS) as u32);
+        let delay =
+            ((self.time >> TICK_FRAC_BITS) as u32).wrapping_sub((before >> TICK_FRAC_BITS) as u32);
         Some(NextStep {
             delay_ticks: delay,
             forward: self.forward,
@@ -299,9 +300,12 @@ impl StepSource {
             return false;
         }
         let w = &sched.slots[tail as usize % SCHEDULE_SLOTS].words;
-        self.interval = u64::from(w[0].load(Ordering::Relaxed)) | (u64::from(w[1].load(Ordering::Relaxed)) << 32);
-        self.add = u64::from(w[2].load(Ordering::Relaxed)) | (u64::from(w[3].load(Ordering::Relaxed)) << 32);
-        self.add2 = u64::from(w[4].load(Ordering::Relaxed)) | (u64::from(w[5].load(Ordering::Relaxed)) << 32);
+        self.interval = u64::from(w[0].load(Ordering::Relaxed))
+            | (u64::from(w[1].load(Ordering::Relaxed)) << 32);
+        self.add = u64::from(w[2].load(Ordering::Relaxed))
+            | (u64::from(w[3].load(Ordering::Relaxed)) << 32);
+        self.add2 = u64::from(w[4].load(Ordering::Relaxed))
+            | (u64::from(w[5].load(Ordering::Relaxed)) << 32);
         let count = w[6].load(Ordering::Relaxed);
         self.forward = count & FORWARD_BIT != 0;
         self.remaining = count & !FORWARD_BIT;
@@ -313,7 +317,9 @@ impl StepSource {
     fn drop_all(&mut self, sched: &StepSchedule) {
         self.pending = false;
         self.remaining = 0;
-        sched.tail.store(sched.head.load(Ordering::Acquire), Ordering::Release);
+        sched
+            .tail
+            .store(sched.head.load(Ordering::Acquire), Ordering::Release);
         sched.running.store(false, Ordering::Release);
         sched.flush.store(false, Ordering::Release);
     }
@@ -340,10 +346,22 @@ mod tests {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
         sched
-            .push(Segment { interval: 10 * ONE, add: ONE as i64, add2: 0, count: 3, forward: true })
+            .push(Segment {
+                interval: 10 * ONE,
+                add: ONE as i64,
+                add2: 0,
+                count: 3,
+                forward: true,
+            })
             .unwrap();
         sched
-            .push(Segment { interval: 5 * ONE + ONE / 2, add: 0, add2: 0, count: 4, forward: false })
+            .push(Segment {
+                interval: 5 * ONE + ONE / 2,
+                add: 0,
+                add2: 0,
+                count: 4,
+                forward: false,
+            })
             .unwrap();
         let (d, n) = drain(&mut src, &sched);
         assert_eq!(n, 7);
@@ -361,7 +379,13 @@ mod tests {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
         sched
-            .push(Segment { interval: 10 * ONE, add: ONE as i64, add2: ONE as i64, count: 4, forward: true })
+            .push(Segment {
+                interval: 10 * ONE,
+                add: ONE as i64,
+                add2: ONE as i64,
+                count: 4,
+                forward: true,
+            })
             .unwrap();
         let (d, n) = drain(&mut src, &sched);
         // intervals 10, 11, 13, 16
@@ -373,7 +397,13 @@ mod tests {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
         sched
-            .push(Segment { interval: 100 * ONE, add: -(ONE as i64), add2: 0, count: 50, forward: true })
+            .push(Segment {
+                interval: 100 * ONE,
+                add: -(ONE as i64),
+                add2: 0,
+                count: 50,
+                forward: true,
+            })
             .unwrap();
         assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(100));
         assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(99));
@@ -391,7 +421,13 @@ mod tests {
     fn ring_full_refuses_and_wraps() {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
-        let seg = Segment { interval: ONE, add: 0, add2: 0, count: 1, forward: true };
+        let seg = Segment {
+            interval: ONE,
+            add: 0,
+            add2: 0,
+            count: 1,
+            forward: true,
+        };
         for _ in 0..SCHEDULE_SLOTS {
             sched.push(seg).unwrap();
         }
@@ -412,7 +448,13 @@ mod tests {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
         sched
-            .push(Segment { interval: ONE, add: 0, add2: 0, count: 5, forward: false })
+            .push(Segment {
+                interval: ONE,
+                add: 0,
+                add2: 0,
+                count: 5,
+                forward: false,
+            })
             .unwrap();
         src.advance(&sched);
         src.advance(&sched);

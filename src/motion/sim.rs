@@ -155,7 +155,12 @@ impl SimAxis {
     }
 
     /// See the module docs.
-    pub fn run_until(&mut self, sched: &StepSchedule, until: u64, mut on_step: impl FnMut(StepRecord)) -> RunStop {
+    pub fn run_until(
+        &mut self,
+        sched: &StepSchedule,
+        until: u64,
+        mut on_step: impl FnMut(StepRecord),
+    ) -> RunStop {
         loop {
             let Some((tick, forward)) = self.next else {
                 self.now = self.now.max(until);
@@ -194,21 +199,42 @@ mod tests {
     #[test]
     fn steps_and_switch_windows() {
         let sched = StepSchedule::new();
-        let mut axis = SimAxis::new(1_000_000).with_home(3, 5).with_ccw_limit(8).at(0);
+        let mut axis = SimAxis::new(1_000_000)
+            .with_home(3, 5)
+            .with_ccw_limit(8)
+            .at(0);
         sched
-            .push(Segment { interval: 10 << 32, add: 0, add2: 0, count: 10, forward: true })
+            .push(Segment {
+                interval: 10 << 32,
+                add: 0,
+                add2: 0,
+                count: 10,
+                forward: true,
+            })
             .unwrap();
         axis.kick(&sched);
         let mut seen = 0;
-        assert_eq!(axis.run_until(&sched, 1000, |_| seen += 1), RunStop::SwitchChanged);
+        assert_eq!(
+            axis.run_until(&sched, 1000, |_| seen += 1),
+            RunStop::SwitchChanged
+        );
         assert_eq!((axis.position(), axis.now_ticks()), (3, 30));
         assert!(axis.switches().home);
-        assert_eq!(axis.run_until(&sched, 1000, |_| seen += 1), RunStop::SwitchChanged);
+        assert_eq!(
+            axis.run_until(&sched, 1000, |_| seen += 1),
+            RunStop::SwitchChanged
+        );
         assert_eq!(axis.position(), 6);
         assert!(!axis.switches().home);
-        assert_eq!(axis.run_until(&sched, 1000, |_| seen += 1), RunStop::SwitchChanged);
+        assert_eq!(
+            axis.run_until(&sched, 1000, |_| seen += 1),
+            RunStop::SwitchChanged
+        );
         assert!(axis.switches().ccw_limit);
-        assert_eq!(axis.run_until(&sched, 1000, |_| seen += 1), RunStop::Reached);
+        assert_eq!(
+            axis.run_until(&sched, 1000, |_| seen += 1),
+            RunStop::Reached
+        );
         assert_eq!((axis.position(), seen, sched.position()), (10, 10, 10));
         assert_eq!(axis.now_ticks(), 1000);
     }

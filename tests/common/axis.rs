@@ -57,7 +57,8 @@ impl PlannerRun {
     pub fn tick(&mut self) {
         let until = self.axis.us_to_ticks(self.now_us + self.period_us);
         let steps = &mut self.steps;
-        while self.axis.run_until(&self.sched, until, |s| steps.push(s)) == RunStop::SwitchChanged {}
+        while self.axis.run_until(&self.sched, until, |s| steps.push(s)) == RunStop::SwitchChanged {
+        }
         self.now_us += self.period_us;
         self.control();
     }
@@ -103,10 +104,16 @@ pub fn check_dynamics(steps: &[StepRecord], tick_hz: u32, v_max: f64, a_max: f64
             // the last step before the reversal ends at rest: it takes at
             // least sqrt(2 / a_max)
             let min_dt = (2.0 / a_max).sqrt() * 0.98;
-            assert!(dt >= min_dt, "reversal at step {i} at speed: dt {dt} < {min_dt}");
+            assert!(
+                dt >= min_dt,
+                "reversal at step {i} at speed: dt {dt} < {min_dt}"
+            );
             if i > 0 {
                 let before = w[0].exact.wrapping_sub(steps[i - 1].exact) as f64 / Q / f;
-                assert!(before >= min_dt, "step {i} before the reversal at speed: {before} < {min_dt}");
+                assert!(
+                    before >= min_dt,
+                    "step {i} before the reversal at speed: {before} < {min_dt}"
+                );
             }
         }
     }
@@ -114,7 +121,11 @@ pub fn check_dynamics(steps: &[StepRecord], tick_hz: u32, v_max: f64, a_max: f64
         .windows(2)
         .map(|w| {
             let dt = w[1].exact.wrapping_sub(w[0].exact) as f64 / Q / f;
-            if w[1].forward { 1.0 / dt } else { -1.0 / dt }
+            if w[1].forward {
+                1.0 / dt
+            } else {
+                -1.0 / dt
+            }
         })
         .collect();
     let mut run_start = 0usize;
@@ -136,7 +147,13 @@ pub fn check_dynamics(steps: &[StepRecord], tick_hz: u32, v_max: f64, a_max: f64
             run_start = i + 1;
             continue;
         }
-        assert!(a <= a_max * 1.02 + 1e-9, "step {}: acceleration {a} > {a_max} (v {} → {})", i + 1, vel[i - 1], vel[i]);
+        assert!(
+            a <= a_max * 1.02 + 1e-9,
+            "step {}: acceleration {a} > {a_max} (v {} → {})",
+            i + 1,
+            vel[i - 1],
+            vel[i]
+        );
     }
 }
 
@@ -171,7 +188,11 @@ pub fn check_times(steps: &[StepRecord], tick_hz: u32, t0_tick: u64, ideal: impl
         let want = ideal(k);
         let got = (s.tick - t0_tick) as f64 / f;
         let bound = (1e-6f64).min(0.05 * (want - prev));
-        assert!((got - want).abs() <= bound, "step {}: {got} s vs ideal {want} s (bound {bound})", i + 1);
+        assert!(
+            (got - want).abs() <= bound,
+            "step {}: {got} s vs ideal {want} s (bound {bound})",
+            i + 1
+        );
         prev = want;
     }
 }
