@@ -33,6 +33,7 @@ use embedded_storage::nor_flash::NorFlash;
 use crate::dictionary::{Config, DriveLayer, OdValues, Registers};
 use crate::drive::Drive;
 use crate::event::Event;
+use crate::motion::{StepSchedule, Switches};
 use crate::params::{
     execute, Boot, BootOutcome, EeError, EeOp, ParamStore, Params, PendingEe, StoreStatus,
 };
@@ -101,8 +102,13 @@ impl Device {
             store_status: self.store_status,
             ee_request: None,
         };
+        let messages = self.slave.counters().slave_messages;
         let outcome = self.slave.handle(rx, self.address, &mut regs, reply);
         let ee_request = regs.ee_request;
+        if self.slave.counters().slave_messages != messages {
+            // a valid frame for us (or a broadcast): PA20 timer (SPEC §8.7)
+            self.drive.frame_received();
+        }
         if let Some(event) = outcome.event {
             self.push_event(event);
         }
@@ -245,6 +251,27 @@ impl Device {
     /// The line settings in force (PA52/PA53, same rule as the address).
     pub fn line(&self) -> LineConfig {
         self.line
+    }
+
+    /// The control loop (SPEC §8): call it at least every millisecond
+    /// (within the planner's horizon, [`crate::motion::PlannerConfig`]),
+    /// after each handled frame, and when a switch input changes (so that a
+    /// homing origin is latched at that step). `switches` are the logical
+    /// states after PA13 ([`crate::drive::io::SwitchInputs::read`]);
+    /// `schedule` is the one the step interrupt's
+    /// [`crate::motion::StepSource`] consumes (see `motion/schedule.rs` for
+    /// how the firmware shares it). Afterwards apply
+    /// [`Drive::outputs`](crate::drive::Drive::outputs) to ENABLE/BRAKE and
+    /// start the step interrupt if it is idle and the schedule is not empty.
+    pub fn control(&mut self, now_us: u64, switches: Switches, schedule: &StepSchedule) {
+        let cfg = Config {
+            od: &self.od,
+            pa: &self.pa,
+        };
+        self.drive.control(now_us, switches, schedule, cfg);
+        while let Some(e) = self.drive.take_event() {
+            self.push_event(Event::Drive(e));
+        }
     }
 
     /// Queues an event for the glue. Parts of the core outside the frame

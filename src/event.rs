@@ -6,6 +6,7 @@
 //! changes, faults, parameters loaded); the enum is `non_exhaustive` so that
 //! the glue keeps a catch-all arm.
 
+use crate::drive::DriveEvent;
 use crate::params::{BootOutcome, EeError, EeOp};
 use crate::rtu::LineConfig;
 use crate::slave::Exception;
@@ -61,4 +62,7 @@ pub enum Event {
     /// An EE operation (SPEC §9) finished; `error` is why it failed (the
     /// master got exception 4).
     EeDone { op: EeOp, error: Option<EeError> },
+    /// The drive layer changed state, faulted, stopped at a limit, homed
+    /// (SPEC §8).
+    Drive(DriveEvent),
 }

@@ -7,11 +7,13 @@
 //! [`schedule::StepSource`] turns them into timer delays. [`sim::SimAxis`]
 //! plays the interrupt and the motor on a host.
 
+pub mod homing;
 pub mod planner;
 pub mod profile;
 pub mod schedule;
 pub mod sim;
 
+pub use homing::{Homing, HomingError, HomingMethod, HomingStep};
 pub use planner::{Fill, Goal, Planner, PlannerConfig, Ramp, MAX_ACCEL, MAX_STEP_RATE};
 pub use schedule::{NextStep, Segment, StepSchedule, StepSource, SCHEDULE_SLOTS};
 

@@ -199,6 +199,15 @@ impl Planner {
         }
     }
 
+    /// Direction of the motion being planned, if any.
+    pub fn heading(&self) -> Option<bool> {
+        match &self.profile {
+            Some(p) => Some(p.forward),
+            None if self.w > 0 => Some(self.forward),
+            None => None,
+        }
+    }
+
     /// A profile or a follow-up goal is being planned.
     pub fn busy(&self) -> bool {
         self.profile.is_some() || self.then.is_some() || self.flushing
@@ -244,6 +253,16 @@ impl Planner {
     /// end of the queue with the velocity there. Returns false (and plans
     /// nothing) if the goal cannot run (a zero velocity or ramp).
     pub fn set_goal(&mut self, goal: Goal) -> bool {
+        if self.flushing {
+            // plan it once the interrupt has dropped the queue and the
+            // position is known again
+            let ok = match goal {
+                Goal::Move { ramp, .. } | Goal::Run { ramp, .. } => ramp.runnable(),
+                Goal::Stop { .. } => true,
+            };
+            self.then = ok.then_some(goal);
+            return ok;
+        }
         self.then = None;
         self.profile = None;
         let ok = self.start(goal);

@@ -196,3 +196,155 @@ pub fn check_times(steps: &[StepRecord], tick_hz: u32, t0_tick: u64, ideal: impl
         prev = want;
     }
 }
+
+use super::{hex, Bus};
+use modbus_drive::motion::PlannerConfig as Cfg;
+
+/// The whole device behind the frame path, with a control loop over a
+/// simulated axis: what the virtual drive / firmware glue does.
+pub struct Rig {
+    pub bus: Bus,
+    pub sched: Box<StepSchedule>,
+    pub axis: SimAxis,
+    pub steps: Vec<StepRecord>,
+    /// Control-loop clock, µs.
+    pub now_us: u64,
+    pub period_us: u64,
+    pub tick_hz: u32,
+}
+
+impl Rig {
+    pub fn new(axis: SimAxis) -> Self {
+        Self::with_bus(Bus::new(), axis)
+    }
+
+    pub fn with_bus(mut bus: Bus, axis: SimAxis) -> Self {
+        let tick_hz = 10_000_000;
+        bus.device.drive.set_planner_config(Cfg {
+            tick_hz,
+            horizon_us: 3000,
+            max_segment_us: 1000,
+        });
+        let mut rig = Self {
+            bus,
+            sched: Box::new(StepSchedule::new()),
+            axis,
+            steps: Vec::new(),
+            now_us: 0,
+            period_us: 1000,
+            tick_hz,
+        };
+        rig.control();
+        rig
+    }
+
+    /// The glue's control step at the current time, then start the idle
+    /// step interrupt.
+    pub fn control(&mut self) {
+        let sw = self.axis.switches();
+        self.bus.device.control(self.now_us, sw, &self.sched);
+        self.axis.kick(&self.sched);
+    }
+
+    /// Sends a frame (hex) and returns the reply; the control loop runs
+    /// right after it, as the glue does.
+    pub fn send(&mut self, frame: &str) -> Option<Vec<u8>> {
+        let reply = self.bus.send(&hex(frame));
+        self.control();
+        reply
+    }
+
+    /// Sends a seed frame that must be echoed (0x06) or answered with the
+    /// standard 0x10 reply.
+    pub fn send_ok(&mut self, frame: &str) {
+        let f = hex(frame);
+        let reply = self.bus.send(&f).expect("a reply");
+        if f[1] == 0x06 {
+            assert_eq!(reply, f, "echo of {frame}");
+        } else {
+            assert_eq!(reply[1], f[1], "reply to {frame}: {reply:02X?}");
+            assert_eq!(&reply[..6], &f[..6], "reply to {frame}");
+        }
+        self.control();
+    }
+
+    pub fn write(&mut self, start: u16, words: &[u16]) {
+        self.bus.write(start, words).expect("write accepted");
+        self.control();
+    }
+
+    pub fn write_i32(&mut self, start: u16, v: i32) {
+        self.write(start, &[(v >> 16) as u16, v as u16]);
+    }
+
+    /// Runs the control loop for `us`, stopping at every switch change to
+    /// call it at that exact step.
+    pub fn run_us(&mut self, us: u64) {
+        let end = self.now_us + us;
+        while self.now_us < end {
+            let next = (self.now_us + self.period_us).min(end);
+            let until = self.axis.us_to_ticks(next);
+            let steps = &mut self.steps;
+            if self.axis.run_until(&self.sched, until, |s| steps.push(s)) == RunStop::SwitchChanged
+            {
+                self.now_us = self.axis.now_us().max(self.now_us);
+            } else {
+                self.now_us = next;
+            }
+            self.control();
+        }
+    }
+
+    /// Runs until `done(rig)` holds (checked every control period), at most
+    /// `max_us`; panics if it never does.
+    pub fn run_until(&mut self, max_us: u64, mut done: impl FnMut(&mut Self) -> bool) {
+        let end = self.now_us + max_us;
+        while !done(self) {
+            assert!(
+                self.now_us < end,
+                "condition not met within {max_us} µs (position {})",
+                self.axis.position()
+            );
+            self.run_us(self.period_us);
+        }
+    }
+
+    /// 0x6041 read over the bus.
+    pub fn statusword(&mut self) -> u16 {
+        self.bus.read(0x6041, 1).expect("statusword")[0]
+    }
+
+    /// 0x6064 read over the bus (word order 0).
+    pub fn position(&mut self) -> i32 {
+        let w = self.bus.read(0x6064, 2).expect("position");
+        ((u32::from(w[0]) << 16) | u32::from(w[1])) as i32
+    }
+
+    /// 0x606C read over the bus (word order 0), r/min.
+    pub fn velocity_rpm(&mut self) -> i32 {
+        let w = self.bus.read(0x606C, 2).expect("velocity");
+        ((u32::from(w[0]) << 16) | u32::from(w[1])) as i32
+    }
+
+    pub fn error_register(&mut self) -> u16 {
+        self.bus.read(0x1001, 1).expect("error register")[0]
+    }
+
+    /// The motor has stopped and nothing is queued.
+    pub fn at_rest(&self) -> bool {
+        !self.axis.is_running() && self.sched.is_empty()
+    }
+
+    /// Step-rate (steps/s) of the interval ending at the first step that
+    /// reached `position` in the log.
+    pub fn speed_at(&self, position: i64) -> f64 {
+        let i = self
+            .steps
+            .iter()
+            .position(|s| s.position == position)
+            .expect("position reached");
+        assert!(i > 0);
+        let dt = self.steps[i].exact.wrapping_sub(self.steps[i - 1].exact) as f64 / Q;
+        f64::from(self.tick_hz) / dt
+    }
+}

@@ -1,0 +1,303 @@
+//! Homing sequencer (SPEC §8.6): methods 1..=8 as a list of search phases.
+//!
+//! Each phase runs in one direction at the fast (0x6099) or slow (0x609B)
+//! speed until a switch condition holds; the drive's control loop feeds it
+//! the switch states and the raw position at every call (the glue calls
+//! control at the step where a switch changed, so the latched origin is that
+//! step). Phases ("left" = negative = towards the CW limit):
+//!
+//! | method | phases |
+//! |---|---|
+//! | 1 | (on CW: leave it right) · seek CW left → origin |
+//! | 2 | mirror of 1 |
+//! | 3 | (on home: pass it right) · seek home left → origin; CW on the way: reverse, pass home right, seek home left → origin |
+//! | 4 | mirror of 3 |
+//! | 5 | (unless on CW: seek CW left, fast) · leave CW right, slow · seek CW left, slow → origin |
+//! | 6 | mirror of 5 |
+//! | 7 | (on home: pass home right, slow) · else seek home left, fast (CW: reverse, seek home right, fast) then pass home right, slow · seek home left, slow → origin |
+//! | 8 | mirror of 7 |
+//!
+//! So every method finds the same edge from any start: methods 1/5 the CW
+//! limit's edge, 2/6 the CCW limit's, 3/7 the home switch's right edge
+//! approached from the right, 4/8 its left edge approached from the left.
+//! After a reversal, reaching the other limit (or the same one again) is a
+//! homing error.
+
+use super::Switches;
+
+/// 0x6098 (SPEC §8.6).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum HomingMethod {
+    /// Left to the CW limit.
+    CwLimit = 1,
+    /// Right to the CCW limit.
+    CcwLimit = 2,
+    /// Left to the home switch, reversing at the CW limit.
+    HomeLeft = 3,
+    /// Right to the home switch, reversing at the CCW limit.
+    HomeRight = 4,
+    /// Fast to the CW limit, slow back to its edge.
+    CwLimitTwoSpeed = 5,
+    /// Fast to the CCW limit, slow back to its edge.
+    CcwLimitTwoSpeed = 6,
+    /// Fast left to the home switch, slow to its right edge.
+    HomeLeftTwoSpeed = 7,
+    /// Fast right to the home switch, slow to its left edge.
+    HomeRightTwoSpeed = 8,
+}
+
+impl HomingMethod {
+    pub fn from_register(v: i16) -> Option<Self> {
+        Some(match v {
+            1 => Self::CwLimit,
+            2 => Self::CcwLimit,
+            3 => Self::HomeLeft,
+            4 => Self::HomeRight,
+            5 => Self::CwLimitTwoSpeed,
+            6 => Self::CcwLimitTwoSpeed,
+            7 => Self::HomeLeftTwoSpeed,
+            8 => Self::HomeRightTwoSpeed,
+            _ => return None,
+        })
+    }
+
+    /// Speed cap, r/min: methods 1–4 300, 5–8 1200.
+    pub fn max_rpm(self) -> u32 {
+        if (self as u8) <= 4 {
+            300
+        } else {
+            1200
+        }
+    }
+
+    /// Methods 2, 4, 6, 8 search to the right: they are the mirror images.
+    fn mirrored(self) -> bool {
+        (self as u8) & 1 == 0
+    }
+}
+
+/// What a phase waits for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Until {
+    /// The limit at the end we move towards becomes active.
+    LimitActive,
+    /// The limit behind us (which we are on) releases.
+    LimitReleased,
+    /// The home switch becomes active.
+    HomeActive,
+    /// The home switch has been active and releases.
+    HomePassed,
+}
+
+/// One search phase (directions before mirroring: `left` = negative).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Phase {
+    pub left: bool,
+    pub slow: bool,
+    pub until: Until,
+    /// Meeting this phase's condition is the origin.
+    pub origin: bool,
+}
+
+const fn phase(left: bool, slow: bool, until: Until, origin: bool) -> Phase {
+    Phase {
+        left,
+        slow,
+        until,
+        origin,
+    }
+}
+
+/// Why homing failed (statusword bit 13).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum HomingError {
+    /// 0x6098 is not 1..=8.
+    NoMethod,
+    /// A speed is 0 or above 100000, or the acceleration is 0.
+    BadSpeed,
+    /// A limit was reached after reversing (or where none was expected).
+    LimitReached,
+    /// A fault stopped the drive.
+    Fault,
+}
+
+/// What the drive should do after [`Homing::update`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum HomingStep {
+    /// Keep going.
+    Continue,
+    /// Run the new current phase ([`Homing::phase`]).
+    NextPhase,
+    /// The origin was found at this raw position: stop, then move to
+    /// origin + 0x607C at the slow speed.
+    Origin(i64),
+    Failed(HomingError),
+}
+
+/// Phases of one run (at most 4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Plan {
+    phases: [Phase; 4],
+    len: usize,
+}
+
+impl Plan {
+    fn of(list: &[Phase]) -> Self {
+        let mut phases = [phase(true, false, Until::LimitActive, false); 4];
+        phases[..list.len()].copy_from_slice(list);
+        Self {
+            phases,
+            len: list.len(),
+        }
+    }
+}
+
+/// The sequencer of one homing run. Directions are stored unmirrored;
+/// [`Homing::phase`] returns them as they must run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Homing {
+    method: HomingMethod,
+    plan: Plan,
+    idx: usize,
+    /// A limit made us reverse: the next limit is an error.
+    reversed: bool,
+    /// HomePassed: the home switch has been seen active in this phase.
+    home_seen: bool,
+}
+
+impl Homing {
+    /// Plans a run of `method` from the current switch states.
+    pub fn start(method: HomingMethod, sw: Switches) -> Self {
+        use Until::*;
+        let m = method.mirrored();
+        // Unmirrored view: "near limit" is the CW one for 1/3/5/7.
+        let near = if m { sw.ccw_limit } else { sw.cw_limit };
+        let plan = match method {
+            HomingMethod::CwLimit | HomingMethod::CcwLimit => {
+                if near {
+                    Plan::of(&[
+                        phase(false, false, LimitReleased, false),
+                        phase(true, false, LimitActive, true),
+                    ])
+                } else {
+                    Plan::of(&[phase(true, false, LimitActive, true)])
+                }
+            }
+            HomingMethod::HomeLeft | HomingMethod::HomeRight => {
+                if sw.home {
+                    Plan::of(&[
+                        phase(false, false, HomePassed, false),
+                        phase(true, false, HomeActive, true),
+                    ])
+                } else {
+                    Plan::of(&[phase(true, false, HomeActive, true)])
+                }
+            }
+            HomingMethod::CwLimitTwoSpeed | HomingMethod::CcwLimitTwoSpeed => {
+                let tail = [
+                    phase(false, true, LimitReleased, false),
+                    phase(true, true, LimitActive, true),
+                ];
+                if near {
+                    Plan::of(&tail)
+                } else {
+                    Plan::of(&[phase(true, false, LimitActive, false), tail[0], tail[1]])
+                }
+            }
+            HomingMethod::HomeLeftTwoSpeed | HomingMethod::HomeRightTwoSpeed => {
+                let tail = [
+                    phase(false, true, HomePassed, false),
+                    phase(true, true, HomeActive, true),
+                ];
+                if sw.home {
+                    Plan::of(&tail)
+                } else {
+                    Plan::of(&[phase(true, false, HomeActive, false), tail[0], tail[1]])
+                }
+            }
+        };
+        Self {
+            method,
+            plan,
+            idx: 0,
+            reversed: false,
+            home_seen: sw.home,
+        }
+    }
+
+    pub fn method(&self) -> HomingMethod {
+        self.method
+    }
+
+    /// The phase to run, mirrored for methods 2/4/6/8.
+    pub fn phase(&self) -> Phase {
+        let mut p = self.plan.phases[self.idx];
+        if self.method.mirrored() {
+            p.left = !p.left;
+        }
+        p
+    }
+
+    /// Checks the current phase's condition against the switch states at
+    /// raw position `position`.
+    pub fn update(&mut self, sw: Switches, position: i64) -> HomingStep {
+        let p = self.phase();
+        // the limit in the direction of travel, and the one behind
+        let (ahead, behind) = if p.left {
+            (sw.cw_limit, sw.ccw_limit)
+        } else {
+            (sw.ccw_limit, sw.cw_limit)
+        };
+        if sw.home {
+            self.home_seen = true;
+        }
+        let met = match p.until {
+            Until::LimitActive => ahead,
+            Until::LimitReleased => !behind,
+            Until::HomeActive => sw.home,
+            Until::HomePassed => self.home_seen && !sw.home,
+        };
+        if met {
+            if p.origin {
+                return HomingStep::Origin(position);
+            }
+            self.advance(sw);
+            return HomingStep::NextPhase;
+        }
+        if ahead && p.until != Until::LimitActive {
+            // Only a search for the home switch may reverse at a limit, and
+            // only once (SPEC §8.6: the opposite limit after reversing is an
+            // error).
+            if self.reversed || p.until != Until::HomeActive {
+                return HomingStep::Failed(HomingError::LimitReached);
+            }
+            self.reversed = true;
+            let here = self.plan.phases[self.idx];
+            if here.origin {
+                // 3/4: pass the switch the other way, then come back to it
+                let back = phase(!here.left, here.slow, Until::HomePassed, false);
+                self.plan = Plan::of(&[back, here]);
+                self.idx = 0;
+            } else {
+                // 7/8 fast search: search the other way; the slow phases
+                // that follow pass the switch and come back to its edge
+                self.plan.phases[self.idx].left = !here.left;
+            }
+            self.home_seen = sw.home;
+            return HomingStep::NextPhase;
+        }
+        HomingStep::Continue
+    }
+
+    fn advance(&mut self, sw: Switches) {
+        if self.idx + 1 < self.plan.len {
+            self.idx += 1;
+        }
+        self.home_seen = sw.home;
+    }
+}
