@@ -161,7 +161,6 @@ enum HomingState {
     Searching(Homing),
     /// Origin found; moving to origin + 0x607C (raw target).
     Offset {
-        origin: i64,
         target: i64,
     },
     Done,
@@ -484,9 +483,8 @@ impl Drive {
                 self.active = None; // target reached
             }
         }
-        if let HomingState::Offset { origin, target } = self.homing {
+        if let HomingState::Offset { target } = self.homing {
             if self.raw_position == target && !self.halted {
-                let _ = origin;
                 // SPEC §8.6: then the actual position becomes 0
                 self.offset = self.raw_position;
                 self.last_target = 0;
@@ -578,7 +576,7 @@ impl Drive {
 
     fn move_goal(&self, sp: SetPoint) -> Goal {
         let end_velocity = match self.buffered {
-            Some(next) if next.blend => blend_velocity(sp, next),
+            Some(next) if next.blend => blend_velocity(sp, next, self.planner.heading()),
             _ => 0,
         };
         Goal::Move {
@@ -621,7 +619,7 @@ impl Drive {
                     ramp: self.s.homing_ramp(h.method(), p.slow),
                 })
             }
-            HomingState::Offset { target, .. } => {
+            HomingState::Offset { target } => {
                 let method = HomingMethod::from_register(self.s.od.homing_method)?;
                 Some(Goal::Move {
                     target,
@@ -662,7 +660,7 @@ impl Drive {
             }
             HomingStep::Origin(origin) => {
                 let target = origin + i64::from(self.s.od.home_offset);
-                self.homing = HomingState::Offset { origin, target };
+                self.homing = HomingState::Offset { target };
                 self.event(DriveEvent::HomingAttained {
                     origin: origin as i32,
                 });
@@ -841,12 +839,11 @@ impl Drive {
 
 /// Speed at which a blended move passes its target (SPEC §8.4 bit 9): the
 /// slower of the two moves' speeds, and no faster than the next move can
-/// stop from within its distance; 0 if the next move turns back.
-fn blend_velocity(sp: SetPoint, next: SetPoint) -> u64 {
-    let d1 = sp.target.signum();
-    let _ = d1;
+/// stop from within its distance; 0 if the next move turns back
+/// (`heading`: the direction the motor is going).
+fn blend_velocity(sp: SetPoint, next: SetPoint, heading: Option<bool>) -> u64 {
     let dist = next.target - sp.target;
-    if dist == 0 {
+    if dist == 0 || heading != Some(dist > 0) {
         return 0;
     }
     let v = sp.ramp.velocity.min(next.ramp.velocity);
