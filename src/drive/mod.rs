@@ -338,7 +338,8 @@ impl Drive {
         }
     }
 
-    /// The planner's timing (step timer frequency, horizon).
+    /// The planner's timing (step timer frequency, horizon); at start-up,
+    /// before the first control call (it forgets what was planned).
     pub fn set_planner_config(&mut self, cfg: PlannerConfig) {
         self.planner = Planner::new(cfg);
     }
