@@ -42,6 +42,26 @@ fn position_mode() -> Rig {
     rig
 }
 
+/// Position mode, 10 r/s² both ways, 5 r/s to 200000 (not yet latched).
+fn first_point_at_5_rps() -> Rig {
+    let mut rig = position_mode();
+    rig.send_ok("01 06 60 83 00 64 67 C9");
+    rig.send_ok("01 06 60 84 00 64 D6 08");
+    rig.send_ok("01 10 60 81 00 02 04 00 00 00 32 13 D4"); // 5 r/s
+    rig.send_ok("01 10 60 7A 00 02 04 00 03 0D 40 29 96"); // 200000
+    rig
+}
+
+/// Runs to rest and checks the end of SPEC §8.4: exact position, target
+/// reached, slot free, the exactness bounds on the way.
+fn arrives_at(rig: &mut Rig, target: i32) {
+    rig.run_until(30_000_000, |r| r.at_rest());
+    assert_eq!(rig.position(), target);
+    assert_eq!(rig.axis.position(), i64::from(target));
+    assert_eq!(rig.statusword(), ENABLED | BIT12 | REACHED);
+    check_dynamics(&rig.steps, rig.tick_hz, 100_000.0, 100_000.0);
+}
+
 #[test]
 fn misprinted_seed_frames_are_crc_errors() {
     let mut rig = Rig::new(SimAxis::new(10_000_000));
@@ -89,11 +109,7 @@ fn seed_6_1_single_point() {
 
 #[test]
 fn seed_6_1_two_points_stopping_between() {
-    let mut rig = position_mode();
-    rig.send_ok("01 06 60 83 00 64 67 C9");
-    rig.send_ok("01 06 60 84 00 64 D6 08");
-    rig.send_ok("01 10 60 81 00 02 04 00 00 00 32 13 D4"); // 5 r/s
-    rig.send_ok("01 10 60 7A 00 02 04 00 03 0D 40 29 96"); // 200000
+    let mut rig = first_point_at_5_rps();
     rig.send_ok("01 06 60 40 00 1F D7 D6");
     rig.send_ok("01 06 60 40 00 0F D6 1A");
     rig.run_us(200_000);
@@ -110,20 +126,12 @@ fn seed_6_1_two_points_stopping_between() {
         "stopped at 200000: {}",
         rig.speed_at(200_000)
     );
-    rig.run_until(30_000_000, |r| r.at_rest());
-    assert_eq!(rig.position(), 600_000);
-    assert_eq!(rig.axis.position(), 600_000);
-    assert_eq!(rig.statusword(), ENABLED | BIT12 | REACHED);
-    check_dynamics(&rig.steps, rig.tick_hz, 100_000.0, 100_000.0);
+    arrives_at(&mut rig, 600_000);
 }
 
 #[test]
 fn seed_6_1_two_points_without_stopping() {
-    let mut rig = position_mode();
-    rig.send_ok("01 06 60 83 00 64 67 C9");
-    rig.send_ok("01 06 60 84 00 64 D6 08");
-    rig.send_ok("01 10 60 81 00 02 04 00 00 00 32 13 D4"); // 5 r/s
-    rig.send_ok("01 10 60 7A 00 02 04 00 03 0D 40 29 96"); // 200000
+    let mut rig = first_point_at_5_rps();
     rig.send_ok("01 06 60 40 02 5F D7 46"); // bits 9, 6 (relative), 4
     rig.send_ok("01 06 60 40 02 4F D6 8A");
     rig.run_us(200_000);
@@ -137,21 +145,13 @@ fn seed_6_1_two_points_without_stopping() {
     assert!((v - 50_000.0).abs() < 50.0, "passes 200000 at 5 r/s: {v}");
     // the slot is free again once the second move runs
     assert_eq!(rig.statusword() & BIT12, BIT12);
-    rig.run_until(30_000_000, |r| r.at_rest());
     // 0x025F has bit 6 set: relative, 200000 + 600000
-    assert_eq!(rig.position(), 800_000);
-    assert_eq!(rig.axis.position(), 800_000);
-    assert_eq!(rig.statusword(), ENABLED | BIT12 | REACHED);
-    check_dynamics(&rig.steps, rig.tick_hz, 100_000.0, 100_000.0);
+    arrives_at(&mut rig, 800_000);
 }
 
 #[test]
 fn seed_6_1_change_immediately_relative() {
-    let mut rig = position_mode();
-    rig.send_ok("01 06 60 83 00 64 67 C9");
-    rig.send_ok("01 06 60 84 00 64 D6 08");
-    rig.send_ok("01 10 60 81 00 02 04 00 00 00 32 13 D4"); // 5 r/s
-    rig.send_ok("01 10 60 7A 00 02 04 00 03 0D 40 29 96"); // 200000
+    let mut rig = first_point_at_5_rps();
     rig.send_ok("01 06 60 40 00 7F D7 FE"); // bits 6, 5, 4: relative, at once
     rig.send_ok("01 06 60 40 00 6F D6 32");
     rig.run_us(1_500_000);
@@ -163,12 +163,8 @@ fn seed_6_1_change_immediately_relative() {
     assert_eq!(rig.statusword(), ENABLED | BIT12 | RUNNING);
     rig.run_us(1_000_000);
     assert_eq!(rig.velocity_rpm(), 600);
-    rig.run_until(30_000_000, |r| r.at_rest());
     // "the final position is the sum of the two positions"
-    assert_eq!(rig.position(), 800_000);
-    assert_eq!(rig.axis.position(), 800_000);
-    assert_eq!(rig.statusword(), ENABLED | BIT12 | REACHED);
-    check_dynamics(&rig.steps, rig.tick_hz, 100_000.0, 100_000.0);
+    arrives_at(&mut rig, 800_000);
 }
 
 #[test]

@@ -739,14 +739,11 @@ impl Drive {
         self.replan = true;
     }
 
-    /// Leaves the motion states: stop output at once, forget set-points
-    /// (SPEC §8.1).
-    fn abort_motion(&mut self) {
-        self.flush = true;
-        self.replan = false;
+    /// Forgets the position set-points; a homing run in progress becomes
+    /// "interrupted" (status 001).
+    fn drop_set_points(&mut self) {
         self.active = None;
         self.buffered = None;
-        self.enable_after_stop = false;
         if matches!(
             self.homing,
             HomingState::Searching(_) | HomingState::Offset { .. }
@@ -755,16 +752,18 @@ impl Drive {
         }
     }
 
+    /// Leaves the motion states: stop output at once, forget set-points
+    /// (SPEC §8.1).
+    fn abort_motion(&mut self) {
+        self.flush = true;
+        self.replan = false;
+        self.enable_after_stop = false;
+        self.drop_set_points();
+    }
+
     fn quick_stop(&mut self) {
         self.set_state(PowerState::QuickStopActive);
-        self.active = None;
-        self.buffered = None;
-        if matches!(
-            self.homing,
-            HomingState::Searching(_) | HomingState::Offset { .. }
-        ) {
-            self.homing = HomingState::Interrupted;
-        }
+        self.drop_set_points();
         let decel = match self.s.od.quick_stop_option {
             1 => self.s.decel(),
             2 => self.s.quick_stop_decel(),
@@ -929,14 +928,7 @@ impl DriveLayer for Drive {
             return;
         }
         // A mode change stops what the old mode was doing with its ramp.
-        self.active = None;
-        self.buffered = None;
-        if matches!(
-            self.homing,
-            HomingState::Searching(_) | HomingState::Offset { .. }
-        ) {
-            self.homing = HomingState::Interrupted;
-        }
+        self.drop_set_points();
         self.mode = mode;
         self.last_target = self.active.map_or(self.user_position(), |a| a.target);
         if self.state == PowerState::OperationEnabled {

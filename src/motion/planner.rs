@@ -382,21 +382,10 @@ impl Planner {
                 let dist = target - self.pos;
                 let steps = dist.unsigned_abs();
                 if self.w == 0 {
-                    if dist != 0 {
-                        self.forward = dist > 0;
-                        self.profile = Some(Profile::new_move(
-                            self.forward,
-                            0,
-                            wc,
-                            we,
-                            su,
-                            sd,
-                            steps,
-                            self.t_ideal,
-                            hz,
-                        ));
+                    if dist == 0 {
+                        return true;
                     }
-                    return true;
+                    self.forward = dist > 0;
                 }
                 let toward = dist != 0 && (dist > 0) == self.forward;
                 if toward && self.w <= we.min(wc) + sd * (u128::from(steps) << 32) {
@@ -415,14 +404,7 @@ impl Planner {
                     // Behind us or too close to stop: decelerate, then plan
                     // again from rest (SPEC §8.4 bit 5, "decelerates,
                     // reverses and arrives").
-                    self.profile = Some(Profile::new_stop(
-                        self.forward,
-                        self.w,
-                        sd,
-                        self.t_ideal,
-                        hz,
-                    ));
-                    self.then = Some(goal);
+                    self.stop_then(sd, goal);
                 }
                 true
             }
@@ -433,14 +415,7 @@ impl Planner {
                 self.last_decel = ramp.decel;
                 let sd = slope_of(ramp.decel);
                 if self.w > 0 && forward != self.forward {
-                    self.profile = Some(Profile::new_stop(
-                        self.forward,
-                        self.w,
-                        sd,
-                        self.t_ideal,
-                        hz,
-                    ));
-                    self.then = Some(goal);
+                    self.stop_then(sd, goal);
                 } else {
                     self.forward = forward;
                     let p = Profile::new_run(
@@ -457,6 +432,20 @@ impl Planner {
                 true
             }
         }
+    }
+
+    /// Decelerates with slope `sd` to rest on a whole step, then plans
+    /// `goal` again from there.
+    fn stop_then(&mut self, sd: u128, goal: Goal) {
+        let hz = self.cfg.tick_hz;
+        self.profile = Some(Profile::new_stop(
+            self.forward,
+            self.w,
+            sd,
+            self.t_ideal,
+            hz,
+        ));
+        self.then = Some(goal);
     }
 
     /// Times the next run of steps of the current profile and queues it.

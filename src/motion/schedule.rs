@@ -331,6 +331,16 @@ mod tests {
 
     const ONE: u64 = 1 << TICK_FRAC_BITS;
 
+    fn seg(interval: u64, add: i64, add2: i64, count: u32, forward: bool) -> Segment {
+        Segment {
+            interval,
+            add,
+            add2,
+            count,
+            forward,
+        }
+    }
+
     fn drain(src: &mut StepSource, sched: &StepSchedule) -> ([u32; 64], usize) {
         let mut out = [0; 64];
         let mut n = 0;
@@ -345,24 +355,8 @@ mod tests {
     fn steps_counted_equal_schedule_and_intervals_are_exact() {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
-        sched
-            .push(Segment {
-                interval: 10 * ONE,
-                add: ONE as i64,
-                add2: 0,
-                count: 3,
-                forward: true,
-            })
-            .unwrap();
-        sched
-            .push(Segment {
-                interval: 5 * ONE + ONE / 2,
-                add: 0,
-                add2: 0,
-                count: 4,
-                forward: false,
-            })
-            .unwrap();
+        sched.push(seg(10 * ONE, ONE as i64, 0, 3, true)).unwrap();
+        sched.push(seg(5 * ONE + ONE / 2, 0, 0, 4, false)).unwrap();
         let (d, n) = drain(&mut src, &sched);
         assert_eq!(n, 7);
         assert_eq!(&d[..3], &[10, 11, 12]);
@@ -379,13 +373,7 @@ mod tests {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
         sched
-            .push(Segment {
-                interval: 10 * ONE,
-                add: ONE as i64,
-                add2: ONE as i64,
-                count: 4,
-                forward: true,
-            })
+            .push(seg(10 * ONE, ONE as i64, ONE as i64, 4, true))
             .unwrap();
         let (d, n) = drain(&mut src, &sched);
         // intervals 10, 11, 13, 16
@@ -397,13 +385,7 @@ mod tests {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
         sched
-            .push(Segment {
-                interval: 100 * ONE,
-                add: -(ONE as i64),
-                add2: 0,
-                count: 50,
-                forward: true,
-            })
+            .push(seg(100 * ONE, -(ONE as i64), 0, 50, true))
             .unwrap();
         assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(100));
         assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(99));
@@ -421,13 +403,7 @@ mod tests {
     fn ring_full_refuses_and_wraps() {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
-        let seg = Segment {
-            interval: ONE,
-            add: 0,
-            add2: 0,
-            count: 1,
-            forward: true,
-        };
+        let seg = seg(ONE, 0, 0, 1, true);
         for _ in 0..SCHEDULE_SLOTS {
             sched.push(seg).unwrap();
         }
@@ -447,15 +423,7 @@ mod tests {
     fn cancel_forgets_the_announced_step() {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
-        sched
-            .push(Segment {
-                interval: ONE,
-                add: 0,
-                add2: 0,
-                count: 5,
-                forward: false,
-            })
-            .unwrap();
+        sched.push(seg(ONE, 0, 0, 5, false)).unwrap();
         src.advance(&sched);
         src.advance(&sched);
         src.cancel(&sched);
