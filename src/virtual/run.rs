@@ -328,13 +328,16 @@ impl VirtualDrive {
             if let Err(e) = self.trace.offer(sample) {
                 self.console.log(&format!("trace: {e}"));
             }
+            let counters = d.device.slave.counters();
             status.push(format!(
-                "@{} sw 0x{:04X} mode {} pos {} vel {} r/min",
+                "@{} sw 0x{:04X} mode {} pos {} vel {} r/min frames {} errors {}",
                 sample.address,
                 sample.statusword,
                 sample.mode,
                 sample.position_steps,
-                sample.velocity_rpm
+                sample.velocity_rpm,
+                counters.bus_messages,
+                u32::from(counters.bus_errors) + u32::from(counters.overruns),
             ));
         }
         let conns = self
