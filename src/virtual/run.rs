@@ -22,13 +22,16 @@ use std::time::Instant;
 
 use modbus_drive::device::{Identity, Response};
 use modbus_drive::dictionary::DriveLayer;
+use modbus_drive::drive::DriveEvent;
 use modbus_drive::event::{Event, FrameError};
+use modbus_drive::motion::sim::{RunStop, SimAxis};
+use modbus_drive::motion::{PlannerConfig, StepSchedule};
 use modbus_drive::params::{BootOutcome, ParamStore};
 use modbus_drive::rtu::{FrameAssembler, RxEvent, RxFlags, MAX_FRAME};
 use modbus_drive::Device;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
-use super::cli::Options;
+use super::cli::{AxisLayout, Options};
 use super::console::Console;
 use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
@@ -36,6 +39,12 @@ use super::transport::{Listener, Pty, ReadOutcome, Stream};
 
 /// Longest sleep of the loop: the status line and trace keep ticking.
 const IDLE_WAKE_US: u64 = 20_000;
+/// Control loop period, as on the firmware (SPEC §8; within the planner's
+/// 4 ms horizon).
+const CONTROL_PERIOD_US: u64 = 1_000;
+/// Control periods made up at once after the process was held up longer
+/// (suspended, debugger); beyond that simulated time skips ahead.
+const CATCH_UP_PERIODS_MAX: u64 = 5_000;
 /// Output a peer does not read is dropped beyond this (a master that went
 /// away from the pty without reading its last reply).
 const OUT_LIMIT: usize = 64 * 1024;
@@ -54,6 +63,12 @@ struct DriveSlot {
     device: Device,
     /// Its parameter flash: region of the `--state` file, or memory only.
     store: ParamStore<FileFlash>,
+    /// The steps the core plans; the simulated step interrupt consumes them.
+    schedule: Box<StepSchedule>,
+    /// Step interrupt, motor and switches.
+    axis: SimAxis,
+    /// Time of the next periodic control call, µs.
+    next_control_us: u64,
     last_statusword: u16,
     last_mode: i16,
 }
@@ -63,7 +78,12 @@ impl DriveSlot {
     /// At power-up it loads what its flash holds (SPEC §9). A saved set wins
     /// over `--drives`, PA51 included — it is what the drive's flash says;
     /// a blank or unreadable flash keeps the `--drives` address.
-    fn new(address: u8, index: usize, state: Option<&Path>) -> Result<Self, String> {
+    fn new(
+        address: u8,
+        index: usize,
+        state: Option<&Path>,
+        layout: AxisLayout,
+    ) -> Result<Self, String> {
         let flash = match state {
             Some(path) => FileFlash::open(path, index)
                 .map_err(|e| format!("state file {}: {e}", path.display()))?,
@@ -89,14 +109,65 @@ impl DriveSlot {
         Ok(Self {
             device,
             store,
+            schedule: Box::new(StepSchedule::new()),
+            axis: sim_axis(layout),
+            next_control_us: 0,
             last_statusword,
             last_mode,
         })
     }
 
+    /// Runs the axis and the control loop up to `now_us`: every control
+    /// period in turn, in simulated time, so a late wake-up of the process
+    /// never starves the step schedule. A step that changes a switch stops
+    /// the axis there and the drive sees the new states at that instant
+    /// (SPEC §8.6: the origin is the step where the edge was seen).
+    fn advance(&mut self, now_us: u64) {
+        if now_us.saturating_sub(self.next_control_us) > CATCH_UP_PERIODS_MAX * CONTROL_PERIOD_US {
+            // Held up for seconds: time jumps (the axis idles through it).
+            self.next_control_us = now_us;
+        }
+        while self.next_control_us <= now_us {
+            let t = self.next_control_us;
+            self.control_at(t);
+            self.next_control_us = t + CONTROL_PERIOD_US;
+        }
+    }
+
+    /// One control call at `t_us` (not earlier than the last one), after
+    /// the axis made every step up to then.
+    fn control_at(&mut self, t_us: u64) {
+        let until = self.axis.us_to_ticks(t_us);
+        while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
+            let at = self.axis.now_us();
+            self.device
+                .control(at, self.axis.switches(), &self.schedule);
+            self.axis.kick(&self.schedule);
+        }
+        self.device
+            .control(t_us, self.axis.switches(), &self.schedule);
+        self.axis.kick(&self.schedule);
+    }
+
     fn label(&self) -> String {
         format!("drive {}", self.device.address())
     }
+}
+
+/// The simulated axis with the `--cw-limit` / `--ccw-limit` /
+/// `--home-switch` switches, at the step timer frequency the planner uses.
+fn sim_axis(layout: AxisLayout) -> SimAxis {
+    let mut axis = SimAxis::new(PlannerConfig::default().tick_hz);
+    if let Some(edge) = layout.cw_limit_steps {
+        axis = axis.with_cw_limit(i64::from(edge));
+    }
+    if let Some(edge) = layout.ccw_limit_steps {
+        axis = axis.with_ccw_limit(i64::from(edge));
+    }
+    if let Some(w) = layout.home_switch {
+        axis = axis.with_home(i64::from(w.from_steps), i64::from(w.to_steps));
+    }
+    axis
 }
 
 /// `--drives` gives each drive its address: PA51 (SPEC §7), put in force
@@ -162,7 +233,9 @@ impl VirtualDrive {
         let mut console = Console::new(opts.status_line);
         let mut drives = Vec::new();
         for (i, &address) in opts.drives.iter().enumerate() {
-            drives.push(DriveSlot::new(address, i, opts.state.as_deref()).map_err(StartError)?);
+            drives.push(
+                DriveSlot::new(address, i, opts.state.as_deref(), opts.axis).map_err(StartError)?,
+            );
         }
         let mut lines = Vec::new();
         if opts.pty {
@@ -211,6 +284,9 @@ impl VirtualDrive {
     pub fn run(mut self, stop: &Arc<AtomicBool>) -> Result<(), String> {
         while !stop.load(Ordering::SeqCst) {
             let now = self.clock.now_us();
+            for d in &mut self.drives {
+                d.advance(now);
+            }
             self.close_frames(now);
             self.send_due_replies(now);
             self.observe(now);
@@ -316,13 +392,20 @@ impl VirtualDrive {
                 statusword: drive.statusword(),
                 mode: drive.mode_display(),
             };
-            if sample.statusword != d.last_statusword || sample.mode != d.last_mode {
-                let msg = format!(
-                    "drive {}: statusword 0x{:04X} -> 0x{:04X}, mode {} -> {}",
-                    sample.address, d.last_statusword, sample.statusword, d.last_mode, sample.mode
-                );
+            let mut changes = Vec::new();
+            if sample.statusword != d.last_statusword {
+                changes.push(format!(
+                    "statusword 0x{:04X} -> 0x{:04X}",
+                    d.last_statusword, sample.statusword
+                ));
                 d.last_statusword = sample.statusword;
+            }
+            if sample.mode != d.last_mode {
+                changes.push(format!("mode {} -> {}", d.last_mode, sample.mode));
                 d.last_mode = sample.mode;
+            }
+            if !changes.is_empty() {
+                let msg = format!("drive {}: {}", sample.address, changes.join(", "));
                 self.console.log(&msg);
             }
             if let Err(e) = self.trace.offer(sample) {
@@ -330,8 +413,9 @@ impl VirtualDrive {
             }
             let counters = d.device.slave.counters();
             status.push(format!(
-                "@{} sw 0x{:04X} mode {} pos {} vel {} r/min frames {} errors {}",
+                "@{} {:?} sw 0x{:04X} mode {} pos {} vel {} r/min frames {} errors {}",
                 sample.address,
+                drive.state(),
                 sample.statusword,
                 sample.mode,
                 sample.position_steps,
@@ -352,6 +436,9 @@ impl VirtualDrive {
     /// The next time the loop must run even without input.
     fn next_deadline(&self, now: u64) -> u64 {
         let mut at = now + IDLE_WAKE_US;
+        for d in &self.drives {
+            at = at.min(d.next_control_us);
+        }
         for line in &self.lines {
             if let Some(p) = line.pending.front() {
                 at = at.min(p.due_us);
@@ -513,6 +600,9 @@ fn handle(
     now_us: u64,
     pending: &mut VecDeque<PendingReply>,
 ) -> bool {
+    // The drive acts on a frame at the time it closed (SPEC §8: control
+    // after each handled frame), with its axis up to date.
+    slot.advance(now_us);
     let mut reply = [0u8; MAX_FRAME];
     let mut due_us = last_rx_us + u64::from(slot.device.reply_delay_us());
     let mut response = slot.device.handle_rx(ev, &mut reply);
@@ -526,8 +616,12 @@ fn handle(
     let bytes = match response {
         Response::Reply(n) => reply[..n.min(MAX_FRAME)].to_vec(),
         Response::Silent if ee => Vec::new(),
-        Response::Silent => return false,
+        Response::Silent => {
+            slot.control_at(now_us);
+            return false;
+        }
     };
+    slot.control_at(now_us);
     pending.push_back(PendingReply {
         due_us,
         drive: di,
@@ -600,6 +694,17 @@ fn describe(ev: &Event) -> String {
         Event::ParamsLoaded(BootOutcome::Unreadable(e)) => {
             format!("saved parameters unreadable ({e:?}): defaults")
         }
+        Event::Drive(d) => match d {
+            DriveEvent::State(state) => format!("state {state:?}"),
+            DriveEvent::Fault(cause) => format!("fault: {cause:?}"),
+            DriveEvent::LimitStop { cw: true } => "CW limit: motion stopped".into(),
+            DriveEvent::LimitStop { cw: false } => "CCW limit: motion stopped".into(),
+            DriveEvent::MotionRefused => "motion refused (statusword bit 7)".into(),
+            DriveEvent::HomingAttained { origin } => format!("homing: origin at raw step {origin}"),
+            DriveEvent::HomingDone => "homing done".into(),
+            DriveEvent::HomingFailed(e) => format!("homing failed: {e:?}"),
+            DriveEvent::ScheduleUnderrun => "step schedule ran dry (control loop late)".into(),
+        },
         Event::EeDone { op, error: None } => format!("EE operation {op:?} done"),
         Event::EeDone { op, error: Some(e) } => format!("EE operation {op:?} failed ({e:?})"),
         other => format!("{other:?}"),

@@ -218,13 +218,6 @@ def transport(request):
     return request.param
 
 
-# Pieces of other issues that some cases need; while one is missing on main
-# its cases are expected to fail (non-strict, so they count as soon as it lands).
-NEEDS_DRIVE_LAYER = pytest.mark.xfail(
-    reason="needs the drive layer and simulated axis (issue 3): power state machine, "
-    "modes, step output", strict=False)
-
-
 # registers (SPEC §5) --------------------------------------------------------
 WORD_ORDER = 0x6000
 QUICK_STOP_OPTION = 0x605A

@@ -6,7 +6,7 @@ import time
 import pytest
 
 from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, MODE,
-                      MOTOR_RUNNING, NEEDS_DRIVE_LAYER, PROFILE_VELOCITY, TARGET_POSITION,
+                      MOTOR_RUNNING, PROFILE_VELOCITY, TARGET_POSITION,
                       TARGET_REACHED, Master,
                       hexb, with_crc)
 
@@ -101,7 +101,6 @@ def test_broadcast_reaches_every_drive_and_none_answers(start_drive, transport):
             assert got == with_crc(bytes([addr]) + hexb("03 04 00 01 86 A0")), addr
 
 
-@NEEDS_DRIVE_LAYER
 def test_two_drives_on_one_bus_have_their_own_axes(start_drive, transport):
     d = start_drive("--no-status", "--drives", "1,2")
     c = d.client(transport)

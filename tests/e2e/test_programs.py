@@ -10,11 +10,10 @@ from conftest import (ACCELERATION, ACTUAL_POSITION, ACTUAL_VELOCITY, BIT12, BIT
                       HOMING_METHOD, HOMING_SPEED, HOMING_ZERO_SPEED, MODE, MODE_DISPLAY,
                       MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY,
                       QUICK_STOP_DECELERATION, STATE_MASK, TARGET_POSITION, TARGET_REACHED,
-                      VOLTAGE_ENABLED, NEEDS_DRIVE_LAYER, Master)
+                      VOLTAGE_ENABLED, Master)
 
 HALT = 1 << 8
 
-pytestmark = NEEDS_DRIVE_LAYER
 
 
 def settled(sw):
@@ -56,8 +55,10 @@ def test_position_mode_single_point(start_drive, transport):
 
 
 def test_position_mode_two_points_without_stopping(start_drive, transport):
-    """6.1 "多点运动，两点间不需要停留": bit 9 = 1, bit 5 = 0 — the motor
-    reaches 200000 at 5 r/s and carries on to 600000 at 10 r/s."""
+    """6.1 "多点运动，两点间不需要停留", the manual's controlwords 0x025F /
+    0x024F: bit 9 = 1, bit 5 = 0 — the motor reaches the first target at
+    5 r/s and carries on at 10 r/s. They also set bit 6 (relative, SPEC
+    §8.4): 0 + 200000, then 200000 + 600000 = 800000."""
     d = start_drive("--no-status")
     m = Master(d.client(transport))
     m.enable()
@@ -82,7 +83,7 @@ def test_position_mode_two_points_without_stopping(start_drive, transport):
             velocities.append(vel)
         if settled(m.statusword()):
             break
-    assert m.read32(ACTUAL_POSITION) == 600000
+    assert m.read32(ACTUAL_POSITION) == 800000
     assert velocities and min(velocities) > 0, velocities
     assert max(velocities) > 500, "second segment at 10 r/s = 600 r/min"
 
