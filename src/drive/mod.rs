@@ -15,6 +15,7 @@ use heapless::Deque;
 
 use crate::dictionary::{Config, DriveLayer, OdValues};
 use crate::motion::planner::MAX_STEP_RATE;
+use crate::motion::schedule::brake_rate;
 use crate::motion::{
     Fill, Goal, Homing, HomingError, HomingMethod, HomingStep, Planner, PlannerConfig, Ramp,
     StepSchedule, Switches,
@@ -272,6 +273,8 @@ pub struct Drive {
     last_target: i64,
     /// Moving towards an active limit was stopped.
     limit_stopping: bool,
+    /// The step interrupt's limit brake has been seen and handled.
+    limit_braked: bool,
     homing: HomingState,
     /// Raw step count − user position (homing zeroes the user position).
     offset: i64,
@@ -323,6 +326,7 @@ impl Drive {
             buffered: None,
             last_target: 0,
             limit_stopping: false,
+            limit_braked: false,
             homing: HomingState::NotStarted,
             offset: 0,
             raw_position: 0,
@@ -416,6 +420,8 @@ impl Drive {
             self.frame_seen = false;
             self.last_frame_us = now_us;
         }
+
+        self.limit_brake(sched);
 
         // §8.7 faults
         if self.fault.is_none() {
@@ -536,15 +542,42 @@ impl Drive {
         let blocked_ccw = self.switches.ccw_limit && heading == Some(true);
         if blocked_cw || blocked_ccw {
             if !self.limit_stopping {
-                self.limit_stopping = true;
-                self.warning = true;
-                self.active = None;
-                self.buffered = None;
-                self.event(DriveEvent::LimitStop { cw: blocked_cw });
+                self.limit_stop(blocked_cw);
                 self.stop_with(self.s.quick_stop_decel());
             }
         } else if heading.is_none() {
             self.limit_stopping = false;
+        }
+    }
+
+    /// Motion towards a limit is being stopped: the set-points go, the
+    /// warning and the event are raised (§8.7).
+    fn limit_stop(&mut self, cw: bool) {
+        self.limit_stopping = true;
+        self.warning = true;
+        self.active = None;
+        self.buffered = None;
+        self.event(DriveEvent::LimitStop { cw });
+    }
+
+    /// Issue 6 / §8.7: the step interrupt brakes at a limit with 0x6085 on
+    /// its own (`motion::schedule`, "Limit brake"). Armed outside homing
+    /// (§8.6: there the sequencer decides at the limits); once it has
+    /// engaged, the drive reports the stop and the planner forgets its plan
+    /// and takes the position back when the brake is over.
+    fn limit_brake(&mut self, sched: &StepSchedule) {
+        let tick_hz = self.planner.config().tick_hz;
+        sched.set_brake_rate(
+            (self.mode != MODE_HOMING).then(|| brake_rate(self.s.quick_stop_decel(), tick_hz)),
+        );
+        match sched.limit_brake() {
+            Some(b) if !self.limit_braked => {
+                self.limit_braked = true;
+                self.limit_stop(!b.forward);
+                self.planner.stop_at_once(sched);
+            }
+            Some(_) => {}
+            None => self.limit_braked = false,
         }
     }
 

@@ -15,7 +15,7 @@ pub mod sim;
 
 pub use homing::{Homing, HomingError, HomingMethod, HomingStep};
 pub use planner::{Fill, Goal, Planner, PlannerConfig, Ramp, MAX_ACCEL, MAX_STEP_RATE};
-pub use schedule::{NextStep, Segment, StepSchedule, StepSource, SCHEDULE_SLOTS};
+pub use schedule::{LimitBrake, NextStep, Segment, StepSchedule, StepSource, SCHEDULE_SLOTS};
 
 /// Logical switch states, after the polarity of PA13 (true = active).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

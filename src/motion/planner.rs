@@ -282,7 +282,9 @@ impl Planner {
         self.profile = None;
         self.then = None;
         self.w = 0;
-        if sched.is_running() || !sched.is_empty() {
+        if sched.is_running() || !sched.is_empty() || sched.limit_brake().is_some() {
+            // also after the interrupt's limit brake (schedule.rs): wait
+            // for its end, then take the position back and release it
             sched.request_flush();
             self.flushing = true;
         }
@@ -300,12 +302,14 @@ impl Planner {
         let now = self.ticks_q(now_us);
         self.now = now;
         if self.flushing {
-            if sched.flush_pending() && (sched.is_running() || !sched.is_empty()) {
+            let braking = sched.limit_brake().is_some_and(|b| !b.done);
+            if braking || sched.flush_pending() && (sched.is_running() || !sched.is_empty()) {
                 return Fill::Waiting;
             }
             // Carried out (or nothing was left to drop: clear it ourselves,
             // the interrupt is idle with an empty ring).
             sched.clear_flush_if_idle();
+            sched.release_brake();
             self.flushing = false;
             self.pos = self.actual_position(sched);
             self.w = 0;

@@ -33,9 +33,32 @@
 //! loads/stores on a Cortex-M4. When a segment ends it also loads head/tail,
 //! seven words of the slot and stores the tail (about 20 more). No division,
 //! no multiplication, no loop. Segments hold at least one step, so the extra
-//! work happens at most once per step.
+//! work happens at most once per step. The limit check adds a load and a
+//! branch; a braking step (below) instead costs six 64×64 → 128-bit
+//! multiplies and a variable shift, still no division and no loop.
+//!
+//! # Limit brake (SPEC §8.7, issue 6)
+//!
+//! A limit switch must stop motion towards it with the quick stop
+//! deceleration 0x6085 *at once*: the planner only appends behind its
+//! queued horizon, and the control loop runs every millisecond. So the
+//! limit-switch interrupt (a third context) writes the logical limit states
+//! with [`StepSchedule::set_limits`], and [`StepSource::advance`], when its
+//! next step goes towards an active limit while the brake is armed
+//! ([`StepSchedule::set_brake_rate`], written by the drive: 0x6085 outside
+//! homing, disarmed in homing where the sequencer decides at the limits),
+//! stops taking segments and decelerates on its own: each interval grows by
+//! the factor `(1 - 2q)^-1/2 ≈ 1 + q + 3/2 q² + 5/2 q³ + 35/8 q⁴` with `q = a·p²`
+//! (`p` the interval, `a` the deceleration in steps/tick²), which is
+//! `v² ← v² - 2a` per step, the constant deceleration, in a few multiplies.
+//! It stops when `q ≥ 1/4` (less than two steps from rest), drops the queue
+//! and latches ([`LimitBrake::done`]): any segment pushed before the planner
+//! noticed is dropped, until thread mode calls
+//! [`StepSchedule::release_brake`] (the planner does, once it has taken the
+//! position back: [`crate::motion::Planner::stop_at_once`]). A flush
+//! requested while braking is carried out when the brake ends.
 
-use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU8, Ordering};
 
 /// Segments the ring holds (a power of two). At the maximum step rate and
 /// the shortest segments the planner emits this covers its horizon.
@@ -48,6 +71,96 @@ pub const TICK_FRAC_BITS: u32 = 32;
 pub const MAX_SEGMENT_STEPS: u32 = 0x7FFF_FFFF;
 
 const FORWARD_BIT: u32 = 0x8000_0000;
+
+/// [`StepSchedule::limits`] bits: the direction an active limit blocks.
+const BLOCK_BACKWARD: u8 = 1; // CW limit: the negative end (SPEC §8.6)
+const BLOCK_FORWARD: u8 = 2; // CCW limit: the positive end
+
+/// [`StepSchedule::brake`] states (written by the interrupt, except
+/// `DONE` → `NONE` by [`StepSchedule::release_brake`]).
+const BRAKE_NONE: u8 = 0;
+const BRAKE_ACTIVE: u8 = 1;
+const BRAKE_DONE: u8 = 2;
+const BRAKE_FORWARD: u8 = 4;
+
+/// Mantissa bits of a brake rate ([`brake_rate`]); the shift sits above.
+const RATE_MANTISSA_BITS: u32 = 24;
+const RATE_MANTISSA: u32 = (1 << RATE_MANTISSA_BITS) - 1;
+/// "At once": the first braking step already has `q ≥ 1/4`.
+const RATE_AT_ONCE: u32 = RATE_MANTISSA;
+
+/// Brake rate for the step interrupt: the deceleration `decel` (0.1
+/// steps/s², the drive's unit, e.g. 0x6085 × PA10) in steps/tick² at
+/// `tick_hz`, as a 24-bit mantissa and a shift (`a = mantissa / 2^shift`)
+/// packed in one word so that it can be an atomic on every Cortex-M.
+/// `decel == 0` means "stop at once" (SPEC §8.3); 0 is never returned
+/// (it means "disarmed"). Thread mode; two divisions.
+pub fn brake_rate(decel: u64, tick_hz: u32) -> u32 {
+    // a = decel / (10 · tick_hz²) steps/tick²
+    let den = 10 * u128::from(tick_hz.max(1)).pow(2);
+    let num = u128::from(decel);
+    if num == 0 {
+        return RATE_AT_ONCE;
+    }
+    let (lnum, lden) = (num.ilog2() as i32, den.ilog2() as i32);
+    // num · 2^s / den lands in [2^22, 2^24) with this s, [2^23, 2^24) after
+    // at most one doubling.
+    let mut s = RATE_MANTISSA_BITS as i32 - 1 + lden - lnum;
+    if s < 0 {
+        return RATE_AT_ONCE; // more than 2^23 steps/tick²: no step fits
+    }
+    let mut m = (num << s) / den;
+    if m < 1 << (RATE_MANTISSA_BITS - 1) {
+        s += 1;
+        m = (num << s) / den;
+    }
+    if s > 111 {
+        // below 2^-88 steps/tick²: slower than anything the planner runs
+        return 1 | (111 << RATE_MANTISSA_BITS);
+    }
+    (m as u32 & RATE_MANTISSA) | ((s as u32) << RATE_MANTISSA_BITS)
+}
+
+/// The interval after `p` (Q32.32 ticks) when braking at `rate`
+/// ([`brake_rate`]), or `None` if the motor is less than two steps from
+/// rest (`q ≥ 1/4`) or slower than 2^24 ticks per step. Constant time: six
+/// 64×64 multiplies, no division (module docs).
+fn brake_interval(p: u64, rate: u32) -> Option<u64> {
+    if p >> (TICK_FRAC_BITS + 24) != 0 {
+        return None;
+    }
+    // Rounded, not truncated: near the end v² is a small difference of
+    // large numbers, so a bias per step would show there.
+    let p8 = p >> 8; // Q32.24, < 2^48
+    let p2 = u128::from(p8) * u128::from(p8); // p², Q.48, < 2^96
+    let shift = (rate >> RATE_MANTISSA_BITS) + 16;
+    let half = 1u128 << (shift - 1);
+    let q = (u128::from(rate & RATE_MANTISSA) * p2 + half) >> shift; // q, Q0.32
+    if q >= 1 << 30 {
+        return None;
+    }
+    let q = q as u64;
+    let mul = |x: u64, y: u64| (x * y + (1 << 31)) >> 32;
+    let (q2, q3) = (mul(q, q), mul(mul(q, q), q));
+    let q4 = mul(q2, q2);
+    // (1-2q)^-1/2 - 1 = q + 3/2 q² + 5/2 q³ + 35/8 q⁴ + …, Q0.32; the rest
+    // is below 0.6 % at q = 1/4
+    let f = q + q2 + (q2 >> 1) + 2 * q3 + (q3 >> 1) + 4 * q4 + (q4 >> 2) + (q4 >> 3);
+    let grow = (u128::from(p) * u128::from(f) + (1 << 31)) >> 32;
+    Some(p + grow as u64)
+}
+
+/// What the step interrupt's limit brake is doing (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LimitBrake {
+    /// The motion it stopped went in the positive direction (towards the
+    /// CCW limit).
+    pub forward: bool,
+    /// The motor is at rest; the schedule stays latched (empty) until
+    /// [`StepSchedule::release_brake`].
+    pub done: bool,
+}
 
 /// A run of steps with linearly changing interval (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -91,6 +204,12 @@ pub struct StepSchedule {
     flush: AtomicBool,
     /// The consumer has a step pending (steps are being generated).
     running: AtomicBool,
+    /// Directions blocked by active limits (the limit-switch interrupt).
+    limits: AtomicU8,
+    /// Armed limit brake ([`brake_rate`]; 0 = disarmed), from the drive.
+    brake_rate: AtomicU32,
+    /// The limit brake's state (`BRAKE_*`).
+    brake: AtomicU8,
 }
 
 impl Default for StepSchedule {
@@ -108,6 +227,9 @@ impl StepSchedule {
             position: AtomicI32::new(0),
             flush: AtomicBool::new(false),
             running: AtomicBool::new(false),
+            limits: AtomicU8::new(0),
+            brake_rate: AtomicU32::new(0),
+            brake: AtomicU8::new(BRAKE_NONE),
         }
     }
 
@@ -173,6 +295,41 @@ impl StepSchedule {
         }
     }
 
+    /// Arms the limit brake with a [`brake_rate`], or disarms it (`None`:
+    /// homing, where the sequencer decides at the limits, SPEC §8.6).
+    pub fn set_brake_rate(&self, rate: Option<u32>) {
+        self.brake_rate.store(rate.unwrap_or(0), Ordering::Relaxed);
+    }
+
+    /// The interrupt's limit brake, if it has engaged and not been
+    /// released.
+    pub fn limit_brake(&self) -> Option<LimitBrake> {
+        let b = self.brake.load(Ordering::Acquire);
+        (b != BRAKE_NONE).then_some(LimitBrake {
+            forward: b & BRAKE_FORWARD != 0,
+            done: b & BRAKE_DONE != 0,
+        })
+    }
+
+    /// Lets the interrupt take segments again after a finished brake (the
+    /// planner calls it once it has the position back). No effect while
+    /// the brake is still running.
+    pub fn release_brake(&self) {
+        if self.brake.load(Ordering::Acquire) & BRAKE_DONE != 0 {
+            self.brake.store(BRAKE_NONE, Ordering::Release);
+        }
+    }
+
+    // ---- the limit-switch interrupt (or whoever reads the switches) ----
+
+    /// The enabled limits active now (logical, after PA13/PA14). Call it
+    /// on every switch edge, from one context at a time.
+    pub fn set_limits(&self, cw_limit: bool, ccw_limit: bool) {
+        let bits =
+            if cw_limit { BLOCK_BACKWARD } else { 0 } | if ccw_limit { BLOCK_FORWARD } else { 0 };
+        self.limits.store(bits, Ordering::Release);
+    }
+
     // ---- either side ----
 
     /// Raw step count: steps made forward minus steps made backward.
@@ -223,6 +380,8 @@ pub struct StepSource {
     /// A step has been announced and not yet counted.
     pending: bool,
     position: i32,
+    /// The limit brake is running at this rate (0 = not braking).
+    braking: u32,
 }
 
 impl StepSource {
@@ -236,6 +395,7 @@ impl StepSource {
             forward: true,
             pending: false,
             position: 0,
+            braking: 0,
         }
     }
 
@@ -252,7 +412,12 @@ impl StepSource {
             // the integer delays round every exact time to the nearest tick.
             self.time = 1 << (TICK_FRAC_BITS - 1);
         }
-        if sched.flush.load(Ordering::Acquire) {
+        if self.braking != 0 {
+            return self.brake_step(sched, self.braking);
+        }
+        if sched.flush.load(Ordering::Acquire)
+            || sched.brake.load(Ordering::Relaxed) & BRAKE_DONE != 0
+        {
             self.drop_all(sched);
             return None;
         }
@@ -261,24 +426,67 @@ impl StepSource {
             sched.running.store(false, Ordering::Release);
             return None;
         }
+        let block = if self.forward {
+            BLOCK_FORWARD
+        } else {
+            BLOCK_BACKWARD
+        };
+        if sched.limits.load(Ordering::Acquire) & block != 0 {
+            let rate = sched.brake_rate.load(Ordering::Relaxed);
+            if rate != 0 {
+                let dir = if self.forward { BRAKE_FORWARD } else { 0 };
+                sched.brake.store(BRAKE_ACTIVE | dir, Ordering::Release);
+                self.braking = rate;
+                return self.brake_step(sched, rate);
+            }
+        }
         self.remaining -= 1;
-        let before = self.time;
-        self.time = before.wrapping_add(self.interval);
+        let interval = self.interval;
         self.interval = self.interval.wrapping_add(self.add);
         self.add = self.add.wrapping_add(self.add2);
+        Some(self.announce(interval))
+    }
+
+    /// The next step `interval` (Q32.32) after the pending one.
+    fn announce(&mut self, interval: u64) -> NextStep {
+        let before = self.time;
+        self.time = before.wrapping_add(interval);
         self.pending = true;
         let delay =
             ((self.time >> TICK_FRAC_BITS) as u32).wrapping_sub((before >> TICK_FRAC_BITS) as u32);
-        Some(NextStep {
+        NextStep {
             delay_ticks: delay,
             forward: self.forward,
-        })
+        }
+    }
+
+    /// One step of the limit brake (module docs), or its end.
+    fn brake_step(&mut self, sched: &StepSchedule, rate: u32) -> Option<NextStep> {
+        match brake_interval(self.interval, rate) {
+            Some(p) => {
+                self.interval = p;
+                Some(self.announce(p))
+            }
+            None => {
+                self.braking = 0;
+                self.drop_all(sched);
+                let dir = if self.forward { BRAKE_FORWARD } else { 0 };
+                sched.brake.store(BRAKE_DONE | dir, Ordering::Release);
+                None
+            }
+        }
     }
 
     /// The glue stopped the timer before the announced step was made (stop
     /// at once): forget it and drop the whole schedule. Call it in the
     /// interrupt's context (or with it masked).
     pub fn cancel(&mut self, sched: &StepSchedule) {
+        if self.braking != 0 {
+            // a brake cut short is still a brake: latch it for the planner
+            let dir = if self.forward { BRAKE_FORWARD } else { 0 };
+            sched.brake.store(BRAKE_DONE | dir, Ordering::Release);
+            self.braking = 0;
+        }
         self.drop_all(sched);
     }
 
@@ -430,5 +638,180 @@ mod tests {
         assert_eq!(sched.position(), -1);
         assert_eq!(src.advance(&sched), None);
         assert_eq!(sched.position(), -1);
+    }
+
+    // ---- limit brake (SPEC §8.7, issue 6) ----
+
+    const HZ: u32 = 10_000_000;
+
+    /// A long run at `interval` ticks per step in one direction.
+    fn cruise(sched: &StepSchedule, interval: u64, forward: bool) {
+        sched
+            .push(seg(interval * ONE, 0, 0, 100_000, forward))
+            .unwrap();
+    }
+
+    #[test]
+    fn brake_rate_encodes_the_deceleration() {
+        for (decel, hz) in [
+            (1u64, 1_000_000u32),
+            (20, HZ),
+            (10_000_000, HZ),
+            (20_000_000, 8_000_000),
+        ] {
+            let r = brake_rate(decel, hz);
+            let (m, s) = (f64::from(r & RATE_MANTISSA), r >> RATE_MANTISSA_BITS);
+            let a = m / 2f64.powi(s as i32);
+            let exact = decel as f64 / 10.0 / f64::from(hz).powi(2);
+            assert!(
+                (a / exact - 1.0).abs() < 1.0 / f64::from(1u32 << 22),
+                "{decel} {hz}: {a} vs {exact}"
+            );
+            assert!(m >= f64::from(1u32 << 23));
+        }
+        assert_eq!(
+            brake_rate(0, HZ),
+            RATE_AT_ONCE,
+            "0x6085 = 0: at once (§8.3)"
+        );
+    }
+
+    /// Steps of the limit brake from `v0` steps/s with `a` steps/s²: their
+    /// intervals follow v² = v0² - 2an, and the motor stops within the
+    /// quick stop distance v0²/2a (SPEC §8.7: stop with 0x6085).
+    #[test]
+    fn limit_brake_decelerates_at_the_quick_stop_rate() {
+        for (v0, a) in [
+            (50_000.0f64, 1.0e6f64),
+            (2_000.0, 20_000.0),
+            (200_000.0, 2.0e6),
+        ] {
+            let sched = StepSchedule::new();
+            let mut src = StepSource::new();
+            sched.set_brake_rate(Some(brake_rate((a * 10.0) as u64, HZ)));
+            let p0 = (f64::from(HZ) / v0) as u64;
+            cruise(&sched, p0, true);
+            for _ in 0..10 {
+                assert_eq!(src.advance(&sched).unwrap().delay_ticks as u64, p0);
+            }
+            sched.set_limits(false, true); // the CCW limit: forward blocked
+            let mut n = 0u32;
+            let mut t = 0f64;
+            while let Some(s) = src.advance(&sched) {
+                assert!(s.forward);
+                n += 1;
+                t += f64::from(s.delay_ticks);
+                let v2 = v0 * v0 - 2.0 * a * f64::from(n);
+                let exact = f64::from(HZ) / v2.sqrt();
+                let got = f64::from(s.delay_ticks);
+                assert!(
+                    (got - exact).abs() <= 1.0 + 0.02 * exact,
+                    "v0 {v0}, a {a}: step {n}: {got} ticks, exact {exact}"
+                );
+                assert_eq!(
+                    sched.limit_brake(),
+                    Some(LimitBrake {
+                        forward: true,
+                        done: false
+                    })
+                );
+                assert!(n < 1_000_000);
+            }
+            let dist = v0 * v0 / (2.0 * a);
+            assert!(
+                f64::from(n) <= dist && f64::from(n) + 3.0 >= dist,
+                "v0 {v0}, a {a}: {n} braking steps, quick stop distance {dist}"
+            );
+            // time of a constant deceleration: v0/a (minus the last steps)
+            let t_exact = v0 / a * f64::from(HZ);
+            assert!(t <= t_exact * 1.01, "{t} ticks vs {t_exact}");
+            assert_eq!(
+                sched.limit_brake(),
+                Some(LimitBrake {
+                    forward: true,
+                    done: true
+                })
+            );
+            assert!(!sched.is_running() && sched.is_empty());
+            assert_eq!(sched.position(), 10 + n as i32);
+        }
+    }
+
+    #[test]
+    fn limit_brake_only_towards_the_active_limit_and_only_when_armed() {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        cruise(&sched, 2000, false);
+        src.advance(&sched);
+        // armed, but the CCW limit blocks the other direction
+        sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
+        sched.set_limits(false, true);
+        assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(2000));
+        assert_eq!(sched.limit_brake(), None);
+        // disarmed (homing, §8.6): the CW limit is passed on to the planner
+        sched.set_brake_rate(None);
+        sched.set_limits(true, false);
+        assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(2000));
+        assert_eq!(sched.limit_brake(), None);
+        // armed: brakes (the interval grows)
+        sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
+        assert!(src.advance(&sched).unwrap().delay_ticks > 2000);
+        assert_eq!(
+            sched.limit_brake(),
+            Some(LimitBrake {
+                forward: false,
+                done: false
+            })
+        );
+    }
+
+    #[test]
+    fn limit_brake_latches_until_released_and_defers_a_flush() {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
+        cruise(&sched, 200, true);
+        src.advance(&sched);
+        sched.set_limits(false, true);
+        src.advance(&sched);
+        // a flush while braking waits for the end of the brake
+        sched.request_flush();
+        assert!(src.advance(&sched).is_some());
+        while src.advance(&sched).is_some() {}
+        assert!(!sched.flush_pending());
+        // segments pushed before thread mode noticed are dropped, also
+        // away from the limit, until the planner releases the brake
+        sched.set_limits(false, false);
+        cruise(&sched, 200, false);
+        assert_eq!(src.advance(&sched), None);
+        assert!(sched.is_empty());
+        sched.release_brake();
+        assert_eq!(sched.limit_brake(), None);
+        cruise(&sched, 200, false);
+        assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(200));
+    }
+
+    #[test]
+    fn limit_at_once_and_from_rest_make_no_step() {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.set_brake_rate(Some(brake_rate(0, HZ)));
+        sched.set_limits(true, false);
+        cruise(&sched, 200, false);
+        assert_eq!(src.advance(&sched), None, "0x6085 = 0: no further step");
+        assert_eq!(
+            sched.limit_brake(),
+            Some(LimitBrake {
+                forward: false,
+                done: true
+            })
+        );
+        sched.release_brake();
+        // from rest towards an active limit, at an ordinary deceleration:
+        // the first interval from rest is already within two steps of rest
+        sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
+        sched.push(seg(14_142 * ONE, 0, 0, 10, false)).unwrap(); // √(2/a) s
+        assert_eq!(src.advance(&sched), None);
+        assert_eq!(sched.position(), 0);
     }
 }

@@ -1,0 +1,156 @@
+//! The step interrupt's limit brake with the whole drive (SPEC §8.7, issue
+//! 6): a limit stops motion towards it with 0x6085 from the interrupt,
+//! without waiting for the control loop; homing still reverses at limits
+//! (§8.6). The limit-switch interrupt is played by `set_limits` at the step
+//! where the switch changed, as the firmware's EXTI handler does.
+
+mod common;
+
+use common::axis::Rig;
+use modbus_drive::drive::DriveEvent;
+use modbus_drive::event::Event;
+use modbus_drive::motion::sim::{RunStop, SimAxis};
+
+const WARNING: u16 = 1 << 7;
+const CW: u16 = 1 << 14;
+const CCW: u16 = 1 << 15;
+
+fn cw(rig: &mut Rig, v: u16) {
+    rig.bus.write_single(0x6040, v).expect("controlword");
+    rig.control();
+}
+
+/// Position mode, 10 r/s (100 000 steps/s), 100 r/s², quick stop 200 r/s²
+/// (2e6 steps/s²: 2500 steps from full speed).
+fn moving(rig: &mut Rig, target: i32) {
+    cw(rig, 0x0006);
+    cw(rig, 0x0007);
+    cw(rig, 0x000F);
+    rig.bus.write_single(0x6060, 1).unwrap();
+    rig.write_i32(0x6081, 100);
+    rig.write(0x6083, &[1000, 1000, 2000]);
+    rig.write_i32(0x607A, target);
+    cw(rig, 0x001F);
+    cw(rig, 0x000F);
+}
+
+/// The firmware's EXTI handler: the enabled limits, at once.
+fn exti(rig: &Rig) {
+    let sw = rig.axis.switches();
+    rig.sched.set_limits(sw.cw_limit, sw.ccw_limit);
+}
+
+/// Runs the control loop every millisecond until the axis reaches a
+/// switch edge; the edge goes to the schedule at once (EXTI).
+fn run_to_edge(rig: &mut Rig, max_us: u64) {
+    let end = rig.now_us + max_us;
+    while rig.now_us < end {
+        let next = rig.now_us + rig.period_us;
+        let until = rig.axis.us_to_ticks(next);
+        let steps = &mut rig.steps;
+        if rig.axis.run_until(&rig.sched, until, |s| steps.push(s)) == RunStop::SwitchChanged {
+            exti(rig);
+            return;
+        }
+        rig.now_us = next;
+        rig.control();
+    }
+    panic!("no switch edge within {max_us} µs");
+}
+
+fn limit_stops(rig: &mut Rig) -> Vec<bool> {
+    let mut v = Vec::new();
+    while let Some(e) = rig.bus.device.take_event() {
+        if let Event::Drive(DriveEvent::LimitStop { cw }) = e {
+            v.push(cw);
+        }
+    }
+    v
+}
+
+#[test]
+fn limit_stops_with_the_quick_stop_ramp_without_the_control_loop_spec_8_7() {
+    let mut rig = Rig::new(SimAxis::new(10_000_000).with_ccw_limit(20_000));
+    moving(&mut rig, 100_000);
+    run_to_edge(&mut rig, 2_000_000);
+    let edge = rig.axis.position();
+    assert_eq!(edge, 20_000);
+    let v_edge = rig.speed_at(edge);
+    assert!(v_edge > 99_000.0, "at full speed: {v_edge}");
+    // No control call from here: the interrupt alone stops the motor.
+    let until = rig.axis.now_ticks() + rig.axis.us_to_ticks(100_000);
+    let steps = &mut rig.steps;
+    rig.axis.run_until(&rig.sched, until, |s| steps.push(s));
+    assert!(!rig.axis.is_running(), "stopped without the control loop");
+    let stop = rig.axis.position();
+    // quick stop distance v²/2a = 2500 steps; two steps before rest the
+    // brake ends (schedule.rs), and the step already announced goes out
+    let dist = v_edge * v_edge / (2.0 * 2.0e6);
+    let over = (stop - edge) as f64;
+    assert!(
+        over <= dist + 2.0 && over >= dist - 4.0,
+        "{over} steps past the edge, quick stop distance {dist}"
+    );
+    // its deceleration is 0x6085: the speed half-way is v/√2
+    let mid = edge + (over / 2.0) as i64;
+    let v_mid = rig.speed_at(mid);
+    let exact = (v_edge * v_edge - 2.0 * 2.0e6 * (mid - edge) as f64).sqrt();
+    assert!((v_mid / exact - 1.0).abs() < 0.01, "{v_mid} vs {exact}");
+
+    // The control loop learns it: limit stop, warning, bit 15, the
+    // position the motor really has.
+    rig.now_us = rig.axis.now_us();
+    rig.control();
+    assert_eq!(limit_stops(&mut rig), vec![false]);
+    assert_eq!(rig.statusword() & (WARNING | CW | CCW), WARNING | CCW);
+    assert_eq!(i64::from(rig.position()), stop);
+    // further towards the limit: refused; away from it: runs and arrives
+    rig.write_i32(0x607A, 90_000);
+    cw(&mut rig, 0x001F);
+    cw(&mut rig, 0x000F);
+    rig.run_us(20_000);
+    assert_eq!(rig.axis.position(), stop);
+    rig.write_i32(0x607A, 0);
+    cw(&mut rig, 0x001F);
+    cw(&mut rig, 0x000F);
+    run_to_edge(&mut rig, 2_000_000); // leaves the limit
+    rig.run_until(5_000_000, |r| {
+        r.at_rest() && r.bus.device.drive.planner().at_rest(&r.sched)
+    });
+    assert_eq!(rig.axis.position(), 0);
+    assert_eq!(rig.position(), 0);
+    assert!(limit_stops(&mut rig).is_empty());
+}
+
+#[test]
+fn homing_reverses_at_the_limit_with_the_brake_disarmed_spec_8_6() {
+    // Method 5: fast into the CW limit, slowly out of it, slowly back to
+    // its edge (the origin), then the offset move out of it again. Each
+    // time the limit becomes active the EXTI tells the schedule; homing
+    // disarmed the brake, so the sequencer decides.
+    let mut rig = Rig::new(SimAxis::new(10_000_000).with_cw_limit(-5_000));
+    cw(&mut rig, 0x0006);
+    cw(&mut rig, 0x0007);
+    cw(&mut rig, 0x000F);
+    rig.bus.write_single(0x6060, 6).unwrap();
+    rig.bus.write_single(0x6098, 5).unwrap();
+    rig.write_i32(0x6099, 20); // 2 r/s
+    rig.write(0x609A, &[1000]); // 100 r/s²
+    rig.write_i32(0x609B, 5); // 0.5 r/s
+    rig.write_i32(0x607C, 1000);
+    cw(&mut rig, 0x001F);
+    run_to_edge(&mut rig, 5_000_000); // into the CW limit
+    assert!(rig.axis.switches().cw_limit);
+    for _ in 0..3 {
+        rig.now_us = rig.axis.now_us();
+        rig.control();
+        assert_eq!(rig.sched.limit_brake(), None, "no brake in homing");
+        run_to_edge(&mut rig, 10_000_000); // out, back in, out
+    }
+    rig.run_until(10_000_000, |r| {
+        r.at_rest() && r.statusword() & 0x1400 == 0x1400
+    });
+    assert!(limit_stops(&mut rig).is_empty());
+    assert_eq!(rig.axis.position(), -5_000 + 1_000);
+    assert_eq!(rig.position(), 0);
+}
