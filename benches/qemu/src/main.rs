@@ -68,7 +68,8 @@ mod bench {
         (start.wrapping_sub(end) & 0x00FF_FFFF, r)
     }
 
-    /// Instructions per call of `f` in tenths, the empty call subtracted.
+    /// Instructions per call of `f` in tenths (rounded), the empty call
+    /// subtracted.
     fn measure<S>(state: &mut S, f: fn(&mut S) -> u32, n: u32) -> (u64, u32) {
         let (t_empty, _) = ticks(state, empty::<S>, n);
         let (t, r) = ticks(state, f, n);
@@ -76,7 +77,10 @@ mod bench {
             fail("a measurement came near the 24-bit SysTick wrap: lower n");
         }
         let net = u64::from(t.saturating_sub(t_empty)) * INSTR_PER_TICK;
-        (net * 10 / u64::from(n), r)
+        (
+            (net * 10 + u64::from(n) / 2) / u64::from(n), // rounded
+            r,
+        )
     }
 
     fn fail(msg: &str) -> ! {
@@ -164,7 +168,27 @@ mod bench {
                 profile_one(&mut AssemblerFeed::new(frame), assembler_frame);
             }
         }
-        fail("BENCH_PROFILE: drive-|rmodbus-|assembler- + fc03-2|fc03-10|fc10|fc06")
+        if which == "move" {
+            fn one_move(_: &mut ()) -> u32 {
+                simulate_move(i64::from(RAMP_MOVE_STEPS), || 0).steps
+            }
+            profile_one(&mut (), one_move);
+        }
+        fail("BENCH_PROFILE: move, or drive-|rmodbus-|assembler- + fc03-2|fc03-10|fc10|fc06")
+    }
+
+    #[inline(never)]
+    fn nothing() -> u32 {
+        0
+    }
+
+    /// 1013 NOPs: not a multiple of 40, so timed regions around it land on
+    /// every phase of the SysTick tick; their average must still be exact.
+    #[inline(never)]
+    fn nops_1013() -> u32 {
+        // SAFETY: NOPs only.
+        unsafe { core::arch::asm!(".rept 1013", "nop", ".endr", options(nomem, nostack)) };
+        1
     }
 
     pub fn run() -> ! {
@@ -265,24 +289,22 @@ mod bench {
         );
         let mut fixed = RampMakerFixed::default();
         let (t, steps) = measure(&mut fixed, ramp_maker_fixed_move, 3);
-        if steps < RAMP_MOVE_STEPS {
-            fail("ramp-maker (fixed) produced too few steps");
-        }
+        expect("ramp-maker (fixed) delays per move", steps, RAMP_MOVE_STEPS);
+        let ramp_fixed = t / u64::from(steps);
         row(
             "ramp-maker 0.2 trapezoidal, fixed",
-            t / u64::from(steps),
+            ramp_fixed,
             "step",
             None,
             &mut ok,
         );
         let mut float = RampMakerF32::default();
         let (t, steps) = measure(&mut float, ramp_maker_f32_move, 20);
-        if steps < RAMP_MOVE_STEPS {
-            fail("ramp-maker (f32) produced too few steps");
-        }
+        expect("ramp-maker (f32) delays per move", steps, RAMP_MOVE_STEPS);
+        let ramp_f32 = t / u64::from(steps);
         row(
             "ramp-maker 0.2 trapezoidal, f32",
-            t / u64::from(steps),
+            ramp_f32,
             "step",
             None,
             &mut ok,
@@ -290,6 +312,68 @@ mod bench {
         let mut klipper = KlipperStepper::default();
         let (t, _) = measure(&mut klipper, klipper_step_event, 10_000);
         row("Klipper-style step event", t, "step", None, &mut ok);
+
+        // ---- the drive's step generation, in the glue's rhythm: timed
+        // regions around every planner fill and every interrupt step
+        let _ = writeln!(
+            c,
+            "-- modbus-drive step generation: the same move, 1 kHz control loop, \
+             10 MHz step timer, SysTick read around every call"
+        );
+        let regions = 4000;
+        let clock_only = time_regions(systick_now, nothing, regions);
+        let with_nops = time_regions(systick_now, nops_1013, regions);
+        // tenths of an instruction per region
+        let per_region = |ticks: u32| u64::from(ticks) * INSTR_PER_TICK * 10 / u64::from(regions);
+        let check = per_region(with_nops) - per_region(clock_only);
+        row(
+            "harness: 1013 NOPs in timed regions",
+            check,
+            "call",
+            None,
+            &mut ok,
+        );
+        if check.abs_diff(10_130) > 10 {
+            fail("timed regions did not average to 1013 +- 1 instructions");
+        }
+        let overhead = per_region(clock_only);
+        let cost = simulate_move(i64::from(RAMP_MOVE_STEPS), systick_now);
+        expect(
+            "simulated move: final position",
+            cost.final_position as u32,
+            RAMP_MOVE_STEPS,
+        );
+        let net = |ticks: u32, calls: u32| {
+            (u64::from(ticks) * INSTR_PER_TICK * 10).saturating_sub(u64::from(calls) * overhead)
+                / u64::from(cost.steps)
+        };
+        let _ = writeln!(
+            c,
+            "   ({} steps, {} interrupt calls, {} planner calls)",
+            cost.steps, cost.advance_calls, cost.fill_calls
+        );
+        let isr = net(cost.advance_clock, cost.advance_calls);
+        let planner = net(cost.fill_clock, cost.fill_calls);
+        row(
+            "step interrupt side (StepSource::advance)",
+            isr,
+            "step",
+            Some(20),
+            &mut ok,
+        );
+        row(
+            "planner (Planner::fill), amortised",
+            planner,
+            "step",
+            Some(60),
+            &mut ok,
+        );
+        let _ = writeln!(
+            c,
+            "   planner + interrupt = {:.2} x ramp-maker fixed, {:.2} x ramp-maker f32 (per step)",
+            (isr + planner) as f32 / ramp_fixed as f32,
+            (isr + planner) as f32 / ramp_f32 as f32
+        );
 
         if ok {
             let _ = writeln!(c, "all targets met");

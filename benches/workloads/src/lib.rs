@@ -10,6 +10,9 @@
 //! and `../host` (x86-64 instructions under valgrind).
 #![no_std]
 
+use modbus_drive::motion::{
+    Fill, Goal, NextStep, Planner, PlannerConfig, Ramp, StepSchedule, StepSource,
+};
 use modbus_drive::rtu::{FrameAssembler, LineConfig, RxEvent, RxFlags};
 
 /// The four request frames of the slave-path comparison, CRC included.
@@ -367,4 +370,122 @@ pub fn klipper_step_event(s: &mut KlipperStepper) -> u32 {
     // stepper_load_next: the benchmark keeps the move endless
     s.count = u32::MAX;
     0
+}
+
+// ---------------------------------------------------------------- the drive's step generation
+
+/// The comparison move in the planner's units (0.1 steps/s, 0.1 steps/s²):
+/// the same 2000-step triangle as the ramp-maker workloads.
+pub const MOVE_RAMP: Ramp = Ramp {
+    velocity: RAMP_MAX_STEPS_PER_S as u64 * 10,
+    accel: RAMP_ACCEL_STEPS_PER_S2 as u64 * 10,
+    decel: RAMP_ACCEL_STEPS_PER_S2 as u64 * 10,
+};
+
+/// Control-loop period of the simulated glue (the firmware's 1 kHz loop).
+pub const CONTROL_PERIOD_US: u64 = 1000;
+
+/// What one simulated move cost, in clock units summed over the timed
+/// calls (see [`simulate_move`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MoveCost {
+    /// Steps the interrupt side produced.
+    pub steps: u32,
+    /// Position the interrupt side ended at.
+    pub final_position: i32,
+    pub fill_calls: u32,
+    pub fill_clock: u32,
+    pub advance_calls: u32,
+    pub advance_clock: u32,
+}
+
+/// The planner's work for one control period (out of line so that the
+/// host bench can count it alone and the M4 bench can time it).
+#[inline(never)]
+pub fn timed_fill(p: &mut Planner, now_us: u64, sched: &StepSchedule) -> Fill {
+    p.fill(now_us, sched)
+}
+
+/// What the step-timer interrupt does at each step.
+#[inline(never)]
+pub fn timed_advance(src: &mut StepSource, sched: &StepSchedule) -> Option<NextStep> {
+    src.advance(sched)
+}
+
+/// `n` timed regions around `f` with `clock` read as [`simulate_move`]
+/// does: the clock's own cost per region when `f` does nothing.
+pub fn time_regions(clock: fn() -> u32, f: fn() -> u32, n: u32) -> u32 {
+    let f = core::hint::black_box(f);
+    let mut total = 0u32;
+    for i in 0..n {
+        let t0 = clock();
+        f();
+        total = total.wrapping_add(t0.wrapping_sub(clock()) & 0x00FF_FFFF);
+        dither(i);
+    }
+    total
+}
+
+/// Untimed work of varying length between two timed regions, so that the
+/// regions start at every phase of a clock tick and the quantisation of
+/// each reading averages out (a fixed loop length can visit only a few
+/// phases and bias the sum by up to a tick per region).
+#[inline(never)]
+pub fn dither(i: u32) {
+    for k in 0..(i.wrapping_mul(7) % 41) {
+        core::hint::black_box(k);
+    }
+}
+
+/// The glue around planner and interrupt, simulated: every
+/// [`CONTROL_PERIOD_US`] the planner fills the schedule, and the interrupt
+/// runs every step that falls into the period, on a 10 MHz step timer.
+/// `clock` is read around every `timed_fill` / `timed_advance` call (a
+/// down-counter: the M4 bench passes SysTick; the host bench, which counts
+/// the two functions with callgrind instead, passes a constant).
+pub fn simulate_move(target: i64, clock: fn() -> u32) -> MoveCost {
+    let cfg = PlannerConfig::default();
+    let ticks_per_us = u64::from(cfg.tick_hz / 1_000_000);
+    let mut planner = Planner::new(cfg);
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    let mut cost = MoveCost::default();
+    planner.set_goal(Goal::Move {
+        target,
+        ramp: MOVE_RAMP,
+        end_velocity: 0,
+    });
+    let mut now_us: u64 = 0;
+    // step timer time (ticks) of the interrupt's next call, when armed
+    let mut next_at: Option<u64> = None;
+    for _ in 0..100_000 {
+        let t0 = clock();
+        let fill = timed_fill(&mut planner, now_us, &sched);
+        cost.fill_clock = cost
+            .fill_clock
+            .wrapping_add(t0.wrapping_sub(clock()) & 0x00FF_FFFF);
+        cost.fill_calls += 1;
+        dither(cost.fill_calls);
+        let period_end = (now_us + CONTROL_PERIOD_US) * ticks_per_us;
+        if next_at.is_none() && !sched.is_empty() {
+            next_at = Some(now_us * ticks_per_us); // the glue pends the interrupt
+        }
+        while let Some(at) = next_at.filter(|&at| at < period_end) {
+            let t0 = clock();
+            let step = timed_advance(&mut src, &sched);
+            cost.advance_clock = cost
+                .advance_clock
+                .wrapping_add(t0.wrapping_sub(clock()) & 0x00FF_FFFF);
+            cost.advance_calls += 1;
+            dither(cost.advance_calls);
+            next_at = step.map(|s| at + u64::from(s.delay_ticks));
+        }
+        now_us += CONTROL_PERIOD_US;
+        if matches!(fill, Fill::Idle) && next_at.is_none() && sched.is_empty() {
+            break;
+        }
+    }
+    cost.final_position = src.position();
+    cost.steps = src.position().unsigned_abs();
+    cost
 }

@@ -1,0 +1,1 @@
+//! Nothing but the benches (`benches/instructions.rs`, run by ../run-host.sh).
