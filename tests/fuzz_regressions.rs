@@ -1,7 +1,7 @@
 //! Replays every input under `fuzz/regressions/<target>/` through the same
 //! checks the fuzz targets run (fuzz/harness/): hand-made seeds that walk
 //! each target's main paths, and every input a fuzzing run ever failed on.
-//! SPEC §1 (assembler), §2, §3, §5.2, §8.1 (dispatcher).
+//! SPEC §1 (assembler), §2, §3, §5.2, §8.1 (dispatcher), §8 (drive).
 
 #[path = "../fuzz/harness/mod.rs"]
 mod harness;
@@ -31,6 +31,11 @@ fn assembler_regressions_hold() {
 #[test]
 fn dispatcher_regressions_hold() {
     replay("dispatcher", harness::dispatcher::run);
+}
+
+#[test]
+fn drive_regressions_hold() {
+    replay("drive", harness::drive::run);
 }
 
 /// The state check of the dispatcher target accepts the eight §8.1

@@ -82,6 +82,64 @@ fn configure(device: &mut Device, cfg: u8, address_byte: u8) {
     assert_eq!(device.address(), address);
 }
 
+/// One frame through `handle_rx` with every per-frame check (module docs).
+pub fn check_frame(
+    device: &mut Device,
+    frame: &[u8],
+    parity_error: bool,
+    reply: &mut [u8; MAX_FRAME],
+) {
+    let own = device.address();
+    let before = snapshot(device);
+    let rx = if frame.len() > MAX_FRAME {
+        RxEvent::Overrun // what the assembler makes of it
+    } else if frame.len() < 4 {
+        RxEvent::TooShort
+    } else {
+        RxEvent::Frame {
+            bytes: frame,
+            parity_error,
+        }
+    };
+    let response = device.handle_rx(rx, reply);
+    let mut refused = false;
+    while let Some(event) = device.take_event() {
+        if matches!(event, Event::Exception { .. }) {
+            refused = true;
+        }
+    }
+
+    let address = frame.first().copied();
+    if let Response::Reply(n) = response {
+        assert!(
+            address == Some(own) && own != 0,
+            "reply to address {address:?}, ours is {own}: {frame:02X?}"
+        );
+        assert!((5..=MAX_FRAME).contains(&n), "reply length {n}");
+        let r = &reply[..n];
+        assert_eq!(crc16(r), 0, "reply CRC: {r:02X?}");
+        assert_eq!(r[0], own);
+        assert_eq!(r[1] & 0x7F, frame[1] & 0x7F, "reply function: {r:02X?}");
+        if r[1] & 0x80 != 0 {
+            assert_eq!(n, 5, "exception reply: {r:02X?}");
+            assert!((1..=11).contains(&r[2]), "exception code: {r:02X?}");
+            refused = true;
+        }
+    }
+    let after = snapshot(device);
+    if refused || address.is_some_and(|a| a != own && a != 0) {
+        assert_eq!(
+            before, after,
+            "refused or foreign frame changed state: {frame:02X?}"
+        );
+    }
+    assert!(
+        statusword_is_a_state(after.statusword),
+        "statusword {:#06X}",
+        after.statusword
+    );
+}
+
 pub fn run(data: &[u8]) {
     let mut input = Input::new(data);
     let mut device = Device::new(Identity::new("fuzz"));
@@ -115,55 +173,7 @@ pub fn run(data: &[u8]) {
             frame.extend_from_slice(&crc.to_le_bytes());
         }
         let parity_error = h2 & 1 != 0;
-
-        let before = snapshot(&device);
-        let rx = if frame.len() > MAX_FRAME {
-            RxEvent::Overrun // what the assembler makes of it
-        } else if frame.len() < 4 {
-            RxEvent::TooShort
-        } else {
-            RxEvent::Frame {
-                bytes: &frame,
-                parity_error,
-            }
-        };
-        let response = device.handle_rx(rx, &mut reply);
-        let mut refused = false;
-        while let Some(event) = device.take_event() {
-            if matches!(event, Event::Exception { .. }) {
-                refused = true;
-            }
-        }
-
-        let address = frame.first().copied();
-        if let Response::Reply(n) = response {
-            assert!(
-                address == Some(own) && own != 0,
-                "reply to address {address:?}, ours is {own}: {frame:02X?}"
-            );
-            assert!((5..=MAX_FRAME).contains(&n), "reply length {n}");
-            let r = &reply[..n];
-            assert_eq!(crc16(r), 0, "reply CRC: {r:02X?}");
-            assert_eq!(r[0], own);
-            assert_eq!(r[1] & 0x7F, frame[1] & 0x7F, "reply function: {r:02X?}");
-            if r[1] & 0x80 != 0 {
-                assert_eq!(n, 5, "exception reply: {r:02X?}");
-                assert!((1..=11).contains(&r[2]), "exception code: {r:02X?}");
-                refused = true;
-            }
-        }
-        let after = snapshot(&device);
-        if refused || address.is_some_and(|a| a != own && a != 0) {
-            assert_eq!(
-                before, after,
-                "refused or foreign frame changed state: {frame:02X?}"
-            );
-        }
-        assert!(
-            statusword_is_a_state(after.statusword),
-            "statusword {:#06X}",
-            after.statusword
-        );
+        check_frame(&mut device, &frame, parity_error, &mut reply);
         // the glue calls this after every frame (SPEC §7)
         device.reply_sent();
     }

@@ -7,6 +7,7 @@
 
 pub mod assembler;
 pub mod dispatcher;
+pub mod drive;
 
 /// Reads the fuzz input one byte at a time; zeros once it runs out.
 pub struct Input<'a> {
