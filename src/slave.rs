@@ -330,7 +330,7 @@ impl Slave {
             function::READ_HOLDING_REGISTERS => read_holding_registers(pdu, regs, out),
             function::WRITE_SINGLE_REGISTER => write_single_register(pdu, regs),
             function::WRITE_MULTIPLE_REGISTERS => write_multiple_registers(pdu, regs, out),
-            function::DIAGNOSTICS => self.diagnostics(pdu, out),
+            function::DIAGNOSTICS => self.diagnostics(pdu, regs.busy, out),
             function::ENCAPSULATED_INTERFACE => identification::read_device_id(pdu, regs, out),
             _ => Err(Exception::IllegalFunction),
         }

@@ -348,15 +348,18 @@ fn step_8_value_before_step_9_busy() {
 
 #[test]
 fn busy_drive_refuses_valid_requests_with_6() {
-    // Step 9 comes after every validation, and diagnostics stay available.
+    // Step 9 comes after every validation; SPEC §9: *every* other request,
+    // diagnostics included, gets 6 while storage runs.
     let mut bus = Bus::new();
     bus.device.storage_busy = true;
     assert_eq!(code(&mut bus, &write_pdu(0x6083, &[1, 2, 3])), 6);
+    assert_eq!(code(&mut bus, &[0x08, 0x00, 0x00, 0x12, 0x34]), 6);
+    assert_eq!(bus.device.od.acceleration, 0);
+    bus.device.storage_busy = false;
     assert_eq!(
         bus.request(1, &[0x08, 0x00, 0x00, 0x12, 0x34]),
         Some(frame(1, &[0x08, 0x00, 0x00, 0x12, 0x34]))
     );
-    assert_eq!(bus.device.od.acceleration, 0);
 }
 
 // ---- PA55 standard profile, PA54 ----

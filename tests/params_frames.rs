@@ -416,13 +416,40 @@ fn other_requests_during_an_ee_operation_get_exception_6() {
         bus.send(&frame(1, &[0x03, 0x60, 0x41, 0x00, 0x01])),
         Some(exception(1, 0x03, 6))
     );
+    // SPEC §9: *other requests* — diagnostics and identification too, and
+    // a busy diagnostics request does not act (no listen-only, no clear).
+    assert_eq!(
+        bus.send(&frame(1, &[0x08, 0x00, 0x00, 0x12, 0x34])),
+        Some(exception(1, 0x08, 6))
+    );
+    assert_eq!(
+        bus.send(&frame(1, &[0x08, 0x00, 0x04, 0x00, 0x00])),
+        Some(exception(1, 0x08, 6))
+    );
+    assert!(!bus.device.slave.listen_only());
+    assert_eq!(
+        bus.send(&frame(1, &[0x08, 0x00, 0x0A, 0x00, 0x00])),
+        Some(exception(1, 0x08, 6))
+    );
+    assert_eq!(
+        bus.send(&frame(1, &[0x2B, 0x0E, 0x01, 0x00])),
+        Some(exception(1, 0x2B, 6))
+    );
     // Validation comes first (§5.2: steps 1..8 before 9).
     assert_eq!(
         bus.send(&frame(1, &[0x06, 0x00, 0x97, 0x00, 0x00])),
         Some(exception(1, 0x06, 3))
     );
+    assert_eq!(
+        bus.send(&frame(1, &[0x08, 0x00, 0x0A, 0x00, 0x01])),
+        Some(exception(1, 0x08, 3))
+    );
+    assert_eq!(
+        bus.send(&frame(1, &[0x08, 0x00, 0x20, 0x00, 0x00])),
+        Some(exception(1, 0x08, 1))
+    );
     assert_eq!(bus.device.pa.get(10), 10_000, "nothing stored while busy");
-    assert_eq!(bus.device.slave.counters().busy, 4);
+    assert_eq!(bus.device.slave.counters().busy, 8, "counters not cleared");
     // The operation completes with its own reply, then requests work again.
     assert_eq!(
         bus.poll_storage(&mut s),

@@ -84,6 +84,9 @@ proptest! {
             prop_assert!(s.bytes.len() >= 5);
             prop_assert_eq!(modbus_drive::rtu::crc16(&s.bytes), 0);
             prop_assert_eq!(s.bytes[0], own, "reply {:02X?}", s.bytes);
+            // SPEC §2: only a frame addressed to us (never 0, never another
+            // address, whatever the reply says) is answered.
+            prop_assert_eq!(s.request_address, Some(own), "reply {:02X?}", s.bytes);
         }
     }
 

@@ -52,13 +52,20 @@ const CLEAR_LOG: u16 = 0xFF00;
 impl Slave {
     /// `08 sub(2) data…`. The reply echoes the request except for the
     /// counter reads, whose data is the counter. 0x04 is never answered.
-    pub(super) fn diagnostics(&mut self, pdu: &[u8], out: &mut [u8]) -> Handled {
+    /// While a parameter-storage operation runs (`busy`) a valid request
+    /// gets exception 6 and does nothing (SPEC §9: "other requests during an
+    /// operation get exception 6"; §5.2: after validation).
+    pub(super) fn diagnostics(&mut self, pdu: &[u8], busy: bool, out: &mut [u8]) -> Handled {
         let (sub_function, data) = match pdu {
             [_, s0, s1, data @ ..] => (u16::from_be_bytes([*s0, *s1]), data),
             _ => return Err(Exception::ByteCountMismatch),
         };
         if sub_function == sub::RETURN_QUERY_DATA {
-            return Ok(Reply::Echo);
+            return if busy {
+                Err(Exception::Busy)
+            } else {
+                Ok(Reply::Echo)
+            };
         }
         let counter = match sub_function {
             sub::RESTART_COMMUNICATIONS | sub::FORCE_LISTEN_ONLY | sub::CLEAR_COUNTERS => None,
@@ -82,6 +89,9 @@ impl Slave {
         };
         if !value_ok {
             return Err(Exception::IllegalDataValue);
+        }
+        if busy {
+            return Err(Exception::Busy);
         }
         if sub_function == sub::FORCE_LISTEN_ONLY {
             self.listen_only = true;

@@ -45,6 +45,9 @@ pub(super) fn read_device_id<D>(pdu: &[u8], regs: &Registers<'_, D>, out: &mut [
         INDIVIDUAL => return Err(Exception::IllegalDataAddress),
         _ => return Err(Exception::IllegalDataValue),
     };
+    if regs.busy {
+        return Err(Exception::Busy); // SPEC §9, after validation (§5.2)
+    }
     out[..6].copy_from_slice(&[
         function::ENCAPSULATED_INTERFACE,
         MEI_READ_DEVICE_ID,

@@ -16,7 +16,9 @@
 #![allow(dead_code)] // each test binary uses a different part of it
 
 use modbus_drive::device::{Device, Identity, Response};
-use modbus_drive::rtu::{crc16, FrameAssembler, FrameTiming, LineConfig, RxFlags, MAX_FRAME};
+use modbus_drive::rtu::{
+    crc16, FrameAssembler, FrameTiming, LineConfig, RxEvent, RxFlags, MAX_FRAME,
+};
 
 /// Hardware string the test devices report in 0x1009.
 pub const TEST_HARDWARE: &str = "test-bench";
@@ -56,6 +58,17 @@ pub struct Sent {
     pub start_us: u32,
     /// Timestamp of the request's last byte.
     pub request_end_us: u32,
+    /// First byte (address) of the frame this reply answers; `None` for a
+    /// deferred reply (an EE operation finishing, `poll_storage`).
+    pub request_address: Option<u8>,
+}
+
+/// The address byte of a closed frame, if it is one.
+fn frame_address(rx: &RxEvent<'_>) -> Option<u8> {
+    match rx {
+        RxEvent::Frame { bytes, .. } => bytes.first().copied(),
+        _ => None,
+    }
 }
 
 /// A device on a simulated line, with its frame assembler and a clock.
@@ -151,14 +164,14 @@ impl Bus {
         self.now_us = at_us;
         let mut reply = [0u8; MAX_FRAME];
         let response = match self.assembler.push(byte, at_us, flags) {
-            Some(rx) => Some(self.device.handle_rx(rx, &mut reply)),
+            Some(rx) => Some((frame_address(&rx), self.device.handle_rx(rx, &mut reply))),
             None => None,
         };
-        if let Some(r) = response {
+        if let Some((address, r)) = response {
             // The byte closed the previous frame: its reply would have
             // collided with this byte; tests that get here send frames
             // without waiting, like a master that does not wait.
-            self.after(r, &reply, prev_end, false);
+            self.after(r, &reply, prev_end, false, address);
         }
     }
 
@@ -173,12 +186,12 @@ impl Bus {
             let last = self.assembler.last_byte_at_us();
             let mut reply = [0u8; MAX_FRAME];
             let response = match self.assembler.poll(t) {
-                Some(rx) => Some(self.device.handle_rx(rx, &mut reply)),
+                Some(rx) => Some((frame_address(&rx), self.device.handle_rx(rx, &mut reply))),
                 None => None,
             };
-            if let Some(r) = response {
+            if let Some((address, r)) = response {
                 self.now_us = t;
-                self.after(r, &reply, last, true);
+                self.after(r, &reply, last, true, address);
             }
         }
         let end = start.wrapping_add(us);
@@ -197,6 +210,7 @@ impl Bus {
         reply: &[u8; MAX_FRAME],
         request_end_us: u32,
         occupy_line: bool,
+        request_address: Option<u8>,
     ) {
         if let Response::Reply(n) = response {
             let start_us = request_end_us.wrapping_add(self.device.reply_delay_us());
@@ -204,6 +218,7 @@ impl Bus {
                 bytes: reply[..n].to_vec(),
                 start_us,
                 request_end_us,
+                request_address,
             });
             if occupy_line {
                 self.now_us = start_us.wrapping_add(n as u32 * self.timing.tc_us);
@@ -224,7 +239,7 @@ impl Bus {
         let mut reply = [0u8; MAX_FRAME];
         let response = self.device.poll_storage(store, &mut reply)?;
         let request_end = self.assembler.last_byte_at_us();
-        self.after(response, &reply, request_end, true);
+        self.after(response, &reply, request_end, true, None);
         self.sent.get(before).map(|s| s.bytes.clone())
     }
 
