@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Soak on the virtual drive (issue 7, README "Proof"): the release binary,
+# two drives on one bus, bus noise while both move, then the fault checks.
+#   tests/soak/run.sh                  # 100,000 frames (the documented run)
+#   tests/soak/run.sh --frames 10000   # the CI run
+# Uses the e2e virtualenv (.venv/e2e, pymodbus pinned in tests/e2e).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+venv=.venv/e2e
+[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+"$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/e2e/requirements.txt
+cargo build -q --release --bin modbus-drive
+exec "$venv/bin/python" tests/soak/soak.py "$@"

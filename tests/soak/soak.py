@@ -1,0 +1,510 @@
+#!/usr/bin/env python3
+"""Bus-noise soak and fault checks on the virtual drive (issue 7, README "Proof").
+
+    tests/soak/run.sh                 # 100,000 frames + fault checks
+    tests/soak/run.sh --frames 10000  # what .ci/e2e-time budgets allow
+
+One bus (one TCP line of `modbus-drive --drives 1,2`) carries a random mix
+of valid requests to both drives (built and decoded by pymodbus' RTU framer),
+requests to absent addresses, broadcasts, corrupted CRCs, truncated frames,
+random bytes and frames split by long gaps, while both drives run position
+moves. Every frame has an expected reply (exact bytes, or a pymodbus-decoded
+shape for values that move) or none. Counted: replies expected / got,
+missing, replies that should not exist, wrong replies, and at the end of
+every move the position error. Every bad count must be 0.
+
+Then the faults (SPEC §8.7), each on a fresh drive: communication loss with
+PA20 stops the motor and sets the fault (0x1001 bit 4), fault reset
+recovers; a CCW limit hit in the middle of a move stops it with the quick
+stop ramp and the position stays exact. (Both limits active at once cannot
+be staged on the virtual drive: its CLI refuses overlapping switch windows,
+one axis cannot be at both ends. The core's tests/drive_states.rs and the
+`drive` fuzz target cover it.) Exit status 0 only if everything holds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import re
+import select
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from pymodbus.framer import FramerRTU
+from pymodbus.pdu import DecodePDU, ExceptionResponse
+from pymodbus.pdu.register_message import (
+    ReadHoldingRegistersRequest,
+    WriteMultipleRegistersRequest,
+    WriteSingleRegisterRequest,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
+DRIVES = (1, 2)
+T35_S = 0.00175  # 115200 baud (SPEC §1)
+# After a frame that must stay unanswered: t3.5 for the frame to close, the
+# virtual drive's 1 ms poll, the reply delay t3.5 again, and a margin for a
+# busy host: the virtual drive stamps bytes when it reads them, so if it
+# reads the next frame together with this one they merge into one frame.
+SILENCE_S = 0.008
+# Far above t3.5 (+ the drive's 1 ms poll): the halves are two frames even
+# when the host is busy (the virtual drive stamps bytes when it reads them).
+LONG_GAP_S = 0.020
+REPLY_TIMEOUT_S = 0.5
+
+# registers (SPEC §5)
+CONTROLWORD, STATUSWORD, MODE = 0x6040, 0x6041, 0x6060
+VELOCITY, ACCEL, DECEL, QS_DECEL = 0x6081, 0x6083, 0x6084, 0x6085
+TARGET, POSITION, ERROR_REGISTER = 0x607A, 0x6064, 0x1001
+PA20 = 0x0064 + 20  # communication-loss timeout, ms
+
+
+def crc16(data: bytes) -> int:
+    crc = 0xFFFF
+    for b in data:
+        crc ^= b
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return crc
+
+
+def with_crc(body: bytes) -> bytes:
+    c = crc16(body)
+    return body + bytes([c & 0xFF, c >> 8])
+
+
+def crc_ok(frame: bytes) -> bool:
+    return len(frame) >= 4 and crc16(frame) == 0
+
+
+def frame_error_reply(frame: bytes) -> bytes | None:
+    """What the drives answer to a frame with a bad CRC (SPEC §1-§3, PA54 = 1):
+    exception 10 from the addressed drive if the frame is long enough to be
+    examined, nothing otherwise (too short, broadcast, absent address)."""
+    if len(frame) < 4 or len(frame) > 256 or frame[0] not in DRIVES:
+        return None
+    return with_crc(bytes([frame[0], frame[1] | 0x80, 10]))
+
+
+def split_i32(v: int) -> list[int]:
+    v &= 0xFFFFFFFF
+    return [v >> 16, v & 0xFFFF]  # 0x6000 = 0: high word first
+
+
+# ---------------------------------------------------------------- process
+
+
+class VirtualDrive:
+    def __init__(self, workdir: Path, args: list[str]):
+        self.stderr_path = workdir / f"drive-{time.monotonic_ns()}.log"
+        self.args = ["--no-pty", "--no-status", "--tcp", "127.0.0.1:0", *args]
+        self.proc: subprocess.Popen | None = None
+
+    def __enter__(self) -> "VirtualDrive":
+        self._err = open(self.stderr_path, "wb")
+        self.proc = subprocess.Popen([str(BIN), *self.args], stdout=subprocess.PIPE, stderr=self._err)
+        r, _, _ = select.select([self.proc.stdout], [], [], 10)
+        line = self.proc.stdout.readline() if r else b""
+        if line != b"ready\n":
+            raise RuntimeError(f"no `ready` from {self.args}: {self.stderr()}")
+        m = re.search(r"tcp: listening on 127\.0\.0\.1:(\d+)", self.stderr())
+        if not m:
+            raise RuntimeError(f"no TCP port in {self.stderr()}")
+        self.port = int(m.group(1))
+        return self
+
+    def stderr(self) -> str:
+        return self.stderr_path.read_text(errors="replace")
+
+    def __exit__(self, *exc):
+        if self.proc and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(5)
+        self._err.close()
+
+
+class Bus:
+    """The master's end of one RTU line (RTU bytes over TCP)."""
+
+    def __init__(self, port: int):
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=2)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.sock.setblocking(False)
+        self.framer = FramerRTU(DecodePDU(False))
+
+    def send(self, data: bytes):
+        self.sock.sendall(data)
+
+    def read(self, want: int | None, timeout: float) -> bytes:
+        """Bytes until `want` (> 0) arrived (then a short quiet period, so
+        that extra bytes are seen), or until `timeout` without them; with
+        `want` 0 or None, everything that arrives within `timeout`."""
+        out = b""
+        deadline = time.monotonic() + timeout
+        while True:
+            if want and len(out) >= want:
+                deadline = min(deadline, time.monotonic() + 0.002)
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return out
+            r, _, _ = select.select([self.sock], [], [], left)
+            if r:
+                chunk = self.sock.recv(4096)
+                if not chunk:
+                    raise RuntimeError("the drive closed the connection")
+                out += chunk
+
+    def read_reply(self, timeout: float) -> bytes:
+        """One reply frame: its length follows from its first bytes."""
+        out = self.read(3, timeout)
+        if len(out) < 3:
+            return out
+        if out[1] & 0x80:
+            want = 5
+        elif out[1] == 0x03:
+            want = 5 + out[2]
+        else:
+            want = 8
+        return out + self.read(want - len(out), timeout) if len(out) < want else out
+
+    def request(self, pdu) -> tuple[bytes, object]:
+        """A valid request built by pymodbus; its reply decoded by pymodbus."""
+        frame = self.framer.buildFrame(pdu)
+        self.send(frame)
+        reply = self.read_reply(REPLY_TIMEOUT_S) if pdu.dev_id else self.read(0, SILENCE_S)
+        if not reply:
+            return reply, None
+        used, decoded = self.framer.handleFrame(reply, pdu.dev_id, 0)
+        return reply, decoded if used == len(reply) else None
+
+    def read_regs(self, dev: int, addr: int, count: int) -> list[int]:
+        _, r = self.request(ReadHoldingRegistersRequest(address=addr, count=count, dev_id=dev))
+        if r is None or isinstance(r, ExceptionResponse) or len(r.registers) != count:
+            raise AssertionError(f"read {addr:#06x} x{count} from {dev}: {r}")
+        return list(r.registers)
+
+    def write(self, dev: int, addr: int, value: int):
+        _, r = self.request(WriteSingleRegisterRequest(address=addr, registers=[value & 0xFFFF], dev_id=dev))
+        if dev and (r is None or isinstance(r, ExceptionResponse)):
+            raise AssertionError(f"write {addr:#06x} = {value} to {dev}: {r}")
+
+    def write_many(self, dev: int, addr: int, values: list[int]):
+        pdu = WriteMultipleRegistersRequest(address=addr, registers=[v & 0xFFFF for v in values], dev_id=dev)
+        _, r = self.request(pdu)
+        if dev and (r is None or isinstance(r, ExceptionResponse)):
+            raise AssertionError(f"write {addr:#06x} = {values} to {dev}: {r}")
+
+    def statusword(self, dev: int) -> int:
+        return self.read_regs(dev, STATUSWORD, 1)[0]
+
+    def position(self, dev: int) -> int:
+        hi, lo = self.read_regs(dev, POSITION, 2)
+        v = hi << 16 | lo
+        return v - (1 << 32) if v & 0x8000_0000 else v
+
+    def enable(self, dev: int, mode: int):
+        self.write(dev, MODE, mode)
+        for cw in (0x06, 0x07, 0x0F):
+            self.write(dev, CONTROLWORD, cw)
+        sw = self.statusword(dev)
+        assert sw & 0x6F == 0x27, f"drive {dev} not in operation enabled: {sw:#06x}"
+
+    def wait(self, dev: int, cond, timeout: float, what: str) -> int:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            sw = self.statusword(dev)
+            if cond(sw):
+                return sw
+            time.sleep(0.01)
+        raise AssertionError(f"drive {dev}: {what} not within {timeout} s (statusword {sw:#06x})")
+
+
+# ---------------------------------------------------------------- noise soak
+
+# ramps of the soak moves: 0.1 rev/s and 0.1 rev/s², PA10 = 10000 steps/rev
+SOAK_VELOCITY, SOAK_ACCEL, SOAK_DECEL, SOAK_QS = 50, 100, 100, 200
+
+
+class Soak:
+    def __init__(self, bus: Bus, rng: random.Random):
+        self.bus, self.rng = bus, rng
+        self.n = dict.fromkeys(
+            ("frames", "replies expected", "replies got", "missing replies",
+             "replies that should not exist", "wrong replies", "moves checked",
+             "position errors"), 0)
+        self.kinds: dict[str, int] = {}
+        self.target = {d: 0 for d in DRIVES}
+        self.moving = {d: False for d in DRIVES}
+
+    def count(self, kind: str):
+        self.kinds[kind] = self.kinds.get(kind, 0) + 1
+        self.n["frames"] += 1
+
+    def expect(self, sent: list[bytes], replies: list[bytes | None], gap_s: float = 0.0, shape=None):
+        """Sends the frame(s) (with `gap_s` between parts) and compares what
+        comes back with the concatenated expected replies; `shape` checks a
+        reply whose values move (pymodbus-decoded) instead of its bytes."""
+        for i, part in enumerate(sent):
+            if i:
+                time.sleep(gap_s)
+            self.bus.send(part)
+        want = b"".join(r for r in replies if r)
+        n_expected = sum(1 for r in replies if r) + (1 if shape else 0)
+        self.n["replies expected"] += n_expected
+        if shape:
+            got = self.bus.read(shape[0], REPLY_TIMEOUT_S)
+        elif want:
+            got = self.bus.read(len(want), REPLY_TIMEOUT_S)
+        else:
+            got = self.bus.read(0, SILENCE_S)
+        if n_expected and replies[-1] is None and not shape:
+            # the last part is still an open frame in the drives: let it
+            # close (t3.5) before the next frame, or the two would merge
+            time.sleep(SILENCE_S)
+        if not n_expected:
+            if got:
+                self.n["replies that should not exist"] += 1
+                self.log(f"unexpected reply {got.hex()} to {[p.hex() for p in sent]}")
+            return
+        if not got:
+            self.n["missing replies"] += 1
+            self.log(f"no reply to {[p.hex() for p in sent]}")
+            return
+        ok = shape[1](got) if shape else got == want
+        if ok:
+            self.n["replies got"] += n_expected
+        else:
+            self.n["wrong replies"] += 1
+            self.log(f"wrong reply {got.hex()} (expected {want.hex() or 'shape'}) to {[p.hex() for p in sent]}")
+
+    def log(self, msg: str):
+        print(f"  ! frame {self.n['frames']}: {msg}", file=sys.stderr)
+
+    # -- frame kinds
+
+    def valid(self, dev: int) -> tuple[bytes, bytes | None, object]:
+        """A valid request to `dev` (0: broadcast): frame, exact reply or a
+        (length, check) shape for registers whose values move."""
+        fr = self.bus.framer
+        k = self.rng.randrange(5)
+        if k == 0:  # the ramps we wrote: exact values
+            req = fr.buildFrame(ReadHoldingRegistersRequest(address=ACCEL, count=3, dev_id=dev))
+            body = bytes([dev, 3, 6]) + b"".join(v.to_bytes(2, "big") for v in (SOAK_ACCEL, SOAK_DECEL, SOAK_QS))
+            return req, with_crc(body), None
+        if k == 1:  # statusword .. actual velocity: 6 words that move
+            req = fr.buildFrame(ReadHoldingRegistersRequest(address=STATUSWORD, count=6, dev_id=dev))
+
+            def check(reply, dev=dev):
+                used, r = FramerRTU(DecodePDU(False)).handleFrame(reply, dev, 0)
+                return used == len(reply) and not isinstance(r, ExceptionResponse) and \
+                    r is not None and len(r.registers) == 6
+            return req, None, (5 + 12, check)
+        if k == 2:  # rewrite the quick stop deceleration: echo
+            req = fr.buildFrame(WriteSingleRegisterRequest(address=QS_DECEL, registers=[SOAK_QS], dev_id=dev))
+            return req, req, None
+        if k == 3:  # rewrite the three ramps: FC10 reply
+            req = fr.buildFrame(WriteMultipleRegistersRequest(
+                address=ACCEL, registers=[SOAK_ACCEL, SOAK_DECEL, SOAK_QS], dev_id=dev))
+            return req, with_crc(req[:6]), None
+        # a register that does not exist: exception 11 (SPEC §5.2)
+        req = fr.buildFrame(ReadHoldingRegistersRequest(address=0x6090, count=1, dev_id=dev))
+        return req, with_crc(bytes([dev, 0x83, 11])), None
+
+    def one(self):
+        rng = self.rng
+        kind = rng.choices(
+            ["valid", "absent", "broadcast", "bad crc", "truncated", "random", "long gap"],
+            weights=[40, 10, 8, 10, 10, 10, 8])[0]
+        self.count(kind)
+        dev = rng.choice(DRIVES)
+        if kind == "valid":
+            req, rep, shape = self.valid(dev)
+            self.expect([req], [rep], shape=shape)
+        elif kind == "absent":
+            other = rng.choice([a for a in range(3, 256)])
+            req, _, _ = self.valid(1)
+            self.expect([with_crc(bytes([other]) + req[1:-2])], [None])
+        elif kind == "broadcast":
+            req, _, _ = self.valid(1)
+            body = bytes([0]) + req[1:-2]
+            if body[1] == 0x03:
+                body = bytes([0, 0x03, 0x60, 0x41, 0, 1])  # a broadcast read: ignored
+            self.expect([with_crc(body)], [None])
+        elif kind == "bad crc":
+            req, _, _ = self.valid(rng.choice([dev, dev, 7]))
+            bad = req[:-2] + bytes([req[-2] ^ rng.randrange(1, 256), req[-1]])
+            self.expect([bad], [frame_error_reply(bad)])
+        elif kind == "truncated":
+            req, _, _ = self.valid(dev)
+            cut = req[: rng.randrange(1, len(req))]
+            if crc_ok(cut):
+                return
+            self.expect([cut], [frame_error_reply(cut)])
+        elif kind == "random":
+            junk = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 40)))
+            if rng.random() < 0.5:
+                junk = bytes([rng.choice(DRIVES)]) + junk[1:]
+            if crc_ok(junk):
+                return
+            self.expect([junk], [frame_error_reply(junk)])
+        elif kind == "long gap":
+            req, _, _ = self.valid(dev)
+            k = rng.randrange(1, len(req))
+            a, b = req[:k], req[k:]
+            if crc_ok(a) or crc_ok(b):
+                return
+            self.expect([a, b], [frame_error_reply(a), frame_error_reply(b)], gap_s=LONG_GAP_S)
+    # -- moves
+
+    def moves(self):
+        """Checks finished moves, starts new ones (position mode, SPEC §8.4)."""
+        for d in DRIVES:
+            sw = self.bus.statusword(d)
+            if self.moving[d]:
+                if not sw & (1 << 10):
+                    continue
+                pos = self.bus.position(d)
+                self.n["moves checked"] += 1
+                if pos != self.target[d]:
+                    self.n["position errors"] += 1
+                    self.log(f"drive {d} ended at {pos}, target {self.target[d]}")
+                self.moving[d] = False
+            target = self.rng.randrange(-30_000, 30_000)
+            self.bus.write_many(d, TARGET, split_i32(target))
+            self.bus.write(d, CONTROLWORD, 0x1F)  # new set-point, absolute
+            self.bus.write(d, CONTROLWORD, 0x0F)
+            self.target[d], self.moving[d] = target, True
+
+    def run(self, frames: int) -> bool:
+        for d in DRIVES:
+            self.bus.write_many(d, VELOCITY, split_i32(SOAK_VELOCITY))
+            self.bus.write_many(d, ACCEL, [SOAK_ACCEL, SOAK_DECEL, SOAK_QS])
+            self.bus.enable(d, 1)
+        t0 = time.monotonic()
+        while self.n["frames"] < frames:
+            if self.n["frames"] % 100 == 0:
+                self.moves()
+            self.one()
+        # let the last moves finish and check them
+        for d in DRIVES:
+            if self.moving[d]:
+                self.bus.wait(d, lambda sw: sw & (1 << 10), 10, "target reached")
+        self.moves()
+        elapsed = time.monotonic() - t0
+        print(f"soak: {self.n['frames']} frames on one bus, drives {DRIVES}, {elapsed:.0f} s")
+        print("  by kind: " + ", ".join(f"{k} {v}" for k, v in sorted(self.kinds.items())))
+        bad = ("missing replies", "replies that should not exist", "wrong replies", "position errors")
+        for k, v in self.n.items():
+            print(f"  {k:<32}{v:>8}" + ("   (must be 0)" if k in bad else ""))
+        good = all(self.n[k] == 0 for k in bad) and self.n["moves checked"] > 0
+        good &= self.n["replies got"] == self.n["replies expected"]
+        return good
+
+
+# ---------------------------------------------------------------- faults
+
+
+def fault_comm_loss(workdir: Path) -> None:
+    with VirtualDrive(workdir, ["--drives", "1"]) as vd:
+        bus = Bus(vd.port)
+        bus.write_many(1, VELOCITY, split_i32(20))  # velocity mode: 2 rev/s
+        bus.write_many(1, ACCEL, [100, 100, 200])
+        bus.write(1, PA20, 200)  # 200 ms
+        bus.enable(1, 3)
+        time.sleep(0.1)
+        bus.statusword(1)  # last frame before the silence
+        time.sleep(0.5)  # > PA20 without a frame
+        sw = bus.statusword(1)
+        assert sw & 0x4F == 0x08, f"communication loss: not in fault: {sw:#06x}"
+        err = bus.read_regs(1, ERROR_REGISTER, 1)[0]
+        assert err & (1 << 4), f"communication loss: error register {err:#06x}"
+        p1 = bus.position(1)
+        time.sleep(0.2)
+        assert bus.position(1) == p1, "communication loss: the motor still moves"
+        assert not bus.statusword(1) & (1 << 9), "communication loss: bit 9 (running) set"
+        bus.write(1, PA20, 0)
+        bus.write(1, CONTROLWORD, 0x00)
+        bus.write(1, CONTROLWORD, 0x80)  # fault reset (bit 7 rising edge)
+        sw = bus.statusword(1)
+        assert sw & 0x4F == 0x40, f"fault reset: not switch on disabled: {sw:#06x}"
+        bus.enable(1, 3)  # and it runs again
+        bus.wait(1, lambda sw: sw & (1 << 9), 2, "running again")
+        print("fault: communication loss (PA20 = 200 ms) stops the motor, sets fault + 0x1001 bit 4;"
+              " fault reset recovers: ok")
+
+
+def fault_limit_mid_move(workdir: Path) -> None:
+    limit = 5000
+    with VirtualDrive(workdir, ["--drives", "1", "--ccw-limit", str(limit), "--cw-limit", "-50000"]) as vd:
+        bus = Bus(vd.port)
+        # 2 rev/s, 10 rev/s² (cruise after 2000 steps, before the limit),
+        # quick stop 4 rev/s² (PA10 = 10000 steps/rev)
+        v, a, qs = 20, 100, 40
+        bus.write_many(1, VELOCITY, split_i32(v))
+        bus.write_many(1, ACCEL, [a, a, qs])
+        bus.enable(1, 1)
+        bus.write_many(1, TARGET, split_i32(40_000))
+        bus.write(1, CONTROLWORD, 0x1F)
+        bus.write(1, CONTROLWORD, 0x0F)
+        bus.wait(1, lambda sw: sw & (1 << 15), 5, "CCW limit active (bit 15)")
+        bus.wait(1, lambda sw: not sw & (1 << 9), 5, "stopped")
+        pos = bus.position(1)
+        # at cruise when the limit came: v²/(2·qs) steps of quick stop ramp
+        v_steps, qs_steps = v * 1000, qs * 1000
+        expect = limit + v_steps ** 2 / (2 * qs_steps)
+        # the ramp starts at the limit's step; 2 % of the stopping distance
+        # covers the ramp's last whole steps and a control period
+        assert abs(pos - expect) <= 0.02 * (expect - limit), f"limit: stopped at {pos}, quick stop ramp ends at {expect:.0f}"
+        assert bus.statusword(1) & (1 << 15), "limit: bit 15 dropped while on the limit"
+        # the position is still exact: back below the limit, bit 15 clears
+        # exactly at the edge's position, and a move lands exactly
+        for target in (limit, limit - 1, 1234, 0):
+            bus.write(1, CONTROLWORD, 0x0F)  # leave quick stop / re-enable if needed
+            bus.write_many(1, TARGET, split_i32(target))
+            bus.write(1, CONTROLWORD, 0x1F)
+            bus.write(1, CONTROLWORD, 0x0F)
+            bus.wait(1, lambda sw: sw & (1 << 10) and not sw & (1 << 9), 10, f"at {target}")
+            got = bus.position(1)
+            assert got == target, f"limit: move to {target} ended at {got}"
+            ccw = bool(bus.statusword(1) & (1 << 15))
+            assert ccw == (target >= limit), f"limit: bit 15 = {ccw} at {target}"
+        print(f"fault: CCW limit at {limit} mid-move stops with the quick-stop ramp at {pos}"
+              f" (v²/2d: {expect:.0f}); moves afterwards land exactly, bit 15 flips at the edge: ok")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=100_000)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--no-faults", action="store_true")
+    args = ap.parse_args()
+    ok = True
+    keep = os.environ.get("SOAK_KEEP")  # a directory for the drives' logs
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(keep or tmp)
+        with VirtualDrive(work, ["--drives", "1,2"]) as vd:
+            ok &= Soak(Bus(vd.port), random.Random(args.seed)).run(args.frames)
+        if not args.no_faults:
+            for check in (fault_comm_loss, fault_limit_mid_move):
+                try:
+                    check(work)
+                except AssertionError as e:
+                    print(f"fault: {check.__name__}: FAILED: {e}")
+                    ok = False
+    print("soak: ok" if ok else "soak: FAILED")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
