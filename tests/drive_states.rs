@@ -14,6 +14,7 @@ const RUNNING: u16 = 1 << 9;
 const REACHED: u16 = 1 << 10;
 const HOME: u16 = 1 << 11;
 const BIT12: u16 = 1 << 12;
+const BIT13: u16 = 1 << 13;
 const CW: u16 = 1 << 14;
 const CCW: u16 = 1 << 15;
 
@@ -42,9 +43,10 @@ fn moving(rig: &mut Rig, target: i32) {
 #[test]
 fn cia402_sequence_and_outputs() {
     let mut rig = rig();
+    // SPEC §8.2: bit 5 = 0 only in quick stop active
     assert_eq!(
         rig.statusword(),
-        0x0040,
+        0x0060,
         "switch on disabled after power-up"
     );
     let out = |r: &Rig| {
@@ -66,7 +68,7 @@ fn cia402_sequence_and_outputs() {
     cw(&mut rig, 0x0006);
     assert_eq!(rig.statusword(), 0x0021);
     cw(&mut rig, 0x0000);
-    assert_eq!(rig.statusword(), 0x0040);
+    assert_eq!(rig.statusword(), 0x0060);
     assert_eq!(rig.bus.read(0x1001, 1), Ok(vec![0]));
 }
 
@@ -286,13 +288,13 @@ fn both_limits_are_a_fault_reset_only_when_gone() {
     };
     control_with(&mut rig, both);
     control_with(&mut rig, both);
-    assert_eq!(rig.statusword(), 0x0008 | CW | CCW, "fault");
+    assert_eq!(rig.statusword(), 0x0028 | CW | CCW, "fault (bit 5 = 1)");
     assert_eq!(rig.error_register(), 0x0001);
     assert!(!rig.bus.device.drive.outputs().power_stage);
     // cause still there: no reset
     rig.bus.write_single(0x6040, 0x0080).unwrap();
     control_with(&mut rig, both);
-    assert_eq!(rig.statusword() & 0x004F, 0x0008);
+    assert_eq!(rig.statusword() & 0x006F, 0x0028);
     // cause gone, but no rising edge of bit 7
     let one = Switches {
         cw_limit: true,
@@ -300,12 +302,12 @@ fn both_limits_are_a_fault_reset_only_when_gone() {
     };
     control_with(&mut rig, one);
     rig.bus.write_single(0x6040, 0x0080).unwrap();
-    assert_eq!(rig.statusword() & 0x004F, 0x0008);
+    assert_eq!(rig.statusword() & 0x006F, 0x0028);
     // nothing else acts in fault
     rig.bus.write_single(0x6040, 0x000F).unwrap();
-    assert_eq!(rig.statusword() & 0x004F, 0x0008);
+    assert_eq!(rig.statusword() & 0x006F, 0x0028);
     rig.bus.write_single(0x6040, 0x0080).unwrap();
-    assert_eq!(rig.statusword() & 0x006F, 0x0040, "reset");
+    assert_eq!(rig.statusword() & 0x006F, 0x0060, "reset");
     assert_eq!(rig.error_register(), 0);
 }
 
@@ -316,7 +318,7 @@ fn communication_loss_while_enabled() {
     rig.control();
     // not enabled: no timer
     rig.run_us(300_000);
-    assert_eq!(rig.statusword(), 0x0040);
+    assert_eq!(rig.statusword(), 0x0060);
     moving(&mut rig, 1_000_000);
     rig.run_us(90_000);
     assert_eq!(
@@ -327,13 +329,14 @@ fn communication_loss_while_enabled() {
     rig.run_us(90_000);
     assert_eq!(rig.statusword() & 0x004F, 0x0007);
     rig.run_us(101_000);
-    // fault reaction (quick stop ramp) then fault
+    // fault reaction (quick stop ramp, bit 5 = 1: SPEC §8.2) then fault
+    assert_eq!(rig.statusword() & 0x006F, 0x002F, "fault reaction active");
     rig.run_until(1_000_000, |r| r.at_rest());
     rig.control();
-    assert_eq!(rig.bus.read(0x6041, 1).unwrap()[0] & 0x004F, 0x0008);
+    assert_eq!(rig.bus.read(0x6041, 1).unwrap()[0] & 0x006F, 0x0028);
     assert_eq!(rig.error_register(), 0x0010);
     cw(&mut rig, 0x0080);
-    assert_eq!(rig.statusword() & 0x006F, 0x0040);
+    assert_eq!(rig.statusword() & 0x006F, 0x0060);
     assert_eq!(rig.error_register(), 0);
 }
 
@@ -405,6 +408,188 @@ mod random {
             let net: i64 = rig.steps.iter().map(|s| if s.forward { 1 } else { -1 }).sum();
             prop_assert_eq!(rig.axis.position(), net);
             prop_assert_eq!(raw, net);
+        }
+    }
+}
+
+/// SPEC §8.2: bit 5 = 0 only in quick stop active; the other bits 0–3, 6
+/// as the §8.1 patterns (not ready to switch on cannot be reached: the
+/// drive leaves it by itself at power-up).
+#[test]
+fn bit_5_is_0_only_in_quick_stop_active() {
+    use modbus_drive::drive::PowerState::*;
+    for (state, bits) in [
+        (NotReadyToSwitchOn, 0x0020),
+        (SwitchOnDisabled, 0x0060),
+        (ReadyToSwitchOn, 0x0021),
+        (SwitchedOn, 0x0033),
+        (OperationEnabled, 0x0037),
+        (QuickStopActive, 0x0017),
+        (FaultReactionActive, 0x002F),
+        (Fault, 0x0028),
+    ] {
+        assert_eq!(state.status_bits(), bits, "{state:?}");
+    }
+    // and on the bus, the reachable ones
+    let mut rig = rig();
+    assert_eq!(rig.statusword() & 0x006F, 0x0060);
+    moving(&mut rig, 1_000_000);
+    rig.run_us(10_000);
+    cw(&mut rig, 0x000B);
+    assert_eq!(rig.statusword() & 0x006F, 0x0007, "quick stop active");
+}
+
+/// SPEC §8.2 / §8.4–§8.6: bits 10, 12, 13 describe the mode in 0x6061 in
+/// every state, not only in operation enabled.
+#[test]
+fn mode_bits_in_every_state() {
+    const MODE: u16 = BIT13 | BIT12 | REACHED;
+    let mut rig = rig();
+    // homing: not started = 001, also when not enabled
+    cw(&mut rig, 0x000F);
+    rig.bus.write_single(0x6060, 6).unwrap();
+    cw(&mut rig, 0x0007);
+    assert_eq!(
+        rig.statusword(),
+        0x0033 | REACHED,
+        "switched on, homing 001"
+    );
+    cw(&mut rig, 0x0000);
+    assert_eq!(rig.statusword() & MODE, REACHED, "switch on disabled: 001");
+    // velocity: speed 0 (bit 12) and target velocity 0 reached at rest
+    rig.bus.write_single(0x6060, 3).unwrap();
+    rig.control();
+    assert_eq!(rig.statusword(), 0x0060 | BIT12 | REACHED);
+    cw(&mut rig, 0x0006);
+    assert_eq!(rig.statusword(), 0x0021 | BIT12 | REACHED);
+    // velocity, quick stop: not 0 while braking, 0 at rest
+    cw(&mut rig, 0x000F);
+    rig.write_i32(0x6081, 100);
+    rig.write(0x6083, &[1000, 1000, 2000]);
+    rig.run_us(200_000);
+    rig.bus.write_single(0x605A, 2).unwrap();
+    cw(&mut rig, 0x000B);
+    assert_eq!(rig.statusword() & (BIT12 | REACHED), 0, "braking");
+    rig.run_until(1_000_000, |r| r.at_rest());
+    assert_eq!(rig.statusword(), 0x0017 | BIT12 | REACHED);
+    // position: slot free, target reached at rest, in any state
+    cw(&mut rig, 0x0000);
+    rig.bus.write_single(0x6060, 1).unwrap();
+    rig.control();
+    assert_eq!(rig.statusword(), 0x0060 | BIT12 | REACHED);
+    cw(&mut rig, 0x0007);
+    assert_eq!(rig.statusword(), 0x0033 | BIT12 | REACHED);
+}
+
+/// SPEC §8.4 bit 6 ("relative to the previous target"): after a mode
+/// change there is no previous position-mode target; the change stops the
+/// old motion with 0x6084 and a relative set-point counts from where the
+/// motor comes to rest, whether it is latched after the stop or during it
+/// (README, Position mode).
+#[test]
+fn relative_set_point_after_a_mode_change_counts_from_rest() {
+    let mut ends = Vec::new();
+    for latch_during_stop in [false, true] {
+        let mut rig = rig();
+        cw(&mut rig, 0x000F);
+        rig.bus.write_single(0x6060, 3).unwrap();
+        rig.write_i32(0x6081, 50); // 5 r/s = 50000 steps/s
+        rig.write(0x6083, &[100, 100]); // 10 r/s² = 1e5 steps/s²
+        rig.run_us(1_000_000);
+        assert_eq!(rig.velocity_rpm(), 300);
+        let at_change = rig.axis.position(); // ≈ 37500
+        rig.bus.write_single(0x6060, 1).unwrap();
+        rig.control();
+        rig.write_i32(0x607A, 1000);
+        let rest = if latch_during_stop {
+            assert!(!rig.at_rest());
+            assert_eq!(rig.statusword() & BIT12, BIT12, "base known: slot free");
+            None
+        } else {
+            rig.run_until(1_000_000, |r| r.at_rest());
+            Some(rig.axis.position())
+        };
+        cw(&mut rig, 0x005F); // new set-point, relative
+        cw(&mut rig, 0x000F);
+        rig.run_until(2_000_000, |r| r.at_rest());
+        let end = rig.axis.position();
+        assert_eq!(i64::from(rig.position()), end);
+        assert_eq!(rig.statusword(), 0x0037 | BIT12 | REACHED);
+        // stopped with 0x6084: v²/2d = 12500 steps plus what was queued
+        // (≤ 4 ms at 50000 steps/s), then 1000 further on
+        let stop = end - 1000 - at_change;
+        assert!((12_500..=12_500 + 200).contains(&stop), "stop {stop}");
+        if let Some(rest) = rest {
+            assert_eq!(end, rest + 1000);
+        }
+        assert!(rig.steps.iter().all(|s| s.forward), "never backwards");
+        ends.push(end);
+    }
+    assert_eq!(ends[0], ends[1], "latched during the stop or after it");
+}
+
+/// A mode change with 0x6084 = 0 stops at once (README); until the step
+/// interrupt has done so the rest position is not known: bit 12 = 0 and a
+/// set-point edge is ignored (SPEC §8.4), then the slot frees.
+#[test]
+fn mode_change_with_a_stop_at_once_frees_the_slot_at_rest() {
+    let mut rig = rig();
+    moving(&mut rig, 1_000_000);
+    rig.run_us(300_000);
+    rig.bus.write_single(0x6084, 0).unwrap();
+    rig.bus.write_single(0x6060, 6).unwrap();
+    rig.bus.write_single(0x6060, 1).unwrap();
+    rig.write_i32(0x607A, 1000);
+    rig.control();
+    assert_eq!(rig.statusword() & BIT12, 0, "stop at once pending");
+    cw(&mut rig, 0x005F); // ignored
+    cw(&mut rig, 0x000F);
+    rig.run_us(1_000);
+    assert!(rig.at_rest());
+    let rest = rig.axis.position();
+    rig.run_us(10_000);
+    assert_eq!(rig.axis.position(), rest, "the edge was ignored");
+    assert_eq!(rig.statusword() & (BIT12 | REACHED), BIT12 | REACHED);
+    rig.bus.write_single(0x6084, 1000).unwrap();
+    cw(&mut rig, 0x005F);
+    cw(&mut rig, 0x000F);
+    rig.run_until(1_000_000, |r| r.at_rest());
+    assert_eq!(rig.axis.position(), rest + 1000);
+}
+
+/// SPEC §8.1: halt decelerates with 0x6084 in position and velocity mode
+/// (not with 0x6085), at once when 0x6084 = 0 (README).
+#[test]
+fn halt_decelerates_with_0x6084() {
+    // cruising at 100000 steps/s; 0x6084 = 1e6 steps/s²: 5000 steps
+    // (0x6085 = 2e6 would be 2500), plus ≤ 4 ms queued
+    for mode in [1u16, 3] {
+        for (decel, min, max) in [(1000u16, 5_000, 5_000 + 400), (0, 0, 1)] {
+            let mut rig = rig();
+            moving(&mut rig, 1_000_000);
+            rig.bus.write_single(0x6060, mode).unwrap();
+            if mode == 3 {
+                rig.control();
+                rig.run_us(1_000);
+            }
+            cw(&mut rig, 0x000F);
+            rig.run_us(300_000);
+            assert_eq!(rig.velocity_rpm(), 600, "mode {mode}");
+            // velocity mode replans on any write: 0 there is only
+            // tried in position mode
+            if decel == 0 && mode == 3 {
+                continue;
+            }
+            rig.bus.write_single(0x6084, decel).unwrap();
+            let at = rig.axis.position();
+            cw(&mut rig, 0x010F);
+            rig.run_until(1_000_000, |r| r.at_rest());
+            let braked = rig.axis.position() - at;
+            assert!(
+                (min..=max).contains(&braked),
+                "mode {mode}, 0x6084 = {decel}: {braked}"
+            );
+            assert_eq!(rig.statusword() & (HALT | REACHED), HALT | REACHED);
         }
     }
 }

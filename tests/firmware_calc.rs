@@ -236,6 +236,10 @@ fn enable_and_brake_follow_the_power_state_spec_8_1() {
         (0x0017, true, true, "quick stop active"),
         (0x000F, false, false, "fault reaction active"),
         (0x0008, false, false, "fault"),
+        // what the drive reports: bit 5 = 1 except in quick stop (§8.2)
+        (0x0060, false, false, "switch on disabled"),
+        (0x002F, false, false, "fault reaction active"),
+        (0x0028, false, false, "fault"),
         (0xFF37, true, true, "operation enabled"), // other bits ignored
     ] {
         let out = power_outputs(sw);

@@ -43,8 +43,11 @@ fn drive_regressions_hold() {
 #[test]
 fn the_statusword_check_knows_the_eight_states() {
     use harness::dispatcher::statusword_is_a_state as ok;
+    // bit 5 is `x` in four of them: the drive sets it (SPEC §8.2, bit 5 = 0
+    // only in quick stop active), the check takes either
     for sw in [
-        0x0000, 0x0040, 0x0021, 0x0023, 0x0027, 0x0007, 0x000F, 0x0008,
+        0x0000, 0x0040, 0x0021, 0x0023, 0x0027, 0x0007, 0x000F, 0x0008, 0x0020, 0x0060, 0x002F,
+        0x0028,
     ] {
         assert!(ok(sw) && ok(sw | 0xFF90), "{sw:#06X}");
     }

@@ -82,13 +82,21 @@ fn home(m: i16, from: i64, offset: i32) -> i64 {
     rig.axis.position()
 }
 
-/// Where each method's origin is (SPEC §8.6 and the README's choice of
-/// edges): 1/5 CW edge, 2/6 CCW edge, 3/7 home's right edge, 4/8 its left.
-fn origin(m: i16) -> i64 {
+/// Where method `m` started at `from` finds its origin (SPEC §8.6: the
+/// deciding switch edge): 1/5 the CW edge, 2/6 the CCW edge, 7 home's
+/// right edge, 8 its left edge. 3 ("left; if the CW limit is reached,
+/// reverse; stop on the home switch"): from the right of the switch it
+/// meets the right edge moving left; from its left it reverses at the CW
+/// limit and meets the left edge moving right; started on the switch it
+/// leaves it to the right and comes back to the right edge (README). 4 is
+/// the mirror.
+fn origin(m: i16, from: i64) -> i64 {
     match m {
         1 | 5 => CW_EDGE,
         2 | 6 => CCW_EDGE,
+        3 if from < HOME.0 => HOME.0,
         3 | 7 => HOME.1,
+        4 if from > HOME.1 => HOME.1,
         _ => HOME.0,
     }
 }
@@ -105,7 +113,11 @@ fn every_method_from_every_side() {
         let offset = if m % 2 == 1 { 500 } else { -500 };
         for from in [left_of_home, on_home, right_of_home, on_cw, on_ccw] {
             let end = home(m, from, offset);
-            assert_eq!(end, origin(m) + i64::from(offset), "method {m} from {from}");
+            assert_eq!(
+                end,
+                origin(m, from) + i64::from(offset),
+                "method {m} from {from}"
+            );
         }
     }
 }
@@ -152,13 +164,17 @@ fn opposite_limit_after_reversing_is_an_error() {
 
 #[test]
 fn bad_parameters_fail_at_standstill() {
-    // (0x6098 unwritten = 0, or a method), 0x6099, 0x609B, 0x609A; values
-    // above 100000 are refused on the bus (exception 3)
+    // SPEC §8.6: homing fails (bit 13) when the method is 0 (0x6098
+    // unwritten), a speed (0x6099, 0x609B) is 0 or above 100000, or the
+    // acceleration 0x609A is 0. The bus accepts speeds above 100000 (0x6099
+    // and 0x609B are plain U32 registers); the start of homing refuses them.
     for (method, fast, slow, accel) in [
         (None, 50, 10, 1000),
         (Some(1), 0, 10, 1000),
         (Some(5), 50, 0, 1000),
         (Some(1), 50, 10, 0),
+        (Some(3), 100_001, 10, 1000),
+        (Some(7), 50, 100_001, 1000),
     ] {
         let mut rig = rig_at(0, true);
         if let Some(m) = method {
@@ -178,27 +194,83 @@ fn bad_parameters_fail_at_standstill() {
     }
 }
 
+/// SPEC §8.1: halt decelerates with 0x6084 in homing too (not with the
+/// homing ramp 0x609A), at once when 0x6084 = 0 (README); halted at rest
+/// the status is 001 (§8.6 "interrupted"), and the search resumes.
 #[test]
-fn halt_pauses_and_resumes() {
+fn halt_decelerates_with_0x6084_and_resumes() {
+    // 0x6084 = 20 r/s² = 2e5 steps/s²: from 5 r/s = 50000 steps/s that is
+    // 6250 steps (0x609A's 1e6 steps/s² would be 1250), plus what was
+    // queued (horizon 3 ms + a 1 ms segment: ≤ 200 steps). 0: at once, at
+    // most the step on the timer.
+    for (decel, min, max) in [(200u16, 6_250, 6_250 + 200), (0, 0, 1)] {
+        let mut rig = rig_at(15_000, true);
+        rig.write_single(0x6084, decel);
+        start(&mut rig, 7, 0);
+        rig.run_us(100_000);
+        assert_eq!(rig.velocity_rpm(), -300, "cruising left at 5 r/s");
+        let at = rig.axis.position();
+        rig.write_single(0x6040, 0x011F); // halt
+        rig.run_until(1_000_000, |r| r.at_rest());
+        let braked = at - rig.axis.position();
+        assert!(
+            (min..=max).contains(&braked),
+            "0x6084 = {decel}: {braked} steps to rest"
+        );
+        assert_eq!(
+            rig.statusword() & (RUNNING | STATUS | (1 << 8)),
+            (1 << 8) | REACHED,
+            "halted at rest: 001"
+        );
+        let paused_at = rig.axis.position();
+        rig.run_us(100_000);
+        assert_eq!(rig.axis.position(), paused_at);
+        rig.write_single(0x6040, 0x001F); // resume
+        rig.run_until(20_000_000, |r| {
+            r.statusword() & STATUS == BIT12 | REACHED && r.at_rest()
+        });
+        assert_eq!(rig.axis.position(), HOME.1);
+    }
+}
+
+/// SPEC §8.6 method 3, "left; if the CW limit is reached, reverse; stop on
+/// the home switch", the origin at the deciding edge: started left of the
+/// switch it runs into the CW limit, reverses and takes the first edge it
+/// meets moving right, the switch's left edge (method 4 mirrored).
+#[test]
+fn methods_3_and_4_take_the_first_edge_after_reversing() {
+    for (m, from, limit_reached) in [(3, -10_000, CW_EDGE), (4, 5_000, CCW_EDGE)] {
+        let mut rig = rig_at(from, true);
+        start(&mut rig, m, 0);
+        let mut reached_limit = false;
+        rig.run_until(20_000_000, |r| {
+            let p = r.axis.position();
+            reached_limit |= if m == 3 {
+                p <= limit_reached
+            } else {
+                p >= limit_reached
+            };
+            r.statusword() & STATUS == BIT12 | REACHED && r.at_rest()
+        });
+        assert!(reached_limit, "method {m}: reversed at the limit");
+        let edge = if m == 3 { HOME.0 } else { HOME.1 };
+        assert_eq!(rig.axis.position(), edge, "method {m}");
+        assert_eq!(rig.position(), 0);
+    }
+}
+
+#[test]
+fn homing_speed_100000_is_allowed() {
+    // the largest valid register value (SPEC §8.6 fails only above it);
+    // it runs at the method's cap
     let mut rig = rig_at(0, true);
-    start(&mut rig, 7, 0);
-    rig.run_us(100_000);
-    rig.write_single(0x6040, 0x011F); // halt
-    rig.run_until(1_000_000, |r| r.at_rest());
-    let s = rig.statusword();
-    assert_eq!(
-        s & (RUNNING | STATUS | (1 << 8)),
-        (1 << 8) | REACHED,
-        "halted: velocity 0"
-    );
-    let paused_at = rig.axis.position();
-    rig.run_us(100_000);
-    assert_eq!(rig.axis.position(), paused_at);
-    rig.write_single(0x6040, 0x001F); // resume
-    rig.run_until(20_000_000, |r| {
-        r.statusword() & STATUS == BIT12 | REACHED && r.at_rest()
-    });
-    assert_eq!(rig.axis.position(), HOME.1);
+    start(&mut rig, 1, 0);
+    rig.write_i32(0x6099, 100_000);
+    rig.write_single(0x6040, 0x000F);
+    rig.write_single(0x6040, 0x001F);
+    rig.run_us(300_000);
+    assert_eq!(rig.statusword() & STATUS, 0, "in progress");
+    assert_eq!(rig.velocity_rpm(), -300);
 }
 
 #[test]

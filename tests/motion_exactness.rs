@@ -5,7 +5,10 @@
 
 mod common;
 
-use common::axis::{check_dynamics, check_times, trapezoid_time, PlannerRun};
+use common::axis::{
+    check_dynamics, check_ideal_times, check_times, ideal_run, trapezoid_time, GoalChange,
+    PlannerRun,
+};
 use modbus_drive::motion::{Goal, Ramp};
 use proptest::prelude::*;
 
@@ -97,7 +100,12 @@ proptest! {
     }
 
     /// Random changes of target while moving (bit 5 semantics: continue
-    /// from the current velocity, reverse if the target is behind).
+    /// from the current velocity, reverse if the target is behind), with
+    /// the step time bound against the ideal profile of each change: the
+    /// steps queued when a goal arrives keep the old profile, the new one
+    /// continues from the last of them (position, velocity, time) —
+    /// `ideal_goal` models that independently of the planner, from the
+    /// number of steps queued at the change.
     #[test]
     fn random_mid_move_changes(
         targets in prop::collection::vec((-20_000i64..20_000, 1u64..40), 1..5),
@@ -108,9 +116,16 @@ proptest! {
         let tick = 10_000_000;
         let mut run = PlannerRun::new(tick, 1000);
         let r = ramp(v, a, d);
+        let (vr, ar, dr) = (r.velocity as f64 / 10.0, r.accel as f64 / 10.0, r.decel as f64 / 10.0);
         run.control();
         let mut last = 0;
+        let mut changes = Vec::new();
         for (target, after_ms) in &targets {
+            changes.push(GoalChange {
+                queued: run.planner.planned_steps,
+                idle_fill_us: run.idle_fill_us,
+                target: *target,
+            });
             assert!(run.planner.set_goal(Goal::Move { target: *target, ramp: r, end_velocity: 0 }));
             last = *target;
             for _ in 0..*after_ms {
@@ -119,6 +134,8 @@ proptest! {
         }
         run.run_until_rest(600_000_000);
         prop_assert_eq!(run.axis.position(), last);
+        let ideal = ideal_run(&changes, &run.steps, tick, vr, ar, dr);
+        check_ideal_times(&run.steps, tick, &ideal);
         check_dynamics(&run.steps, tick, v, a.max(d));
         prop_assert_eq!(run.planner.late_segments, 0);
         prop_assert_eq!(run.planner.underruns, 0);

@@ -55,11 +55,7 @@ fn first_point_at_5_rps() -> Rig {
 /// Runs to rest and checks the end of SPEC §8.4: exact position, target
 /// reached, slot free, the exactness bounds on the way.
 fn arrives_at(rig: &mut Rig, target: i32) {
-    rig.run_until(30_000_000, |r| r.at_rest());
-    assert_eq!(rig.position(), target);
-    assert_eq!(rig.axis.position(), i64::from(target));
-    assert_eq!(rig.statusword(), ENABLED | BIT12 | REACHED);
-    check_dynamics(&rig.steps, rig.tick_hz, 100_000.0, 100_000.0);
+    arrives_at_with(rig, target, 100_000.0, 100_000.0);
 }
 
 #[test]
@@ -239,4 +235,54 @@ fn seed_6_3_homing_method_1() {
     rig.send_ok("01 06 60 40 01 1F D6 46");
     rig.run_us(10_000);
     assert_eq!(rig.axis.position(), -29_000);
+}
+
+/// SPEC §8.4: units convert with PA10 steps per revolution and the cruise
+/// speed |0x6081| is clamped to PA12 (r/min): the peak step rate measured
+/// on the steps made, and 0x606C while cruising.
+#[test]
+fn pa10_scales_and_pa12_caps_the_move() {
+    // (PA10, PA12 r/min, 0x6081 in 0.1 r/s, expected cruise steps/s)
+    for (pa10, pa12, velocity, cruise) in [
+        (10_000u16, 3000u16, 50, 50_000.0), // defaults: 5 r/s
+        (2_000, 3000, 50, 10_000.0),        // same 0x6081, a fifth of the steps
+        (2_000, 600, 150, 20_000.0),        // 15 r/s asked, PA12 = 10 r/s
+    ] {
+        let mut rig = Rig::new(SimAxis::new(10_000_000));
+        rig.bus.write_single(0x0064 + 10, pa10).unwrap();
+        rig.bus.write_single(0x0064 + 12, pa12).unwrap();
+        power_up(&mut rig);
+        rig.send_ok("01 06 60 60 00 01 56 14");
+        rig.write_i32(0x6081, velocity);
+        rig.write(0x6083, &[500, 500]); // 50 r/s² × PA10
+        let target = 2 * cruise as i32;
+        rig.write_i32(0x607A, target);
+        rig.write(0x6040, &[0x001F]);
+        rig.write(0x6040, &[0x000F]);
+        rig.run_us(500_000);
+        let rpm = (cruise * 60.0 / f64::from(pa10)) as i32;
+        assert_eq!(rig.velocity_rpm(), rpm, "PA10 {pa10}, PA12 {pa12}");
+        arrives_at_with(&mut rig, target, cruise, 50.0 * f64::from(pa10));
+        let peak = rig
+            .steps
+            .windows(2)
+            .map(|w| {
+                f64::from(rig.tick_hz) * common::axis::Q
+                    / w[1].exact.wrapping_sub(w[0].exact) as f64
+            })
+            .fold(0.0, f64::max);
+        assert!(
+            (cruise * 0.995..=cruise * 1.005).contains(&peak),
+            "PA10 {pa10}, PA12 {pa12}: peak {peak} steps/s"
+        );
+    }
+}
+
+/// `arrives_at` with the velocity and acceleration bounds of the move.
+fn arrives_at_with(rig: &mut Rig, target: i32, v_max: f64, a_max: f64) {
+    rig.run_until(30_000_000, |r| r.at_rest());
+    assert_eq!(rig.position(), target);
+    assert_eq!(rig.axis.position(), i64::from(target));
+    assert_eq!(rig.statusword(), ENABLED | BIT12 | REACHED);
+    check_dynamics(&rig.steps, rig.tick_hz, v_max, a_max);
 }

@@ -37,17 +37,19 @@ pub enum PowerState {
 }
 
 impl PowerState {
-    /// Statusword bits 0–3, 5, 6 (and 4, "voltage enabled").
+    /// Statusword bits 0–3, 5, 6 (and 4, "voltage enabled"). Bit 5
+    /// ("quick stop") is 0 only in quick stop active (SPEC §8.2); the §8.1
+    /// patterns leave it open (`x`) in the other states where CiA 402 does.
     pub fn status_bits(self) -> u16 {
         match self {
-            Self::NotReadyToSwitchOn => 0x0000,
-            Self::SwitchOnDisabled => 0x0040,
+            Self::NotReadyToSwitchOn => 0x0020,
+            Self::SwitchOnDisabled => 0x0060,
             Self::ReadyToSwitchOn => 0x0021,
             Self::SwitchedOn => 0x0033,
             Self::OperationEnabled => 0x0037,
             Self::QuickStopActive => 0x0017,
-            Self::FaultReactionActive => 0x000F,
-            Self::Fault => 0x0008,
+            Self::FaultReactionActive => 0x002F,
+            Self::Fault => 0x0028,
         }
     }
 
@@ -269,8 +271,10 @@ pub struct Drive {
     /// Position mode: the set-point being run and the one-slot buffer.
     active: Option<SetPoint>,
     buffered: Option<SetPoint>,
-    /// Base of relative set-points (user steps).
-    last_target: i64,
+    /// Base of relative set-points (user steps): the previous latched
+    /// target; `None` after enabling, homing or a mode change, when the base
+    /// is where the motor comes to rest ([`Drive::relative_base`]).
+    last_target: Option<i64>,
     /// Moving towards an active limit was stopped.
     limit_stopping: bool,
     /// The step interrupt's limit brake has been seen and handled.
@@ -324,7 +328,7 @@ impl Drive {
             replan: false,
             active: None,
             buffered: None,
-            last_target: 0,
+            last_target: None,
             limit_stopping: false,
             limit_braked: false,
             homing: HomingState::NotStarted,
@@ -398,6 +402,25 @@ impl Drive {
         self.raw_position - self.offset
     }
 
+    /// Base of a relative set-point (SPEC §8.4 bit 6: "relative to the
+    /// previous target"). Without a previous target in this mode (after
+    /// enabling, homing or a mode change) it is the position at which the
+    /// motor comes to rest: where it is when at rest, or the end of the
+    /// stop in progress (the one a mode change started), so a set-point
+    /// latched during that stop counts from the same place as one latched
+    /// after it. `None` while a stop at once is being carried out (the
+    /// rest position is known one step later): bit 12 reads 0 then.
+    fn relative_base(&self) -> Option<i64> {
+        self.last_target
+            .or_else(|| Some(self.planner.rest_position()? - self.offset))
+    }
+
+    /// Statusword bit 12 in position mode (SPEC §8.4): the one-slot buffer
+    /// is free and the base of a relative set-point is known.
+    fn set_point_slot_free(&self) -> bool {
+        self.buffered.is_none() && self.relative_base().is_some()
+    }
+
     /// The control loop (see the module docs). `switches` are the logical
     /// states (after PA13, e.g. from [`io::SwitchInputs::read`]) sampled now.
     pub fn control(
@@ -450,7 +473,7 @@ impl Drive {
         }
         if self.replan {
             self.replan = false;
-            self.apply_goal();
+            self.apply_goal(sched);
         }
         let underruns = self.planner.underruns;
         for _ in 0..8 {
@@ -494,7 +517,7 @@ impl Drive {
             if self.raw_position == target && !self.halted {
                 // SPEC §8.6: then the actual position becomes 0
                 self.offset = self.raw_position;
-                self.last_target = 0;
+                self.last_target = None;
                 self.homing = HomingState::Done;
                 self.event(DriveEvent::HomingDone);
             }
@@ -582,20 +605,23 @@ impl Drive {
     }
 
     /// The goal the current mode asks for, handed to the planner.
-    fn apply_goal(&mut self) {
+    fn apply_goal(&mut self, sched: &StepSchedule) {
         if self.state != PowerState::OperationEnabled {
             return;
         }
-        let goal = match self.mode {
-            MODE_POSITION => {
-                if self.halted {
-                    Some(Goal::Stop {
-                        decel: self.s.decel(),
-                    })
-                } else {
-                    self.active.map(|sp| self.move_goal(sp))
+        if self.halted {
+            // §8.1: halt decelerates with 0x6084 in every mode (at once
+            // when it is 0) and holds; the mode's goal comes back on resume.
+            match self.s.decel() {
+                0 => self.planner.stop_at_once(sched),
+                decel => {
+                    self.planner.set_goal(Goal::Stop { decel });
                 }
             }
+            return;
+        }
+        let goal = match self.mode {
+            MODE_POSITION => self.active.map(|sp| self.move_goal(sp)),
             MODE_VELOCITY => Some(self.velocity_goal()),
             MODE_HOMING => self.homing_goal(),
             _ => None,
@@ -625,7 +651,7 @@ impl Drive {
         let v = self.s.od.profile_velocity;
         let forward = v > 0;
         let blocked = (forward && self.switches.ccw_limit) || (!forward && self.switches.cw_limit);
-        if self.halted || v == 0 || blocked || !ramp.runnable() {
+        if v == 0 || blocked || !ramp.runnable() {
             if v != 0 && (blocked || !ramp.runnable()) {
                 self.warning = true;
             }
@@ -642,9 +668,6 @@ impl Drive {
 
     fn homing_goal(&self) -> Option<Goal> {
         let accel = self.s.steps(u64::from(self.s.od.homing_acceleration));
-        if self.halted {
-            return Some(Goal::Stop { decel: accel });
-        }
         match self.homing {
             HomingState::Searching(h) => {
                 let p = h.phase();
@@ -683,9 +706,9 @@ impl Drive {
         let HomingState::Searching(mut h) = self.homing else {
             return;
         };
-        if self.halted {
-            return;
-        }
+        // Also while halted: an edge passed while braking is still the
+        // edge (SPEC §8.6: the origin is where it was seen); the next
+        // phase's motion waits for the resume (apply_goal).
         match h.update(self.switches, self.raw_position) {
             HomingStep::Continue => {}
             HomingStep::NextPhase => {
@@ -739,12 +762,12 @@ impl Drive {
 
     /// Position mode, rising edge of bit 4 (SPEC §8.4).
     fn latch_set_point(&mut self, controlword: u16) {
-        if self.buffered.is_some() {
+        let Some(base) = self.relative_base().filter(|_| self.set_point_slot_free()) else {
             return; // bit 12 = 0: ignored
-        }
+        };
         let od = &self.s.od;
         let target = if controlword & cw::RELATIVE != 0 {
-            self.last_target + i64::from(od.target_position)
+            base + i64::from(od.target_position)
         } else {
             i64::from(od.target_position)
         };
@@ -758,7 +781,7 @@ impl Drive {
             return;
         }
         self.warning = false;
-        self.last_target = target;
+        self.last_target = Some(target);
         let sp = SetPoint {
             target,
             ramp,
@@ -805,12 +828,18 @@ impl Drive {
         self.stop_with(decel);
     }
 
+    /// Statusword bits 10, 12 and 13 for the mode shown in 0x6061 (SPEC
+    /// §8.2, §8.4–§8.6), in every power state: outside operation enabled
+    /// the mode has no set-point and no search running, so the bits tell
+    /// the same story as at rest in operation enabled (position: slot free,
+    /// target reached once at rest; velocity: speed 0 once at rest; homing:
+    /// 001 not started / interrupted, and done or error persist).
     fn mode_bits(&self) -> u16 {
         let at_rest = self.at_rest;
         match self.mode {
             MODE_POSITION => {
                 let mut b = 0;
-                if self.buffered.is_none() {
+                if self.set_point_slot_free() {
                     b |= sw::BIT12;
                 }
                 let reached = if self.halted {
@@ -897,9 +926,7 @@ impl DriveLayer for Drive {
         if self.running {
             w |= sw::RUNNING;
         }
-        if self.state == PowerState::OperationEnabled {
-            w |= self.mode_bits();
-        }
+        w |= self.mode_bits();
         if self.switches.home {
             w |= sw::HOME_SWITCH;
         }
@@ -930,7 +957,11 @@ impl DriveLayer for Drive {
 
     fn monitor(&self) -> DriveMonitor {
         let spr = self.s.steps_per_rev as i64;
-        let command = self.active.map_or(self.last_target, |a| a.target);
+        let command = self
+            .active
+            .map(|a| a.target)
+            .or(self.last_target)
+            .unwrap_or(self.user_position());
         let speed_command = match self.mode {
             MODE_VELOCITY => i64::from(self.s.od.profile_velocity) * 60 / 10,
             _ => self.active.map_or(0, |a| a.ramp.velocity as i64 * 6 / spr),
@@ -960,10 +991,13 @@ impl DriveLayer for Drive {
         if mode == self.mode {
             return;
         }
-        // A mode change stops what the old mode was doing with its ramp.
+        // A mode change stops what the old mode was doing with 0x6084 (at
+        // once if 0); a new position-mode set-point counts from where that
+        // stop ends (relative_base). Into velocity mode the new run takes
+        // over from the current velocity instead.
         self.drop_set_points();
         self.mode = mode;
-        self.last_target = self.active.map_or(self.user_position(), |a| a.target);
+        self.last_target = None;
         if self.state == PowerState::OperationEnabled {
             let decel = self.s.decel();
             self.stop_with(decel);
@@ -1051,7 +1085,7 @@ impl DriveLayer for Drive {
         }
         if was != OperationEnabled {
             self.frame_seen = true;
-            self.last_target = self.user_position();
+            self.last_target = None;
         }
 
         // Operation enabled: halt and the mode bits.

@@ -10,17 +10,22 @@
 //! |---|---|
 //! | 1 | (on CW: leave it right) · seek CW left → origin |
 //! | 2 | mirror of 1 |
-//! | 3 | (on home: pass it right) · seek home left → origin; CW on the way: reverse, pass home right, seek home left → origin |
+//! | 3 | (on home: pass it right) · seek home left → origin; CW on the way: reverse, seek home right → origin |
 //! | 4 | mirror of 3 |
 //! | 5 | (unless on CW: seek CW left, fast) · leave CW right, slow · seek CW left, slow → origin |
 //! | 6 | mirror of 5 |
 //! | 7 | (on home: pass home right, slow) · else seek home left, fast (CW: reverse, seek home right, fast) then pass home right, slow · seek home left, slow → origin |
 //! | 8 | mirror of 7 |
 //!
-//! So every method finds the same edge from any start: methods 1/5 the CW
-//! limit's edge, 2/6 the CCW limit's, 3/7 the home switch's right edge
-//! approached from the right, 4/8 its left edge approached from the left.
-//! After a reversal, reaching the other limit (or the same one again) is a
+//! Methods 1/5 find the CW limit's edge, 2/6 the CCW limit's, 7 the home
+//! switch's right edge and 8 its left edge from any start. Methods 3/4
+//! follow SPEC §8.6 literally ("left; if the CW limit is reached, reverse;
+//! stop on the home switch"; the origin is the deciding edge): 3 finds the
+//! right edge when it meets the switch moving left, the left edge when it
+//! meets it moving right after reversing at the CW limit (4 mirrored).
+//! Started on the home switch, 3 leaves it to the right and comes back to
+//! its right edge (the edge its search direction meets; 4 mirrored). After
+//! a reversal, reaching the other limit (or the same one again) is a
 //! homing error.
 
 use super::Switches;
@@ -33,9 +38,11 @@ pub enum HomingMethod {
     CwLimit = 1,
     /// Right to the CCW limit.
     CcwLimit = 2,
-    /// Left to the home switch, reversing at the CW limit.
+    /// Left to the home switch, reversing at the CW limit; the origin is
+    /// the first switch edge met.
     HomeLeft = 3,
-    /// Right to the home switch, reversing at the CCW limit.
+    /// Right to the home switch, reversing at the CCW limit; the origin is
+    /// the first switch edge met.
     HomeRight = 4,
     /// Fast to the CW limit, slow back to its edge.
     CwLimitTwoSpeed = 5,
@@ -168,6 +175,9 @@ pub struct Homing {
     reversed: bool,
     /// HomePassed: the home switch has been seen active in this phase.
     home_seen: bool,
+    /// Raw position at the previous update: tells which way the motor
+    /// moves.
+    last_position: Option<i64>,
 }
 
 impl Homing {
@@ -227,6 +237,7 @@ impl Homing {
             idx: 0,
             reversed: false,
             home_seen: sw.home,
+            last_position: None,
         }
     }
 
@@ -247,6 +258,16 @@ impl Homing {
     /// raw position `position`.
     pub fn update(&mut self, sw: Switches, position: i64) -> HomingStep {
         let p = self.phase();
+        let moved = position - self.last_position.unwrap_or(position);
+        self.last_position = Some(position);
+        if moved != 0 && (moved < 0) != p.left {
+            // Still braking from the previous phase, against this one: what
+            // the switches do now is no edge of this phase (e.g. 7 overshoots
+            // the switch it found fast and must not take its far edge as
+            // "passed").
+            self.home_seen = false;
+            return HomingStep::Continue;
+        }
         // the limit in the direction of travel, and the one behind
         let (ahead, behind) = if p.left {
             (sw.cw_limit, sw.ccw_limit)
@@ -277,17 +298,11 @@ impl Homing {
                 return HomingStep::Failed(HomingError::LimitReached);
             }
             self.reversed = true;
-            let here = self.plan.phases[self.idx];
-            if here.origin {
-                // 3/4: pass the switch the other way, then come back to it
-                let back = phase(!here.left, here.slow, Until::HomePassed, false);
-                self.plan = Plan::of(&[back, here]);
-                self.idx = 0;
-            } else {
-                // 7/8 fast search: search the other way; the slow phases
-                // that follow pass the switch and come back to its edge
-                self.plan.phases[self.idx].left = !here.left;
-            }
+            // Search the other way. 3/4: the first home edge met that way
+            // is the origin (SPEC §8.6); 7/8 (fast search): the slow phases
+            // that follow pass the switch and come back to its edge.
+            let here = &mut self.plan.phases[self.idx];
+            here.left = !here.left;
             self.home_seen = sw.home;
             return HomingStep::NextPhase;
         }

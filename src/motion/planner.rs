@@ -23,7 +23,7 @@
 //! steps once the speed is above `sqrt(64·a)` steps/s (below that they are
 //! single steps, at a step rate low enough not to matter).
 
-use super::profile::{slope_of, w_of, Profile, V_FRAC};
+use super::profile::{slope_of, stop_steps, w_of, Profile, V_FRAC};
 use super::schedule::{Segment, StepSchedule, SCHEDULE_SLOTS, TICK_FRAC_BITS};
 
 /// Highest step rate the drive generates, steps/s. Faster requests are
@@ -158,6 +158,9 @@ pub struct Planner {
     pub late_segments: u32,
     /// `now` of the current fill (Q32.32 ticks).
     now: u64,
+    /// Steps queued since start (wrapping; a stop at once drops some of
+    /// them unmade): lets a test tell which profile timed a step.
+    pub planned_steps: u64,
 }
 
 impl Planner {
@@ -177,6 +180,7 @@ impl Planner {
             underruns: 0,
             late_segments: 0,
             now: 0,
+            planned_steps: 0,
         }
     }
 
@@ -205,6 +209,28 @@ impl Planner {
             Some(p) => Some(p.forward),
             None if self.w > 0 => Some(self.forward),
             None => None,
+        }
+    }
+
+    /// Where the motor comes to rest on its own (raw steps): here when
+    /// nothing is planned, the end of a stop or of a move that ends at
+    /// rest. `None` while a stop at once waits for the interrupt (the
+    /// position is known again after it), for an endless run, a move that
+    /// hands over at speed, or a stop with a follow-up goal.
+    pub fn rest_position(&self) -> Option<i64> {
+        if self.flushing || self.then.is_some() {
+            return None;
+        }
+        let signed = |forward: bool, n: u64| if forward { n as i64 } else { -(n as i64) };
+        match &self.profile {
+            // a finite profile ending at rest (an endless run has no steps)
+            Some(p) if p.w_end() == 0 => Some(self.pos + signed(p.forward, p.steps? - p.done())),
+            Some(_) => None,
+            // a profile ended at speed: fill stops it with the last ramp
+            None if self.w > 0 => {
+                Some(self.pos + signed(self.forward, stop_steps(self.w, slope_of(self.last_decel))))
+            }
+            None => Some(self.pos),
         }
     }
 
@@ -487,6 +513,7 @@ impl Planner {
             + n_i * (n_i - 1) * (n_i - 2) / 6 * i128::from(add2);
         self.t_isr = self.t_isr.wrapping_add(span as u64);
         self.t_ideal = t_last;
+        self.planned_steps = self.planned_steps.wrapping_add(n);
         self.pos += if profile.forward {
             n as i64
         } else {

@@ -191,6 +191,11 @@ impl Profile {
         self.steps.map_or(u64::MAX, |s| s - self.done)
     }
 
+    /// v² at the end of a finite profile (0: it ends at rest).
+    pub fn w_end(&self) -> u128 {
+        self.w_end
+    }
+
     /// v² at the last timed step (or the start).
     pub fn w(&self) -> u128 {
         self.aw

@@ -17,6 +17,11 @@ pub struct PlannerRun {
     pub now_us: u64,
     pub period_us: u64,
     pub goals: std::collections::VecDeque<Goal>,
+    /// `now_us` of the last control call if the schedule was idle (empty,
+    /// interrupt stopped) when it filled and it planned no step: the
+    /// planner then restarted its clock there, so a move planned from rest
+    /// next starts at that time (otherwise at its last planned step).
+    pub idle_fill_us: Option<u64>,
 }
 
 impl PlannerRun {
@@ -34,12 +39,15 @@ impl PlannerRun {
             now_us: 0,
             period_us,
             goals: Default::default(),
+            idle_fill_us: None,
         }
     }
 
     /// One control call at `now_us`: fill, handing over queued goals when
     /// a motion ends, then start the interrupt.
     pub fn control(&mut self) {
+        let idle = !self.sched.is_running() && self.sched.is_empty();
+        let planned = self.planner.planned_steps;
         for _ in 0..16 {
             match self.planner.fill(self.now_us, &self.sched) {
                 Fill::Ended => {
@@ -50,6 +58,7 @@ impl PlannerRun {
                 _ => break,
             }
         }
+        self.idle_fill_us = (idle && self.planner.planned_steps == planned).then_some(self.now_us);
         self.axis.kick(&self.sched);
     }
 
@@ -175,6 +184,243 @@ pub fn trapezoid_time(dist: f64, v: f64, a: f64, d: f64, k: f64) -> f64 {
         ta + (k - xa) / vp
     } else {
         ta + tc + vp / d - (2.0 * (dist - k).max(0.0) / d).sqrt()
+    }
+}
+
+/// One step of an ideal continuous profile.
+#[derive(Clone, Copy, Debug)]
+pub struct IdealStep {
+    /// Time of the step, s.
+    pub t: f64,
+    /// Time of the step before it, or of the start from rest: the local
+    /// interval is `t - prev_t`.
+    pub prev_t: f64,
+    /// Signed velocity at the step, steps/s.
+    pub v: f64,
+    pub forward: bool,
+}
+
+/// A run of steps in one direction: constant-acceleration pieces over the
+/// distance `0..=len`, from speed `s0` at time `t0`.
+struct Run {
+    forward: bool,
+    t0: f64,
+    s0: f64,
+    /// (end of piece, acceleration); the last piece ends at rest.
+    pieces: Vec<(f64, f64)>,
+}
+
+impl Run {
+    /// Time (s) and speed at distance `x` (≤ the last piece's end).
+    fn at(&self, x: f64) -> (f64, f64) {
+        let (mut x0, mut t0, mut s0) = (0.0, self.t0, self.s0);
+        let last = self.pieces.len() - 1;
+        for (i, &(end, acc)) in self.pieces.iter().enumerate() {
+            let xe = x.min(end);
+            let dx = (xe - x0).max(0.0);
+            let (t, s) = if i == last && acc < 0.0 {
+                // the final ramp to rest, timed from its end (no
+                // cancellation near v = 0)
+                let t_end = t0 + s0 / -acc;
+                let left = (end - xe).max(0.0);
+                (
+                    t_end - (2.0 * left / -acc).sqrt(),
+                    (2.0 * -acc * left).sqrt(),
+                )
+            } else if dx == 0.0 {
+                (t0, s0)
+            } else if acc == 0.0 {
+                (t0 + dx / s0, s0)
+            } else {
+                let s = (s0 * s0 + 2.0 * acc * dx).max(0.0).sqrt();
+                (t0 + 2.0 * dx / (s + s0), s)
+            };
+            if x <= end || i == last {
+                return (t, s);
+            }
+            (x0, t0, s0) = (end, t, s);
+        }
+        unreachable!()
+    }
+
+    /// Appends its whole steps `1..=len` to `out`.
+    fn steps(&self, len: i64, out: &mut Vec<IdealStep>) {
+        let mut prev_t = self.t0;
+        for k in 1..=len {
+            let (t, s) = self.at(k as f64);
+            out.push(IdealStep {
+                t,
+                prev_t,
+                v: if self.forward { s } else { -s },
+                forward: self.forward,
+            });
+            prev_t = t;
+        }
+    }
+}
+
+/// A trapezoid over `dist` steps from speed `s0` (≤ `v`) to rest, with
+/// cruise `v`, acceleration `a`, deceleration `d`; a triangle if short.
+fn to_rest(forward: bool, s0: f64, t0: f64, dist: i64, v: f64, a: f64, d: f64) -> Run {
+    let dd = dist as f64;
+    let vp2 = (v * v)
+        .min((2.0 * a * d * dd + d * s0 * s0) / (a + d))
+        .max(s0 * s0);
+    let x1 = (vp2 - s0 * s0) / (2.0 * a);
+    let x2 = dd - vp2 / (2.0 * d);
+    Run {
+        forward,
+        t0,
+        s0,
+        pieces: vec![(x1, a), (x2.max(x1), 0.0), (dd, -d)],
+    }
+}
+
+/// A stop from speed `s0` at time `t0` to rest after exactly `n` whole
+/// steps: cruise, then `d`, as the planner's stops do (README); when `n`
+/// is a hair short of the continuous stop distance (see `ideal_goal`), the
+/// ramp over `n` steps is correspondingly a hair steeper.
+fn stop_run(forward: bool, s0: f64, t0: f64, n: i64, d: f64) -> Run {
+    let stop = s0 * s0 / (2.0 * d);
+    let pieces = if n as f64 >= stop {
+        vec![(n as f64 - stop, 0.0), (n as f64, -d)]
+    } else {
+        vec![(0.0, 0.0), (n as f64, -(s0 * s0) / (2.0 * n as f64))]
+    };
+    Run {
+        forward,
+        t0,
+        s0,
+        pieces,
+    }
+}
+
+/// Below this (steps) the planner's fixed-point rounding decides a knife
+/// edge either way (it is about 2^-32 step times the ratio of the slopes).
+const KNIFE_EDGE: f64 = 1e-5;
+
+/// The ideal continuous profiles of a change of goal ("move to `target`",
+/// SPEC §8.4 bit 5) handed over at position `x0` with signed velocity `v0`
+/// at time `t0` (s), cruise `v`, acceleration `a`, deceleration `d`
+/// (steps/s, steps/s²): on towards the target if it can still stop there
+/// with `d`; else stop with `d` on a whole step (cruising up to the last
+/// point from which `d` ends on one, as the README says stops do), then
+/// from rest to the target. Each profile is its steps after `x0`. There
+/// are two when the continuous stop distance is within [`KNIFE_EDGE`] of a
+/// whole step (a goal arriving during a ramp to rest with the same `d` is
+/// exactly there): stop there or one step later.
+pub fn ideal_goal(
+    x0: i64,
+    v0: f64,
+    t0: f64,
+    target: i64,
+    v: f64,
+    a: f64,
+    d: f64,
+) -> Vec<Vec<IdealStep>> {
+    let from_rest = |x: i64, t: f64, out: &mut Vec<IdealStep>| {
+        let dist = target - x;
+        if dist != 0 {
+            to_rest(dist > 0, 0.0, t, dist.abs(), v, a, d).steps(dist.abs(), out);
+        }
+    };
+    if v0 == 0.0 {
+        let mut out = Vec::new();
+        from_rest(x0, t0, &mut out);
+        return vec![out];
+    }
+    let forward = v0 > 0.0;
+    let s0 = v0.abs();
+    let ahead = if forward { target - x0 } else { x0 - target };
+    let stop = s0 * s0 / (2.0 * d);
+    let mut candidates = Vec::new();
+    if ahead > 0 && stop <= ahead as f64 + KNIFE_EDGE {
+        let mut out = Vec::new();
+        to_rest(forward, s0, t0, ahead, v, a, d).steps(ahead, &mut out);
+        candidates.push(out);
+    }
+    if ahead <= 0 || stop > ahead as f64 - KNIFE_EDGE {
+        let lo = (stop - KNIFE_EDGE).ceil().max(1.0) as i64;
+        let hi = (stop + KNIFE_EDGE).ceil() as i64;
+        for n in lo..=hi {
+            let mut out = Vec::new();
+            stop_run(forward, s0, t0, n, d).steps(n, &mut out);
+            let t = out.last().map_or(t0, |s| s.t);
+            from_rest(x0 + if forward { n } else { -n }, t, &mut out);
+            candidates.push(out);
+        }
+    }
+    candidates
+}
+
+/// A change of goal as the test handed it to the planner.
+#[derive(Clone, Copy, Debug)]
+pub struct GoalChange {
+    /// Steps the planner had queued ([`Planner::planned_steps`]): they keep
+    /// the old profile, the new one continues from the last of them.
+    pub queued: u64,
+    /// [`PlannerRun::idle_fill_us`] then: the planner restarted from rest at
+    /// that time.
+    pub idle_fill_us: Option<u64>,
+    pub target: i64,
+}
+
+/// The ideal profile of a whole run of goal changes, each continuing from
+/// the previous one's ideal state (position, velocity, time) at its
+/// `queued` step; at a knife edge the candidate nearer to the steps made is
+/// taken (both are valid profiles).
+pub fn ideal_run(
+    changes: &[GoalChange],
+    steps: &[StepRecord],
+    tick_hz: u32,
+    v: f64,
+    a: f64,
+    d: f64,
+) -> Vec<IdealStep> {
+    let f = f64::from(tick_hz);
+    let mut ideal: Vec<IdealStep> = Vec::new();
+    for (i, c) in changes.iter().enumerate() {
+        let k0 = c.queued as usize;
+        ideal.truncate(k0);
+        let x0: i64 = ideal.iter().map(|s| if s.forward { 1 } else { -1 }).sum();
+        let (v0, t0) = match c.idle_fill_us {
+            Some(us) => (0.0, us as f64 * 1e-6),
+            None => ideal.last().map_or((0.0, 0.0), |s| (s.v, s.t)),
+        };
+        let span_end = changes
+            .get(i + 1)
+            .map_or(steps.len(), |n| n.queued as usize);
+        let error = |cand: &Vec<IdealStep>| {
+            cand.iter()
+                .zip(&steps[k0.min(steps.len())..span_end.min(steps.len())])
+                .map(|(w, s)| (s.tick as f64 / f - w.t).abs())
+                .fold(0.0, f64::max)
+        };
+        let best = ideal_goal(x0, v0, t0, c.target, v, a, d)
+            .into_iter()
+            .min_by(|p, q| error(p).total_cmp(&error(q)))
+            .expect("at least one profile");
+        ideal.extend(best);
+    }
+    ideal
+}
+
+/// Issue 3's step time bound, min(1 µs, 5 % of the local interval), for
+/// every step against `ideal` (absolute times from tick 0), and the
+/// direction of every step.
+pub fn check_ideal_times(steps: &[StepRecord], tick_hz: u32, ideal: &[IdealStep]) {
+    assert_eq!(steps.len(), ideal.len(), "steps made vs ideal");
+    let f = f64::from(tick_hz);
+    for (i, (s, want)) in steps.iter().zip(ideal).enumerate() {
+        assert_eq!(s.forward, want.forward, "direction of step {}", i + 1);
+        let got = s.tick as f64 / f;
+        let bound = (1e-6f64).min(0.05 * (want.t - want.prev_t));
+        assert!(
+            (got - want.t).abs() <= bound,
+            "step {}: {got} s vs ideal {} s (bound {bound})",
+            i + 1,
+            want.t
+        );
     }
 }
 

@@ -119,4 +119,4 @@ def test_two_drives_on_one_bus_have_their_own_axes(start_drive, transport):
     two.wait(lambda s: s & TARGET_REACHED and not s & MOTOR_RUNNING, 5, "drive 2 at target")
     assert two.read32(ACTUAL_POSITION) == 50000
     assert one.read32(ACTUAL_POSITION) == 0, "drive 1 did not move"
-    assert one.statusword() & 0x6F == 0x40, "drive 1 still switch on disabled"
+    assert one.statusword() & 0x6F == 0x60, "drive 1 still switch on disabled"

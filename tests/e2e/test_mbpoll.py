@@ -22,8 +22,9 @@ def test_mbpoll_reads_the_statusword(start_drive):
     d = start_drive("--no-status")
     r = mbpoll(d.link, "-t", "4:hex", "-r", str(0x6041), "-c", "1")
     assert r.returncode == 0, r.stdout + r.stderr
-    # after power-up the drive is in switch on disabled (SPEC §8.1)
-    assert f"[{0x6041}]: \t0x0040" in r.stdout, r.stdout
+    # after power-up the drive is in switch on disabled (SPEC §8.1), bit 5
+    # set as in every state but quick stop active (SPEC §8.2)
+    assert f"[{0x6041}]: \t0x0060" in r.stdout, r.stdout
 
 
 def test_mbpoll_writes_the_acceleration(start_drive):
