@@ -22,20 +22,35 @@
 //! [`StepSource`] inside the step-timer interrupt. Exactly one context may
 //! push and exactly one may pop. Relaxed atomic loads and stores compile to
 //! plain `ldr`/`str` on Cortex-M (also on M0, which has no atomic
-//! read-modify-write; none is used), the publishing store is `Release`.
+//! read-modify-write; none is used); `Release`/`Acquire` (a `dmb`) appear
+//! only where a segment is published or taken, never per step.
+//!
+//! Per step the interrupt stores one word, `left` (steps of the running
+//! segment not yet made), with a Relaxed store: on a single core the
+//! interrupt is never preempted by thread mode, so thread mode sees each
+//! value whole and in order, and no barrier is needed for a single writer.
+//! The position is not stored per step: [`StepSchedule::position`] derives
+//! it from the running segment's end position and direction (written at a
+//! segment start under a sequence count) and `left`. Thread mode and the
+//! limit-switch interrupt never make the interrupt read their flags per
+//! step either: they store the flag (flush, limits, brake rate), then raise
+//! `attention`, the one byte the interrupt reads per step; it clears the
+//! byte before it reads the flags, so no change is lost.
 //!
 //! # Worst-case interrupt cost
 //!
-//! [`StepSource::advance`] per step: count the step (add, store), check the
-//! flush flag (load, branch), decrement the segment's remaining count, three
-//! 64-bit adds (time += interval, interval += add, add += add2) and one
-//! subtraction of the integer parts — about 20 instructions plus field
-//! loads/stores on a Cortex-M4. When a segment ends it also loads head/tail,
-//! seven words of the slot and stores the tail (about 20 more). No division,
-//! no multiplication, no loop. Segments hold at least one step, so the extra
-//! work happens at most once per step. The limit check adds a load and a
-//! branch; a braking step (below) instead costs six 64×64 → 128-bit
-//! multiplies and a variable shift, still no division and no loop.
+//! [`StepSource::advance`] per step inside a segment (the fast path): load
+//! `left` and `attention`, two compares, store `left - 1`; the delay is the
+//! interval's integer part plus the carry of its fraction into the
+//! pending time's fraction (`frac`), then `interval += add`,
+//! `add += add2` — three 64-bit adds on one block of seven words. About 25
+//! Cortex-M4 instructions (README "Drive behaviour" has the measured
+//! figure). No division, no multiplication, no loop. The slow path (a
+//! segment ends, a start from rest, a flag raised) loads head/tail and the
+//! seven words of the next slot and publishes the new segment (about 60
+//! more); segments hold at least one step, so it runs at most once per
+//! step. A braking step (below) costs six 64×64 → 128-bit multiplies and a
+//! variable shift, still no division and no loop.
 //!
 //! # Limit brake (SPEC §8.7, issue 6)
 //!
@@ -43,8 +58,10 @@
 //! deceleration 0x6085 *at once*: the planner only appends behind its
 //! queued horizon, and the control loop runs every millisecond. So the
 //! limit-switch interrupt (a third context) writes the logical limit states
-//! with [`StepSchedule::set_limits`], and [`StepSource::advance`], when its
-//! next step goes towards an active limit while the brake is armed
+//! with [`StepSchedule::set_limits`] (raising `attention`), and
+//! [`StepSource::advance`], when its next step goes towards an active limit
+//! while the brake is armed (checked when `attention` is raised and at every
+//! segment start, the only places where either can change)
 //! ([`StepSchedule::set_brake_rate`], written by the drive: 0x6085 outside
 //! homing, disarmed in homing where the sequencer decides at the limits),
 //! stops taking segments and decelerates on its own: each interval grows by
@@ -58,7 +75,7 @@
 //! position back: [`crate::motion::Planner::stop_at_once`]). A flush
 //! requested while braking is carried out when the brake ends.
 
-use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, AtomicU8, Ordering};
+use core::sync::atomic::{fence, AtomicBool, AtomicI32, AtomicU32, AtomicU8, Ordering};
 
 /// Segments the ring holds (a power of two). At the maximum step rate and
 /// the shortest segments the planner emits this covers its horizon.
@@ -198,8 +215,19 @@ pub struct StepSchedule {
     head: AtomicU32,
     /// Segments taken (written by the consumer only, wrapping).
     tail: AtomicU32,
-    /// Raw step counter, written by the consumer only (wrapping).
-    position: AtomicI32,
+    /// Steps of the running segment not yet made, the pending one
+    /// included (the consumer's per-step counter, module docs).
+    left: AtomicU32,
+    /// Raw position once the running segment is made (consumer only).
+    seg_end: AtomicI32,
+    /// Direction of the running segment: +1 or -1 (consumer only).
+    seg_dir: AtomicI32,
+    /// Sequence count around changes of `seg_end` / `seg_dir` / `left`
+    /// outside the per-step path (odd while they change).
+    seq: AtomicU32,
+    /// Set by whoever changes `flush`, `limits` or `brake_rate`; the
+    /// consumer's only per-step look at them (module docs).
+    attention: AtomicBool,
     /// Set by thread mode: drop everything at the next step.
     flush: AtomicBool,
     /// The consumer has a step pending (steps are being generated).
@@ -224,7 +252,11 @@ impl StepSchedule {
             slots: [const { Slot::new() }; SCHEDULE_SLOTS],
             head: AtomicU32::new(0),
             tail: AtomicU32::new(0),
-            position: AtomicI32::new(0),
+            left: AtomicU32::new(0),
+            seg_end: AtomicI32::new(0),
+            seg_dir: AtomicI32::new(1),
+            seq: AtomicU32::new(0),
+            attention: AtomicBool::new(false),
             flush: AtomicBool::new(false),
             running: AtomicBool::new(false),
             limits: AtomicU8::new(0),
@@ -278,7 +310,14 @@ impl StepSchedule {
     /// Asks the consumer to drop the pending step and every queued segment
     /// ("stop step output at once", SPEC §8.1/§8.3).
     pub fn request_flush(&self) {
-        self.flush.store(true, Ordering::Release);
+        self.flush.store(true, Ordering::Relaxed);
+        self.raise_attention();
+    }
+
+    /// Tells the consumer to look at `flush`, `limits` and `brake_rate`
+    /// at its next step: the flag after the value (module docs).
+    fn raise_attention(&self) {
+        self.attention.store(true, Ordering::Release);
     }
 
     /// A flush was requested and the consumer has not yet carried it out.
@@ -298,7 +337,13 @@ impl StepSchedule {
     /// Arms the limit brake with a [`brake_rate`], or disarms it (`None`:
     /// homing, where the sequencer decides at the limits, SPEC §8.6).
     pub fn set_brake_rate(&self, rate: Option<u32>) {
-        self.brake_rate.store(rate.unwrap_or(0), Ordering::Relaxed);
+        let rate = rate.unwrap_or(0);
+        // thread mode is the only writer: compare, so that the drive may
+        // call it every period without sending the interrupt the slow way
+        if self.brake_rate.load(Ordering::Relaxed) != rate {
+            self.brake_rate.store(rate, Ordering::Relaxed);
+            self.raise_attention();
+        }
     }
 
     /// The interrupt's limit brake, if it has engaged and not been
@@ -327,14 +372,30 @@ impl StepSchedule {
     pub fn set_limits(&self, cw_limit: bool, ccw_limit: bool) {
         let bits =
             if cw_limit { BLOCK_BACKWARD } else { 0 } | if ccw_limit { BLOCK_FORWARD } else { 0 };
-        self.limits.store(bits, Ordering::Release);
+        if self.limits.load(Ordering::Relaxed) != bits {
+            self.limits.store(bits, Ordering::Relaxed);
+            self.raise_attention();
+        }
     }
 
     // ---- either side ----
 
     /// Raw step count: steps made forward minus steps made backward.
+    /// Derived from the running segment's end position and the steps of
+    /// it not yet made (module docs: the interrupt stores no position per
+    /// step). Call it from a context the interrupt may preempt, not from
+    /// one that may preempt the interrupt.
     pub fn position(&self) -> i32 {
-        self.position.load(Ordering::Acquire)
+        loop {
+            let seq = self.seq.load(Ordering::Acquire);
+            let end = self.seg_end.load(Ordering::Relaxed);
+            let dir = self.seg_dir.load(Ordering::Relaxed);
+            let left = self.left.load(Ordering::Relaxed);
+            fence(Ordering::Acquire);
+            if seq & 1 == 0 && self.seq.load(Ordering::Relaxed) == seq {
+                return end.wrapping_sub(dir.wrapping_mul(left as i32));
+            }
+        }
     }
 
     /// Steps are being generated (a step is scheduled on the timer).
@@ -366,35 +427,45 @@ pub struct NextStep {
 /// the next delay, or `None` (stop the timer) when the schedule ran dry or a
 /// flush was requested. DIR may be written as soon as `advance` returns: the
 /// whole interval is DIR set-up time.
+// repr(C): the per-step words in one block, so that the compiler can load
+// and store them with few instructions (module docs: worst-case cost).
+#[repr(C)]
 #[derive(Clone, Debug, Default)]
 pub struct StepSource {
-    /// Time of the pending step, Q32.32 ticks, wrapping.
-    time: u64,
-    /// Interval to the step after the pending one, Q32.32.
-    interval: u64,
-    add: u64,
-    add2: u64,
-    /// Steps of the current segment not yet scheduled.
-    remaining: u32,
+    /// Fraction of the pending step's exact time plus half a tick, Q0.32:
+    /// the delays round every exact time to the nearest tick and carry the
+    /// rest, so rounding never accumulates.
+    frac: u32,
+    /// Interval to the step after the pending one, Q32.32 ticks, as
+    /// (low, high) words; then `add` and `add2` the same way. Words, not
+    /// u64: the seven are loaded and stored as one block.
+    interval: [u32; 2],
+    add: [u32; 2],
+    add2: [u32; 2],
     forward: bool,
-    /// A step has been announced and not yet counted.
+    /// A step has been announced and not yet made.
     pending: bool,
-    position: i32,
     /// The limit brake is running at this rate (0 = not braking).
     braking: u32,
+}
+
+fn join(w: [u32; 2]) -> u64 {
+    u64::from(w[0]) | (u64::from(w[1]) << 32)
+}
+
+fn split(x: u64) -> [u32; 2] {
+    [x as u32, (x >> 32) as u32]
 }
 
 impl StepSource {
     pub const fn new() -> Self {
         Self {
-            time: 0,
-            interval: 0,
-            add: 0,
-            add2: 0,
-            remaining: 0,
+            frac: 0,
+            interval: [0; 2],
+            add: [0; 2],
+            add2: [0; 2],
             forward: true,
             pending: false,
-            position: 0,
             braking: 0,
         }
     }
@@ -402,15 +473,60 @@ impl StepSource {
     /// See the type docs. Constant time; the cost is in the module docs.
     #[inline]
     pub fn advance(&mut self, sched: &StepSchedule) -> Option<NextStep> {
+        // The pending step has been made: one fewer left in the segment.
+        // Relaxed: one core, one writer; thread mode only reads it
+        // (StepSchedule::position), so no barrier is needed per step.
+        let (left, idle) = sched.left.load(Ordering::Relaxed).overflowing_sub(1);
+        if sched.attention.load(Ordering::Relaxed) || idle || left == 0 {
+            // the segment is done, the interrupt was idle, or a flag changed
+            return self.advance_slow(sched);
+        }
+        sched.left.store(left, Ordering::Relaxed);
+        Some(self.announce())
+    }
+
+    /// The next step of the current run: interval from the state, then the
+    /// state one step on.
+    #[inline(always)]
+    fn announce(&mut self) -> NextStep {
+        let [ilo, ihi] = self.interval;
+        let (frac, carry) = self.frac.overflowing_add(ilo);
+        let add = join(self.add);
+        self.frac = frac;
+        self.interval = split(join(self.interval).wrapping_add(add));
+        self.add = split(add.wrapping_add(join(self.add2)));
+        NextStep {
+            delay_ticks: ihi.wrapping_add(u32::from(carry)),
+            forward: self.forward,
+        }
+    }
+
+    /// Everything but the next step of a running segment: segment ends,
+    /// starts from rest, flush, limits, the brake. Constant time too.
+    #[inline(never)]
+    fn advance_slow(&mut self, sched: &StepSchedule) -> Option<NextStep> {
+        let mut left = sched.left.load(Ordering::Relaxed);
         if self.pending {
-            self.position = self
-                .position
-                .wrapping_add(if self.forward { 1 } else { -1 });
-            sched.position.store(self.position, Ordering::Release);
+            if self.braking != 0 {
+                // brake steps belong to no segment: count them in seg_end
+                let dir = sched.seg_dir.load(Ordering::Relaxed);
+                let end = sched.seg_end.load(Ordering::Relaxed).wrapping_add(dir);
+                sched.set_segment_state(end, dir, 0);
+            } else {
+                left = left.wrapping_sub(1);
+                sched.left.store(left, Ordering::Relaxed);
+            }
         } else {
-            // Starting from rest: put the time origin half a tick in so that
-            // the integer delays round every exact time to the nearest tick.
-            self.time = 1 << (TICK_FRAC_BITS - 1);
+            // Starting from rest: put the time origin half a tick in so
+            // that the integer delays round every exact time to the nearest
+            // tick.
+            self.frac = 1 << (TICK_FRAC_BITS - 1);
+        }
+        if sched.attention.load(Ordering::Relaxed) {
+            // Clear first, then read the flags: a change made after this
+            // raises it again (the writers store the value, then the flag).
+            sched.attention.store(false, Ordering::Relaxed);
+            fence(Ordering::SeqCst);
         }
         if self.braking != 0 {
             return self.brake_step(sched, self.braking);
@@ -421,7 +537,7 @@ impl StepSource {
             self.drop_all(sched);
             return None;
         }
-        if self.remaining == 0 && !self.load_segment(sched) {
+        if left == 0 && !self.load_segment(sched) {
             self.pending = false;
             sched.running.store(false, Ordering::Release);
             return None;
@@ -437,36 +553,36 @@ impl StepSource {
                 let dir = if self.forward { BRAKE_FORWARD } else { 0 };
                 sched.brake.store(BRAKE_ACTIVE | dir, Ordering::Release);
                 self.braking = rate;
+                // the rest of the segment is not made: position = made
+                sched.set_segment_state(sched.position(), Self::dir(self.forward), 0);
                 return self.brake_step(sched, rate);
             }
         }
-        self.remaining -= 1;
-        let interval = self.interval;
-        self.interval = self.interval.wrapping_add(self.add);
-        self.add = self.add.wrapping_add(self.add2);
-        Some(self.announce(interval))
+        self.pending = true;
+        Some(self.announce())
     }
 
-    /// The next step `interval` (Q32.32) after the pending one.
-    fn announce(&mut self, interval: u64) -> NextStep {
-        let before = self.time;
-        self.time = before.wrapping_add(interval);
-        self.pending = true;
-        let delay =
-            ((self.time >> TICK_FRAC_BITS) as u32).wrapping_sub((before >> TICK_FRAC_BITS) as u32);
-        NextStep {
-            delay_ticks: delay,
-            forward: self.forward,
+    fn dir(forward: bool) -> i32 {
+        if forward {
+            1
+        } else {
+            -1
         }
+    }
+
+    /// The step after the pending one `interval` (Q32.32) after it.
+    fn announce_interval(&mut self, interval: u64) -> NextStep {
+        self.interval = split(interval);
+        self.add = [0; 2];
+        self.add2 = [0; 2];
+        self.pending = true;
+        self.announce()
     }
 
     /// One step of the limit brake (module docs), or its end.
     fn brake_step(&mut self, sched: &StepSchedule, rate: u32) -> Option<NextStep> {
-        match brake_interval(self.interval, rate) {
-            Some(p) => {
-                self.interval = p;
-                Some(self.announce(p))
-            }
+        match brake_interval(join(self.interval), rate) {
+            Some(p) => Some(self.announce_interval(p)),
             None => {
                 self.braking = 0;
                 self.drop_all(sched);
@@ -490,16 +606,11 @@ impl StepSource {
         self.drop_all(sched);
     }
 
-    /// Exact time of the announced step (Q32.32 ticks since this run
-    /// started at rest, wrapping): what the delays approximate to the
-    /// nearest tick. For tests and traces; the interrupt does not need it.
-    pub fn scheduled_time(&self) -> u64 {
-        self.time.wrapping_sub(1 << (TICK_FRAC_BITS - 1))
-    }
-
-    /// Raw step count as the interrupt knows it.
-    pub fn position(&self) -> i32 {
-        self.position
+    /// Exact time of the announced step minus the tick it is announced at
+    /// (Q32.32, signed, within ±½ tick): the rounding the delays carry.
+    /// For tests and traces; the interrupt does not need it.
+    pub fn rounding_q32(&self) -> i64 {
+        i64::from(self.frac) - (1 << (TICK_FRAC_BITS - 1))
     }
 
     fn load_segment(&mut self, sched: &StepSchedule) -> bool {
@@ -508,15 +619,20 @@ impl StepSource {
             return false;
         }
         let w = &sched.slots[tail as usize % SCHEDULE_SLOTS].words;
-        self.interval = u64::from(w[0].load(Ordering::Relaxed))
-            | (u64::from(w[1].load(Ordering::Relaxed)) << 32);
-        self.add = u64::from(w[2].load(Ordering::Relaxed))
-            | (u64::from(w[3].load(Ordering::Relaxed)) << 32);
-        self.add2 = u64::from(w[4].load(Ordering::Relaxed))
-            | (u64::from(w[5].load(Ordering::Relaxed)) << 32);
+        let word = |i: usize| w[i].load(Ordering::Relaxed);
+        self.interval = [word(0), word(1)];
+        self.add = [word(2), word(3)];
+        self.add2 = [word(4), word(5)];
         let count = w[6].load(Ordering::Relaxed);
         self.forward = count & FORWARD_BIT != 0;
-        self.remaining = count & !FORWARD_BIT;
+        let count = count & !FORWARD_BIT;
+        let dir = Self::dir(self.forward);
+        // the made position is the old segment's end (left == 0)
+        let end = sched
+            .seg_end
+            .load(Ordering::Relaxed)
+            .wrapping_add(dir.wrapping_mul(count as i32));
+        sched.set_segment_state(end, dir, count);
         sched.tail.store(tail.wrapping_add(1), Ordering::Release);
         sched.running.store(true, Ordering::Release);
         true
@@ -524,12 +640,28 @@ impl StepSource {
 
     fn drop_all(&mut self, sched: &StepSchedule) {
         self.pending = false;
-        self.remaining = 0;
+        let made = sched.position();
+        sched.set_segment_state(made, sched.seg_dir.load(Ordering::Relaxed), 0);
         sched
             .tail
             .store(sched.head.load(Ordering::Acquire), Ordering::Release);
         sched.running.store(false, Ordering::Release);
         sched.flush.store(false, Ordering::Release);
+    }
+}
+
+impl StepSchedule {
+    /// Consumer only: the running segment's end position, direction and
+    /// steps left, under the sequence count that [`StepSchedule::position`]
+    /// reads them with.
+    fn set_segment_state(&self, end: i32, dir: i32, left: u32) {
+        let seq = self.seq.load(Ordering::Relaxed);
+        self.seq.store(seq.wrapping_add(1), Ordering::Relaxed);
+        fence(Ordering::Release);
+        self.seg_end.store(end, Ordering::Relaxed);
+        self.seg_dir.store(dir, Ordering::Relaxed);
+        self.left.store(left, Ordering::Relaxed);
+        self.seq.store(seq.wrapping_add(2), Ordering::Release);
     }
 }
 
@@ -574,6 +706,35 @@ mod tests {
         assert_eq!(sched.position(), 3 - 4);
         assert!(!sched.is_running());
         assert!(sched.is_empty());
+    }
+
+    /// The position is derived (no per-step store): after every call it
+    /// counts exactly the steps made, across segment ends, reversals, a
+    /// flush and a stop (issue 3: steps counted equal the schedule).
+    #[test]
+    fn derived_position_counts_the_steps_made() {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.push(seg(10 * ONE, 0, 0, 3, true)).unwrap();
+        sched.push(seg(10 * ONE, 0, 0, 2, false)).unwrap();
+        sched.push(seg(10 * ONE, 0, 0, 4, true)).unwrap();
+        let mut made = 0i32;
+        let mut pending: Option<bool> = None;
+        for _ in 0..6 {
+            if let Some(fwd) = pending {
+                made += if fwd { 1 } else { -1 };
+            }
+            pending = src.advance(&sched).map(|s| s.forward);
+            assert_eq!(sched.position(), made);
+        }
+        sched.request_flush();
+        made += if pending.unwrap() { 1 } else { -1 };
+        assert_eq!(src.advance(&sched), None);
+        assert_eq!(sched.position(), made);
+        assert_eq!(made, 3 - 2 + 1);
+        sched.push(seg(10 * ONE, 0, 0, 2, false)).unwrap();
+        while src.advance(&sched).is_some() {}
+        assert_eq!(sched.position(), made - 2);
     }
 
     #[test]

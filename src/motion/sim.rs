@@ -63,8 +63,6 @@ pub struct SimAxis {
     now: u64,
     /// Tick and direction of the step the interrupt has announced.
     next: Option<(u64, bool)>,
-    /// Q32.32 tick at which the interrupt's current run started.
-    run_origin: u64,
     position: i64,
     cw_limit: Option<i64>,
     ccw_limit: Option<i64>,
@@ -80,7 +78,6 @@ impl SimAxis {
             tick_hz,
             now: 0,
             next: None,
-            run_origin: 0,
             position: 0,
             cw_limit: None,
             ccw_limit: None,
@@ -146,7 +143,6 @@ impl SimAxis {
     pub fn kick(&mut self, sched: &StepSchedule) {
         if self.next.is_none() && !sched.is_empty() {
             let now = self.now;
-            self.run_origin = now << 32;
             self.next = self
                 .source
                 .advance(sched)
@@ -176,7 +172,7 @@ impl SimAxis {
             self.steps += 1;
             on_step(StepRecord {
                 tick,
-                exact: self.run_origin.wrapping_add(self.source.scheduled_time()),
+                exact: (tick << 32).wrapping_add(self.source.rounding_q32() as u64),
                 position: self.position,
                 forward,
             });

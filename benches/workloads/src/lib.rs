@@ -485,7 +485,7 @@ pub fn simulate_move(target: i64, clock: fn() -> u32) -> MoveCost {
             break;
         }
     }
-    cost.final_position = src.position();
-    cost.steps = src.position().unsigned_abs();
+    cost.final_position = sched.position();
+    cost.steps = sched.position().unsigned_abs();
     cost
 }
