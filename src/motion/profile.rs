@@ -84,6 +84,10 @@ pub struct Profile {
     /// v² at the end (exact; the pieces' rounded boundaries would leave a
     /// remainder of less than one slope unit).
     w_end: u128,
+    /// v² of the cruise piece (exact: the ramp before it ends on a rounded
+    /// boundary, whose v² is short by up to one slope unit — 3e-7 of the
+    /// speed, 1 µs after 100 slow steps).
+    w_cruise: u128,
 }
 
 impl Profile {
@@ -112,6 +116,7 @@ impl Profile {
         let x_ce = d.saturating_sub(fall_len);
         let mut p = Self::start(forward, Some(steps), w0, t0, tick_hz);
         p.w_end = we;
+        p.w_cruise = wc;
         if w0 <= wc {
             let x_rc = (wc - w0).checked_div(su).unwrap_or(0);
             if x_rc <= x_ce {
@@ -143,6 +148,7 @@ impl Profile {
         tick_hz: u32,
     ) -> Self {
         let mut p = Self::start(forward, None, w0, t0, tick_hz);
+        p.w_cruise = wc;
         if w0 <= wc {
             p.push((wc - w0).checked_div(su).unwrap_or(0), su as i128);
         } else {
@@ -173,6 +179,7 @@ impl Profile {
             at: t0,
             k_time: 20 * u128::from(tick_hz),
             w_end: 0,
+            w_cruise: w0,
         }
     }
 
@@ -252,7 +259,9 @@ impl Profile {
         let dx = x - self.ax;
         let w = if self.steps.is_some_and(|s| x == u128::from(s) << X_FRAC) {
             self.w_end
-        } else if slope >= 0 {
+        } else if slope == 0 {
+            self.w_cruise
+        } else if slope > 0 {
             self.aw + slope as u128 * dx
         } else {
             self.aw.saturating_sub(slope.unsigned_abs() * dx)
