@@ -18,8 +18,10 @@
 //! interrupt will accumulate are tracked exactly (`t_isr`), so nothing
 //! drifts.
 //!
-//! Cost per segment: three profile evaluations (u128 square root and
-//! division) and a few multiplications; segments hold tens to thousands of
+//! Cost per segment: three profile evaluations (a square root and a
+//! division each, on 128-bit numbers but through 64-bit routines:
+//! `profile::isqrt`, `profile::div`) and a few multiplications; the fit
+//! divides by `C(n,2)` and `C(n,3)` the same way; segments hold tens to thousands of
 //! steps once the speed is above `sqrt(64·a)` steps/s (below that they are
 //! single steps, at a step rate low enough not to matter).
 
@@ -318,8 +320,14 @@ impl Planner {
 
     /// Converts µs of the control clock to Q32.32 ticks (wrapping).
     fn ticks_q(&self, us: u64) -> u64 {
-        let ticks = u128::from(us) * u128::from(self.cfg.tick_hz) / 1_000_000;
-        (ticks as u64) << TICK_FRAC_BITS
+        let hz = self.cfg.tick_hz;
+        // whole MHz (every timer the drive uses): one multiplication
+        let ticks = if hz.is_multiple_of(1_000_000) {
+            us.wrapping_mul(u64::from(hz / 1_000_000))
+        } else {
+            (u128::from(us) * u128::from(hz) / 1_000_000) as u64
+        };
+        ticks << TICK_FRAC_BITS
     }
 
     /// Appends segments until `now_us + horizon` is covered, the ring is
@@ -507,10 +515,10 @@ impl Planner {
                 (t_last, fit_segment(n, first, last, span))
             }
         };
-        let n_i = i128::from(n);
-        let span = n_i * i128::from(first)
-            + n_i * (n_i - 1) / 2 * i128::from(add)
-            + n_i * (n_i - 1) * (n_i - 2) / 6 * i128::from(add2);
+        let (c2, c3) = pair_triple(n);
+        let span = i128::from(n) * i128::from(first)
+            + i128::from(c2) * i128::from(add)
+            + i128::from(c3) * i128::from(add2);
         self.t_isr = self.t_isr.wrapping_add(span as u64);
         self.t_ideal = t_last;
         self.planned_steps = self.planned_steps.wrapping_add(n);
@@ -550,10 +558,29 @@ fn fit_segment(n: u64, first: u64, last: u64, span: u64) -> (i64, i64) {
     let n = i128::from(n);
     let p = i128::from(last) - i128::from(first);
     let s = i128::from(span) - n * i128::from(first);
-    let round_div =
-        |num: i128, den: i128| (2 * num + if num >= 0 { den } else { -den }) / (2 * den);
-    let add2 = round_div(6 * (n * p - 2 * s), n * (n - 1) * (n - 2));
-    let c3 = n * (n - 1) * (n - 2) / 6;
-    let add = round_div(s - c3 * add2, n * (n - 1) / 2);
+    let (c2, c3) = pair_triple(n as u64);
+    let add2 = round_div(n * p - 2 * s, c3);
+    let add = round_div(s - i128::from(c3) * add2, c2);
     (add as i64, add2 as i64)
+}
+
+/// `C(n,2)` and `C(n,3)`: exact in 64 bits for `n ≤ 2^20`
+/// (`MAX_PLANNED_SEGMENT`).
+fn pair_triple(n: u64) -> (u64, u64) {
+    let c2 = n * n.saturating_sub(1) / 2;
+    (c2, c2 * n.saturating_sub(2) / 3)
+}
+
+/// `num / den` rounded to nearest, ties away from zero, through the fast
+/// 128-by-64 division (profile.rs) on the magnitude.
+fn round_div(num: i128, den: u64) -> i128 {
+    let q = super::profile::div(
+        2 * num.unsigned_abs() + u128::from(den),
+        2 * u128::from(den),
+    );
+    if num < 0 {
+        -(q as i128)
+    } else {
+        q as i128
+    }
 }

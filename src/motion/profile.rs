@@ -14,8 +14,10 @@
 //! makes the v² slope `20·A` per step (`20·A·2^8` per Q32 position unit);
 //! times in timer ticks, Q32.32, wrapping.
 //!
-//! This runs in thread mode once per schedule segment (u128 maths), never in
-//! the step interrupt.
+//! This runs in thread mode once per schedule segment (u128 numbers, but
+//! the root and the division go through 64-bit routines, `isqrt` and
+//! `div`: a generic u128 division is a long software loop on a 32-bit
+//! core), never in the step interrupt.
 
 /// Fractional bits of fixed-point velocities.
 pub const V_FRAC: u32 = 20;
@@ -234,7 +236,7 @@ impl Profile {
             avail
         } else {
             let s = piece.slope.unsigned_abs();
-            let n = self.aw / (s << (X_FRAC + SEGMENT_DV_SHIFT - 1));
+            let n = div(self.aw, s << (X_FRAC + SEGMENT_DV_SHIFT - 1));
             let n = if piece.slope < 0 { n - (n >> 6) } else { n };
             n.min(u128::from(avail)) as u64
         };
@@ -266,15 +268,117 @@ impl Profile {
         } else {
             self.aw.saturating_sub(slope.unsigned_abs() * dx)
         };
-        let v = w.isqrt();
+        // cruise: same v² as the anchor, same v (no root)
+        let v = if w == self.aw { self.av } else { isqrt(w) };
         let den = self.av + v;
         if dx > 0 && den > 0 {
-            let dt = self.k_time * dx * (1u128 << V_FRAC) / den;
+            let dt = div(self.k_time * dx * (1u128 << V_FRAC), den);
             self.at = self.at.wrapping_add(dt as u64);
         }
         self.ax = x;
         self.aw = w;
         self.av = v;
+    }
+}
+
+/// `n / d`, through [`div_u128_by_u64`] when the quotient fits 64 bits
+/// and `d` does (always, for the planner's numbers): a generic u128
+/// division is a long software loop on a 32-bit core.
+pub(crate) fn div(n: u128, d: u128) -> u128 {
+    match u64::try_from(d) {
+        Ok(d64) if d64 != 0 && n >> 64 < d => u128::from(div_u128_by_u64(n, d64)),
+        _ => n / d,
+    }
+}
+
+/// `n / d` for `n >> 64 < d` (the quotient fits 64 bits): Knuth's
+/// algorithm D with two 32-bit digits (Hacker's Delight `divlu`), two
+/// 64-by-32 divisions.
+fn div_u128_by_u64(n: u128, d: u64) -> u64 {
+    const B: u64 = 1 << 32;
+    let (u1, u0) = ((n >> 64) as u64, n as u64);
+    let s = d.leading_zeros();
+    let v = d << s;
+    let (vn1, vn0) = (v >> 32, v & (B - 1));
+    let un32 = if s == 0 {
+        u1
+    } else {
+        (u1 << s) | (u0 >> (64 - s))
+    };
+    let un10 = u0 << s;
+    let (un1, un0) = (un10 >> 32, un10 & (B - 1));
+    // one quotient digit of (hi:lo) / v, Knuth's estimate from the top
+    // digit then at most two corrections
+    let digit = |hi: u64, lo: u64| {
+        let (mut q, mut r) = if hi >> 32 >= vn1 {
+            (B - 1, hi - (B - 1) * vn1)
+        } else {
+            let q = u64::from(div_u64_by_u32(hi, vn1 as u32));
+            (q, hi - q * vn1)
+        };
+        while r < B && q * vn0 > (r << 32) + lo {
+            q -= 1;
+            r += vn1;
+        }
+        q
+    };
+    let q1 = digit(un32, un1);
+    let un21 = (un32 << 32)
+        .wrapping_add(un1)
+        .wrapping_sub(q1.wrapping_mul(v));
+    let q0 = digit(un21, un0);
+    (q1 << 32) | q0
+}
+
+/// `u / v` for a normalised `v` (top bit set) and `u >> 32 < v`, with
+/// 32-bit divisions only (the Cortex-M `udiv`; a 64-bit division is a
+/// software routine there): `divlu` on 16-bit half digits.
+fn div_u64_by_u32(u: u64, v: u32) -> u32 {
+    const B: u32 = 1 << 16;
+    let (vn1, vn0) = (v >> 16, v & (B - 1));
+    let un32 = (u >> 32) as u32;
+    let un10 = u as u32;
+    let (un1, un0) = (un10 >> 16, un10 & (B - 1));
+    let digit = |hi: u32, lo: u32| {
+        let mut q = hi / vn1;
+        let mut r = hi - q * vn1;
+        while q >= B || q * vn0 > (r << 16) + lo {
+            q -= 1;
+            r += vn1;
+            if r >= B {
+                break;
+            }
+        }
+        q
+    };
+    let q1 = digit(un32, un1);
+    let un21 = (un32 << 16)
+        .wrapping_add(un1)
+        .wrapping_sub(q1.wrapping_mul(v));
+    let q0 = digit(un21, un0);
+    (q1 << 16) | q0
+}
+
+/// `⌊√w⌋`: the root of the top 64 bits, then one Newton step with a
+/// 128-by-64 division (within ±1, then corrected).
+fn isqrt(w: u128) -> u128 {
+    let bits = 128 - w.leading_zeros();
+    if bits <= 64 {
+        return u128::from((w as u64).isqrt());
+    }
+    if bits > 124 {
+        return w.isqrt(); // the Newton step below is exact to ±1 up to here
+    }
+    let k = (bits - 63) / 2; // w >> 2k keeps 63 or 64 bits
+    let y0 = u128::from(((w >> (2 * k)) as u64).isqrt()) << k;
+    // y0 ≤ √w within 2^-31; w / y0 < 2^64 since √w < 2^64
+    let y = (y0 + div(w, y0)) / 2;
+    if y * y > w {
+        y - 1
+    } else if (y + 1) * (y + 1) <= w {
+        y + 1
+    } else {
+        y
     }
 }
 
@@ -336,6 +440,58 @@ mod tests {
             p.advance(n);
         }
         assert_eq!(p.w(), 0);
+    }
+
+    /// The fast root and divisions agree with the generic ones, at the
+    /// edges of their ranges and on random numbers.
+    #[test]
+    fn fast_isqrt_and_division_are_exact() {
+        let mut y: u64 = 0x2545_F491_4F6C_DD1D;
+        for i in 0..100_000u32 {
+            y ^= y << 13;
+            y ^= y >> 7;
+            y ^= y << 17;
+            let v = (y as u32) | 1 << 31;
+            let u = (y >> (i % 64)) % (u64::from(v) << 32);
+            assert_eq!(
+                u64::from(div_u64_by_u32(u, v)),
+                u / u64::from(v),
+                "{u} / {v}"
+            );
+        }
+        let mut x: u128 = 0x9E37_79B9_7F4A_7C15_F39C_C060_5CED_C834;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        for i in 0..20_000u32 {
+            let w = next() >> (i % 128);
+            assert_eq!(isqrt(w), w.isqrt(), "isqrt {w}");
+            let d = (next() >> (64 + i % 64)).max(1);
+            let n = next() >> (i % 128);
+            assert_eq!(div(n, d), n / d, "{n} / {d}");
+        }
+        for w in [
+            0u128,
+            1,
+            3,
+            4,
+            u128::from(u64::MAX),
+            1 << 64,
+            (1 << 84) - 1,
+            u128::MAX,
+        ] {
+            assert_eq!(isqrt(w), w.isqrt(), "isqrt {w}");
+        }
+        for (n, d) in [
+            (u128::MAX, u128::MAX),
+            ((1 << 64) - 1, 1),
+            (u128::from(u64::MAX) << 64 | 5, u128::from(u64::MAX)),
+        ] {
+            assert_eq!(div(n, d), n / d);
+        }
     }
 
     #[test]
