@@ -12,7 +12,8 @@ mod table;
 
 pub use legacy::{Block as LegacyBlock, PA_BASE, PA_LAST};
 pub use table::{
-    position, string_bytes, Access, DataType, Entry, Object, STRING_BYTES, STRING_WORDS, TABLE,
+    position, string_bytes, Access, DataType, Entry, Object, Span, STRING_BYTES, STRING_WORDS,
+    TABLE,
 };
 
 use crate::params::{DriveMonitor, EeOp, Params, StoreStatus};
@@ -194,19 +195,18 @@ impl<D: DriveLayer> Registers<'_, D> {
         let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
         match region {
             Region::Table(first) => {
-                // One pass: emit while walking, decide after it in the §5.2
-                // order (range 2, then access 7, then busy 6). Reading a WO
-                // entry on the way has no effect; its words are discarded.
+                // §5.2 order: range 2, access 7, busy 6 — all known from
+                // the span before a word is read.
+                let span = Span::new(first, quantity).ok_or(Exception::IllegalDataAddress)?;
+                if span.any_write_only() {
+                    return Err(Exception::ReadWriteOnly);
+                }
+                if self.busy {
+                    return Err(Exception::Busy);
+                }
                 let low_word_first = self.od.word_order == 1;
-                let quantity = usize::from(quantity);
                 let mut at = 0;
-                let mut pos = first;
-                let mut write_only = false;
-                while at < quantity {
-                    let Some(e) = TABLE.get(pos) else {
-                        return Err(Exception::IllegalDataAddress); // past the last entry
-                    };
-                    write_only |= !e.access.readable();
+                for e in span.entries() {
                     match e.data_type {
                         DataType::U16 | DataType::I16 => {
                             put_word(out, at, e.object.read_raw(self.od, self.drive) as u16)
@@ -229,16 +229,6 @@ impl<D: DriveLayer> Registers<'_, D> {
                         }
                     }
                     at += usize::from(e.words());
-                    pos += 1;
-                }
-                if at != quantity {
-                    return Err(Exception::IllegalDataAddress); // ends inside an entry
-                }
-                if write_only {
-                    return Err(Exception::ReadWriteOnly);
-                }
-                if self.busy {
-                    return Err(Exception::Busy);
                 }
             }
             Region::Legacy(block) => {
@@ -277,55 +267,67 @@ impl<D: DriveLayer> Registers<'_, D> {
                 .map(|c| u16::from_be_bytes([c[0], c[1]]))
         };
         match region {
-            Region::Table(first) => {
-                if single && TABLE[first].words() > 1 {
+            Region::Table(first) if single => {
+                // 0x06: one entry of one word, the same checks without a
+                // walk (issue 7).
+                let e = TABLE.get(first).ok_or(Exception::NoSuchRegister)?;
+                if e.words() > 1 {
                     return Err(Exception::ByteCountMismatch); // step 5
                 }
-                // One pass storing into a copy, decided after it in the
-                // §5.2 order (range 2, access 5, value 3, busy 6); the copy
-                // replaces the values only if all of it passed.
-                // The order in force when the request arrived applies to all
-                // of it, even to a request that writes 0x6000 (§5.1).
-                let low_word_first = self.od.word_order == 1;
-                let mut shadow = self.od.clone();
-                let quantity = usize::from(quantity);
-                let mut at = 0;
-                let mut pos = first;
-                let (mut read_only, mut out_of_range) = (false, false);
-                let (mut mode_written, mut controlword_written) = (false, false);
-                while at < quantity {
-                    let Some(e) = TABLE.get(pos) else {
-                        return Err(Exception::IllegalDataAddress); // past the last entry
-                    };
-                    let raw = if e.words() == 2 {
-                        join_words(word(data, at), word(data, at + 1), low_word_first)
-                    } else {
-                        u32::from(word(data, at))
-                    };
-                    read_only |= !e.access.writable();
-                    out_of_range |= !e.object.accepts(raw);
-                    e.object.store_raw(&mut shadow, raw);
-                    mode_written |= e.object == Object::ModeOfOperation;
-                    controlword_written |= e.object == Object::Controlword;
-                    at += usize::from(e.words());
-                    pos += 1;
-                }
-                if at != quantity {
-                    return Err(Exception::IllegalDataAddress); // ends inside an entry
-                }
-                if read_only {
+                if !e.access.writable() {
                     return Err(Exception::WriteReadOnly);
                 }
-                if out_of_range {
+                let raw = u32::from(word(data, 0));
+                if !e.object.accepts(raw) {
                     return Err(Exception::IllegalDataValue);
                 }
                 if self.busy {
                     return Err(Exception::Busy);
                 }
-                *self.od = shadow;
+                e.object.store_raw(self.od, raw);
                 self.notify(
-                    mode_written.then_some(self.od.mode),
-                    controlword_written.then_some(self.od.controlword),
+                    (e.object == Object::ModeOfOperation).then_some(self.od.mode),
+                    (e.object == Object::Controlword).then_some(self.od.controlword),
+                );
+            }
+            Region::Table(first) => {
+                // Checked in the §5.2 order (range 2, access 5, value 3,
+                // busy 6) before anything is stored, then stored straight
+                // into the values: all-or-nothing without a copy (issue 7).
+                // Only the entries with a range look at their values.
+                let span = Span::new(first, quantity).ok_or(Exception::IllegalDataAddress)?;
+                if span.any_read_only() {
+                    return Err(Exception::WriteReadOnly);
+                }
+                // Ranged entries are one word each (table.rs): their word
+                // is found without decoding the others.
+                for (e, at) in span.ranged() {
+                    if !e.object.accepts(u32::from(word(data, at))) {
+                        return Err(Exception::IllegalDataValue);
+                    }
+                }
+                if self.busy {
+                    return Err(Exception::Busy);
+                }
+                // The order in force when the request arrived applies to all
+                // of it, even to a request that writes 0x6000 (§5.1).
+                let low_word_first = self.od.word_order == 1;
+                let mut words = data
+                    .chunks_exact(2)
+                    .map(|c| u16::from_be_bytes([c[0], c[1]]));
+                for e in span.entries() {
+                    // the span ends on an entry boundary: no word is missing
+                    let first_word = words.next().unwrap_or(0);
+                    let raw = if e.words() == 2 {
+                        join_words(first_word, words.next().unwrap_or(0), low_word_first)
+                    } else {
+                        u32::from(first_word)
+                    };
+                    e.object.store_raw(self.od, raw);
+                }
+                self.notify(
+                    span.covers(Object::ModeOfOperation).then_some(self.od.mode),
+                    span.covers(Object::Controlword).then_some(self.od.controlword),
                 );
             }
             Region::Legacy(block) => {

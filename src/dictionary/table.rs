@@ -139,6 +139,139 @@ pub const TABLE: [Entry; 22] = [
     entry(0x606C, Object::ActualVelocity, Ro, I32),
 ];
 
+/// Words of the whole table, in table order.
+const TABLE_WORDS: usize = {
+    let mut n = 0;
+    let mut p = 0;
+    while p < TABLE.len() {
+        n += TABLE[p].words() as usize;
+        p += 1;
+    }
+    n
+};
+
+/// `WORD_AT[p]`: words of the entries before position `p` (`WORD_AT[22]`
+/// is [`TABLE_WORDS`]).
+const WORD_AT: [u8; TABLE.len() + 1] = {
+    let mut at = [0u8; TABLE.len() + 1];
+    let mut p = 0;
+    while p < TABLE.len() {
+        at[p + 1] = at[p] + TABLE[p].words() as u8;
+        p += 1;
+    }
+    at
+};
+
+/// Marks a word inside an entry in [`POSITION_AT_WORD`].
+const INSIDE: u8 = u8::MAX;
+
+/// `POSITION_AT_WORD[w]`: the position whose first word is word `w` of the
+/// table ([`TABLE`]`.len()` at the end), [`INSIDE`] for a word inside an entry.
+const POSITION_AT_WORD: [u8; TABLE_WORDS + 1] = {
+    let mut pos = [INSIDE; TABLE_WORDS + 1];
+    let mut p = 0;
+    while p <= TABLE.len() {
+        pos[WORD_AT[p] as usize] = p as u8;
+        p += 1;
+    }
+    pos
+};
+
+/// What [`positions`] collects.
+#[derive(Clone, Copy)]
+enum Trait {
+    ReadOnly,
+    WriteOnly,
+    Ranged,
+}
+
+/// Positions of the entries that have `t`, as bits.
+const fn positions(t: Trait) -> u32 {
+    let mut mask = 0;
+    let mut p = 0;
+    while p < TABLE.len() {
+        let e = &TABLE[p];
+        let has = match t {
+            Trait::ReadOnly => !e.access.writable(),
+            Trait::WriteOnly => !e.access.readable(),
+            Trait::Ranged => e.object.ranged(),
+        };
+        if has {
+            mask |= 1 << p;
+        }
+        p += 1;
+    }
+    mask
+}
+
+/// The entries one request covers: positions `first..end` of [`TABLE`].
+///
+/// Found with two table look-ups instead of a walk, so that a request is
+/// checked (§5.2 steps 6, 7 and 8) before anything is read or stored: a
+/// write then stores straight into the values, with no copy to commit or
+/// throw away (issue 7).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Span {
+    pub first: usize,
+    pub end: usize,
+    /// Bit `p` set for every position covered.
+    mask: u32,
+}
+
+impl Span {
+    /// The span of `quantity` words from position `first`, if it ends on an
+    /// entry boundary inside the table (else exception 2, §5.2 step 6).
+    pub fn new(first: usize, quantity: u16) -> Option<Self> {
+        let end_word = usize::from(*WORD_AT.get(first)?) + usize::from(quantity);
+        let end = usize::from(*POSITION_AT_WORD.get(end_word)?);
+        if end == usize::from(INSIDE) {
+            return None;
+        }
+        Some(Self {
+            first,
+            end,
+            // end ≤ 22: no shift overflows
+            mask: ((1u32 << end) - 1) & !((1u32 << first) - 1),
+        })
+    }
+
+    /// The covered entries, in table order.
+    pub fn entries(self) -> &'static [Entry] {
+        TABLE.get(self.first..self.end).unwrap_or(&[])
+    }
+
+    /// A read-only entry is covered (a write gets exception 5).
+    pub fn any_read_only(self) -> bool {
+        const RO: u32 = positions(Trait::ReadOnly);
+        self.mask & RO != 0
+    }
+
+    /// A write-only entry is covered (a read gets exception 7).
+    pub fn any_write_only(self) -> bool {
+        const WO: u32 = positions(Trait::WriteOnly);
+        self.mask & WO != 0
+    }
+
+    /// `object` is covered.
+    pub fn covers(self, object: Object) -> bool {
+        self.mask & (1 << object as u32) != 0
+    }
+
+    /// The covered entries whose values have a range (§5.2 step 8), each
+    /// with the index of its first word in the request.
+    pub fn ranged(self) -> impl Iterator<Item = (&'static Entry, usize)> {
+        const RANGED: u32 = positions(Trait::Ranged);
+        let base = WORD_AT[self.first];
+        let mut left = self.mask & RANGED;
+        core::iter::from_fn(move || {
+            let p = left.trailing_zeros() as usize;
+            let e = TABLE.get(p)?;
+            left &= left - 1;
+            Some((e, usize::from(WORD_AT[p] - base)))
+        })
+    }
+}
+
 /// Position in [`TABLE`] of the entry whose index is `address`.
 pub const fn position(address: u16) -> Option<usize> {
     let object = match address {
@@ -170,8 +303,17 @@ pub const fn position(address: u16) -> Option<usize> {
 }
 
 impl Object {
+    /// Whether [`Object::accepts`] refuses some value.
+    pub const fn ranged(self) -> bool {
+        matches!(
+            self,
+            Self::WordOrder | Self::QuickStopOption | Self::ModeOfOperation | Self::HomingMethod
+        )
+    }
+
     /// Whether a written value is in range (§5.2 step 8). `raw` holds the
     /// value's bits: one word zero-extended, or both words as one `u32`.
+    #[inline]
     pub const fn accepts(self, raw: u32) -> bool {
         match self {
             Self::WordOrder => raw <= 1,
@@ -186,10 +328,14 @@ impl Object {
     }
 
     /// The value of a numeric entry as raw bits (see [`Object::accepts`]).
-    /// Strings read 0 here; [`string_words`] serves them.
+    /// Strings read 0 here; [`string_bytes`] serves them.
+    ///
+    /// A stored value is one load, inlined into the request walk; the live
+    /// entries go through the drive layer in [`Object::read_live`], kept
+    /// out of line so that its size does not weigh on every read (issue 7).
+    #[inline]
     pub fn read_raw<D: DriveLayer>(self, od: &OdValues, drive: &D) -> u32 {
         match self {
-            Self::ErrorRegister => u32::from(drive.error_register()),
             Self::DeviceName | Self::HardwareVersion | Self::SoftwareVersion => 0,
             Self::WordOrder => u32::from(od.word_order),
             Self::QuickStopOption => u32::from(od.quick_stop_option as u16),
@@ -205,15 +351,31 @@ impl Object {
             Self::HomingSpeed => od.homing_speed,
             Self::HomingAcceleration => u32::from(od.homing_acceleration),
             Self::HomingZeroSpeed => od.homing_zero_speed,
+            Self::ErrorRegister
+            | Self::Statusword
+            | Self::ModeDisplay
+            | Self::ActualPosition
+            | Self::ActualVelocity => self.read_live(drive),
+        }
+    }
+
+    /// The value of an entry that lives in the drive layer (0 for others).
+    #[inline(never)]
+    fn read_live<D: DriveLayer>(self, drive: &D) -> u32 {
+        match self {
+            Self::ErrorRegister => u32::from(drive.error_register()),
             Self::Statusword => u32::from(drive.statusword()),
             Self::ModeDisplay => u32::from(drive.mode_display() as u16),
             Self::ActualPosition => drive.actual_position() as u32,
             Self::ActualVelocity => drive.actual_velocity_rpm() as u32,
+            _ => 0,
         }
     }
 
     /// Stores a validated value of a writable entry; read-only ones are
-    /// never passed here (§5.2 step 7 ran before).
+    /// never passed here (§5.2 step 7 ran before). Inlined into the
+    /// request walk: one store per entry (issue 7).
+    #[inline]
     pub fn store_raw(self, od: &mut OdValues, raw: u32) {
         match self {
             Self::WordOrder => od.word_order = raw as u16,

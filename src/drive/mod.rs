@@ -170,10 +170,20 @@ enum HomingState {
     Failed,
 }
 
-/// The configuration the drive works with (copied at each write).
+/// The configuration the drive works with: a copy of the values the
+/// master writes, and what PA10..PA20 mean in steps.
+///
+/// Kept current by [`Settings::update`] on every accepted write and every
+/// control call. A write stores the OD values (a 40-byte copy); the derived
+/// step figures are recomputed only when their PA registers changed, so a
+/// frame that writes the profile values pays no 64-bit maths (issue 7).
 #[derive(Clone, Debug, Default)]
 struct Settings {
     od: OdValues,
+    /// PA10 and PA12 as last seen (raw registers): the derived figures
+    /// below are recomputed when they change.
+    steps_per_rev_reg: u16,
+    max_speed_rpm_reg: u16,
     steps_per_rev: u64,
     /// PA12 and the maximum step rate, 0.1 steps/s.
     max_velocity: u64,
@@ -183,14 +193,27 @@ struct Settings {
 
 impl Settings {
     fn from(cfg: Config<'_>) -> Self {
+        let mut s = Self::default();
+        // not PA10's register: `update` derives the step figures
+        s.steps_per_rev_reg = cfg.pa.steps_per_rev().wrapping_add(1);
+        s.update(cfg);
+        s
+    }
+
+    /// Takes the values of `cfg`; the step figures of PA10/PA12 only when
+    /// those registers changed.
+    fn update(&mut self, cfg: Config<'_>) {
         let pa: &Params = cfg.pa;
-        let spr = u64::from(pa.steps_per_rev().max(1));
-        Self {
-            od: cfg.od.clone(),
-            steps_per_rev: spr,
-            max_velocity: rpm_to_velocity(u64::from(pa.max_speed_rpm()), spr),
-            limit_enable: pa.limit_enable(),
-            comm_loss_ms: pa.comm_loss_ms(),
+        self.od.clone_from(cfg.od);
+        self.limit_enable = pa.limit_enable();
+        self.comm_loss_ms = pa.comm_loss_ms();
+        let (spr_reg, rpm_reg) = (pa.steps_per_rev(), pa.max_speed_rpm());
+        if spr_reg != self.steps_per_rev_reg || rpm_reg != self.max_speed_rpm_reg {
+            self.steps_per_rev_reg = spr_reg;
+            self.max_speed_rpm_reg = rpm_reg;
+            let spr = u64::from(spr_reg.max(1));
+            self.steps_per_rev = spr;
+            self.max_velocity = rpm_to_velocity(u64::from(rpm_reg), spr);
         }
     }
 
@@ -430,7 +453,7 @@ impl Drive {
         sched: &StepSchedule,
         cfg: Config<'_>,
     ) {
-        self.s = Settings::from(cfg);
+        self.s.update(cfg);
         self.now_us = now_us;
         let sw = Switches {
             cw_limit: switches.cw_limit && self.s.cw_limit_enabled(),
@@ -979,15 +1002,16 @@ impl DriveLayer for Drive {
     }
 
     fn values_written(&mut self, cfg: Config<'_>) {
-        self.s = Settings::from(cfg);
+        self.s.update(cfg);
         // SPEC §8.5: writing 0x6081 while running ramps to the new speed
         if self.mode == MODE_VELOCITY && self.state == PowerState::OperationEnabled {
             self.replan = true;
         }
     }
 
-    fn mode_written(&mut self, mode: i16, cfg: Config<'_>) {
-        self.s = Settings::from(cfg);
+    // `values_written` ran just before with the same values (the
+    // dispatcher's order, `DriveLayer`): `self.s` is current.
+    fn mode_written(&mut self, mode: i16, _cfg: Config<'_>) {
         if mode == self.mode {
             return;
         }
@@ -1005,9 +1029,9 @@ impl DriveLayer for Drive {
         }
     }
 
-    fn controlword_written(&mut self, controlword: u16, cfg: Config<'_>) {
+    // As for `mode_written`: `self.s` is current.
+    fn controlword_written(&mut self, controlword: u16, _cfg: Config<'_>) {
         use PowerState::*;
-        self.s = Settings::from(cfg);
         let prev = self.controlword;
         self.controlword = controlword;
         let rising = |bit: u16| controlword & bit != 0 && prev & bit == 0;
