@@ -204,31 +204,18 @@ impl<D: DriveLayer> Registers<'_, D> {
                 if self.busy {
                     return Err(Exception::Busy);
                 }
-                let low_word_first = self.od.word_order == 1;
-                let mut at = 0;
-                for e in span.entries() {
-                    match e.data_type {
-                        DataType::U16 | DataType::I16 => {
-                            put_word(out, at, e.object.read_raw(self.od, self.drive) as u16)
-                        }
-                        DataType::U32 | DataType::I32 => {
-                            let v = e.object.read_raw(self.od, self.drive);
-                            let (first_word, second_word) = if low_word_first {
-                                (v as u16, (v >> 16) as u16)
-                            } else {
-                                ((v >> 16) as u16, v as u16)
-                            };
-                            put_word(out, at, first_word);
-                            put_word(out, at + 1, second_word);
-                        }
-                        DataType::Str => {
-                            let s = e.object.string(self.identity).unwrap_or("");
-                            for (i, pair) in string_bytes(s).chunks_exact(2).enumerate() {
-                                put_word(out, at + i, u16::from_be_bytes([pair[0], pair[1]]));
-                            }
+                match span.entries() {
+                    // One entry (a statusword, a position: the usual poll)
+                    // without the walk, whose set-up costs more than the
+                    // entry itself (issue 7).
+                    [e] => self.put_entry(e, out, 0),
+                    entries => {
+                        let mut at = 0;
+                        for e in entries {
+                            self.put_entry(e, out, at);
+                            at += usize::from(e.words());
                         }
                     }
-                    at += usize::from(e.words());
                 }
             }
             Region::Legacy(block) => {
@@ -245,6 +232,33 @@ impl<D: DriveLayer> Registers<'_, D> {
             }
         }
         Ok(())
+    }
+
+    /// The value of `e` as words big-endian into `out` from word `at`, in
+    /// the word order in force (§5.1).
+    #[inline(always)]
+    fn put_entry(&self, e: &Entry, out: &mut [u8], at: usize) {
+        match e.data_type {
+            DataType::U16 | DataType::I16 => {
+                put_word(out, at, e.object.read_raw(self.od, self.drive) as u16)
+            }
+            DataType::U32 | DataType::I32 => {
+                let v = e.object.read_raw(self.od, self.drive);
+                let (first_word, second_word) = if self.od.word_order == 1 {
+                    (v as u16, (v >> 16) as u16)
+                } else {
+                    ((v >> 16) as u16, v as u16)
+                };
+                put_word(out, at, first_word);
+                put_word(out, at + 1, second_word);
+            }
+            DataType::Str => {
+                let s = e.object.string(self.identity).unwrap_or("");
+                for (i, pair) in string_bytes(s).chunks_exact(2).enumerate() {
+                    put_word(out, at + i, u16::from_be_bytes([pair[0], pair[1]]));
+                }
+            }
+        }
     }
 
     /// Functions 0x06 (`single`) and 0x10 after the length and quantity
