@@ -369,10 +369,10 @@ fn read_holding_registers<D: DriveLayer>(
 
 /// 0x06: `06 address value` → the same frame.
 fn write_single_register<D: DriveLayer>(pdu: &[u8], regs: &mut Registers<'_, D>) -> Handled {
-    let (start, _) = address_and_word(pdu)
+    let (address, value) = address_and_word(pdu)
         .filter(|_| pdu.len() == 5)
         .ok_or(Exception::ByteCountMismatch)?;
-    regs.write(start, 1, &pdu[3..5], true)?;
+    regs.write_single(address, value)?;
     Ok(Reply::Echo)
 }
 
@@ -391,7 +391,7 @@ fn write_multiple_registers<D: DriveLayer>(
     if quantity == 0 || quantity > MAX_WRITE_QUANTITY {
         return Err(Exception::IllegalDataValue);
     }
-    regs.write(start, quantity, data, false)?;
+    regs.write(start, quantity, data)?;
     out[..5].copy_from_slice(&pdu[..5]);
     Ok(Reply::Pdu(5))
 }

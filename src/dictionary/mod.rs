@@ -124,6 +124,7 @@ enum Region {
 }
 
 impl Region {
+    #[inline]
     fn at(address: u16) -> Option<Self> {
         match position(address) {
             Some(p) => Some(Self::Table(p)),
@@ -261,49 +262,47 @@ impl<D: DriveLayer> Registers<'_, D> {
         }
     }
 
-    /// Functions 0x06 (`single`) and 0x10 after the length and quantity
-    /// checks: §5.2 steps 4..=10, all-or-nothing. `data` holds `quantity`
-    /// big-endian words. Stores every value, then tells the drive layer:
-    /// values, then mode, then controlword (§5.2).
-    pub fn write(
-        &mut self,
-        start: u16,
-        quantity: u16,
-        data: &[u8],
-        single: bool,
-    ) -> Result<(), Exception> {
+    /// Function 0x06 after the length check: §5.2 steps 4..=10 for one
+    /// word. A table entry takes the same checks as in [`Self::write`]
+    /// without a walk (issue 7).
+    pub fn write_single(&mut self, address: u16, value: u16) -> Result<(), Exception> {
+        let e = match Region::at(address).ok_or(Exception::NoSuchRegister)? {
+            Region::Table(p) => TABLE.get(p).ok_or(Exception::NoSuchRegister)?,
+            Region::Legacy(block) => {
+                return self.write_legacy(block, address, &value.to_be_bytes())
+            }
+        };
+        if e.words() > 1 {
+            return Err(Exception::ByteCountMismatch); // step 5
+        }
+        if !e.access.writable() {
+            return Err(Exception::WriteReadOnly);
+        }
+        let raw = u32::from(value);
+        if !e.object.accepts(raw) {
+            return Err(Exception::IllegalDataValue);
+        }
+        if self.busy {
+            return Err(Exception::Busy);
+        }
+        e.object.store_raw(self.od, raw);
+        self.notify(
+            (e.object == Object::ModeOfOperation).then_some(self.od.mode),
+            (e.object == Object::Controlword).then_some(self.od.controlword),
+        );
+        Ok(())
+    }
+
+    /// Function 0x10 after the length and quantity checks: §5.2 steps
+    /// 4..=10, all-or-nothing. `data` holds `quantity` big-endian words.
+    /// Stores every value, then tells the drive layer: values, then mode,
+    /// then controlword (§5.2).
+    pub fn write(&mut self, start: u16, quantity: u16, data: &[u8]) -> Result<(), Exception> {
         let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
         if data.len() != 2 * usize::from(quantity) {
             return Err(Exception::ByteCountMismatch);
         }
-        let words = || {
-            data.chunks_exact(2)
-                .map(|c| u16::from_be_bytes([c[0], c[1]]))
-        };
         match region {
-            Region::Table(first) if single => {
-                // 0x06: one entry of one word, the same checks without a
-                // walk (issue 7).
-                let e = TABLE.get(first).ok_or(Exception::NoSuchRegister)?;
-                if e.words() > 1 {
-                    return Err(Exception::ByteCountMismatch); // step 5
-                }
-                if !e.access.writable() {
-                    return Err(Exception::WriteReadOnly);
-                }
-                let raw = u32::from(word(data, 0));
-                if !e.object.accepts(raw) {
-                    return Err(Exception::IllegalDataValue);
-                }
-                if self.busy {
-                    return Err(Exception::Busy);
-                }
-                e.object.store_raw(self.od, raw);
-                self.notify(
-                    (e.object == Object::ModeOfOperation).then_some(self.od.mode),
-                    (e.object == Object::Controlword).then_some(self.od.controlword),
-                );
-            }
             Region::Table(first) => {
                 // Checked in the §5.2 order (range 2, access 5, value 3,
                 // busy 6) before anything is stored, then stored straight
@@ -344,26 +343,39 @@ impl<D: DriveLayer> Registers<'_, D> {
                     span.covers(Object::Controlword).then_some(self.od.controlword),
                 );
             }
-            Region::Legacy(block) => {
-                let last = legacy_span(block, start, quantity)?;
-                if (start..=last).any(|a| block.read_only(a)) {
-                    return Err(Exception::WriteReadOnly);
-                }
-                if !(start..=last)
-                    .zip(words())
-                    .all(|(a, v)| block.accepts(a, v))
-                {
-                    return Err(Exception::IllegalDataValue);
-                }
-                if self.busy {
-                    return Err(Exception::Busy);
-                }
-                for (a, v) in (start..=last).zip(words()) {
-                    block.store(a, v, self)?;
-                }
-                self.notify(None, None);
-            }
+            Region::Legacy(block) => self.write_legacy(block, start, data)?,
         }
+        Ok(())
+    }
+
+    /// A write to a legacy block (`data`: big-endian words from `start`).
+    fn write_legacy(
+        &mut self,
+        block: LegacyBlock,
+        start: u16,
+        data: &[u8],
+    ) -> Result<(), Exception> {
+        let words = || {
+            data.chunks_exact(2)
+                .map(|c| u16::from_be_bytes([c[0], c[1]]))
+        };
+        let last = legacy_span(block, start, (data.len() / 2) as u16)?;
+        if (start..=last).any(|a| block.read_only(a)) {
+            return Err(Exception::WriteReadOnly);
+        }
+        if !(start..=last)
+            .zip(words())
+            .all(|(a, v)| block.accepts(a, v))
+        {
+            return Err(Exception::IllegalDataValue);
+        }
+        if self.busy {
+            return Err(Exception::Busy);
+        }
+        for (a, v) in (start..=last).zip(words()) {
+            block.store(a, v, self)?;
+        }
+        self.notify(None, None);
         Ok(())
     }
 

@@ -212,8 +212,8 @@ const fn positions(t: Trait) -> u32 {
 /// throw away (issue 7).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Span {
-    pub first: usize,
-    pub end: usize,
+    entries: &'static [Entry],
+    first: usize,
     /// Bit `p` set for every position covered.
     mask: u32,
 }
@@ -221,15 +221,15 @@ pub struct Span {
 impl Span {
     /// The span of `quantity` words from position `first`, if it ends on an
     /// entry boundary inside the table (else exception 2, §5.2 step 6).
+    #[inline]
     pub fn new(first: usize, quantity: u16) -> Option<Self> {
         let end_word = usize::from(*WORD_AT.get(first)?) + usize::from(quantity);
         let end = usize::from(*POSITION_AT_WORD.get(end_word)?);
-        if end == usize::from(INSIDE) {
-            return None;
-        }
+        // INSIDE (a word inside an entry) is no position: `get` refuses it
+        let entries = TABLE.get(first..end)?;
         Some(Self {
+            entries,
             first,
-            end,
             // end ≤ 22: no shift overflows
             mask: ((1u32 << end) - 1) & !((1u32 << first) - 1),
         })
@@ -237,7 +237,7 @@ impl Span {
 
     /// The covered entries, in table order.
     pub fn entries(self) -> &'static [Entry] {
-        TABLE.get(self.first..self.end).unwrap_or(&[])
+        self.entries
     }
 
     /// A read-only entry is covered (a write gets exception 5).
