@@ -34,6 +34,7 @@ static TABLE_PAIR: [u16; 256] = {
 /// (`benches/run-qemu.sh`); every frame is checked and every reply signed,
 /// so this is a large part of a frame's cost (issue 7). Equal to
 /// `MODBUS.checksum` on every length (tested below).
+#[inline(always)]
 pub fn crc16(bytes: &[u8]) -> u16 {
     let mut crc = CRC_16_MODBUS.init;
     let mut pairs = bytes.chunks_exact(2);
