@@ -66,6 +66,8 @@ pub struct Config<'a> {
 /// [`DriveLayer::values_written`], then [`DriveLayer::mode_written`] if the
 /// request wrote 0x6060, then [`DriveLayer::controlword_written`] if it wrote
 /// 0x6040 (SPEC §5.2: mode, then controlword, after the other values).
+/// `values_written` always comes first, with the same values: the drive
+/// takes its copy there and the two others may rely on it.
 pub trait DriveLayer {
     /// 0x6041 (§8.2).
     fn statusword(&self) -> u16;

@@ -486,6 +486,71 @@ mod tests {
         }
     }
 
+    /// The entries a request of `quantity` words from `first` covers, by
+    /// walking the table word by word (what `Span` finds with look-ups).
+    fn walk(first: usize, quantity: u16) -> Option<core::ops::Range<usize>> {
+        let (mut at, mut p) = (0, first);
+        while at < usize::from(quantity) {
+            at += usize::from(TABLE.get(p)?.words());
+            p += 1;
+        }
+        (at == usize::from(quantity)).then_some(first..p)
+    }
+
+    #[test]
+    fn spans_agree_with_a_walk_of_the_table() {
+        // SPEC §5.2 steps 6 and 7: a request must end on an entry boundary
+        // inside the table; its access is that of every entry it covers.
+        for first in 0..TABLE.len() {
+            for quantity in 0..=60 {
+                let span = Span::new(first, quantity);
+                let Some(range) = walk(first, quantity) else {
+                    assert_eq!(span, None, "first {first} quantity {quantity}");
+                    continue;
+                };
+                let span = span.expect("the walk found a span");
+                let entries = &TABLE[range.clone()];
+                assert_eq!(span.entries(), entries);
+                assert_eq!(
+                    span.any_read_only(),
+                    entries.iter().any(|e| e.access == Access::Ro)
+                );
+                assert_eq!(
+                    span.any_write_only(),
+                    entries.iter().any(|e| e.access == Access::Wo)
+                );
+                for e in TABLE {
+                    assert_eq!(span.covers(e.object), range.contains(&(e.object as usize)));
+                }
+                let mut word = 0;
+                let mut ranged = std::vec::Vec::new();
+                for e in entries {
+                    if e.object.ranged() {
+                        ranged.push((e.object, word));
+                    }
+                    word += usize::from(e.words());
+                }
+                let found: std::vec::Vec<_> = span.ranged().map(|(e, w)| (e.object, w)).collect();
+                assert_eq!(found, ranged, "first {first} quantity {quantity}");
+            }
+        }
+    }
+
+    #[test]
+    fn only_ranged_one_word_entries_refuse_values() {
+        // `Registers::write` checks §5.2 step 8 on the ranged entries only,
+        // reading one word for each.
+        for e in TABLE {
+            if e.object.ranged() {
+                assert_eq!(e.words(), 1, "{e:?}");
+            } else {
+                for raw in [0, 1, 0x7FFF, 0x8000, 0xFFFF, 0x1_0000, u32::MAX] {
+                    assert!(e.object.accepts(raw), "{e:?} {raw:#x}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn strings_are_cut_and_nul_padded() {
         assert_eq!(&string_bytes("ab")[..3], b"ab\0");

@@ -1125,3 +1125,30 @@ impl DriveLayer for Drive {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_follow_every_pa10_and_pa12_change() {
+        // SPEC §7 PA10 (steps/rev) and PA12 (max speed) are derived only
+        // when they change (Settings::update); each change must show.
+        let od = OdValues {
+            acceleration: 7,
+            ..OdValues::default()
+        };
+        let mut pa = Params::defaults();
+        let mut s = Settings::from(Config { od: &od, pa: &pa });
+        for (spr, rpm) in [(400, 3000), (400, 100), (0, 100), (12_800, 100), (12_800, 3000)] {
+            pa.set_unchecked(10, spr);
+            pa.set_unchecked(12, rpm);
+            s.update(Config { od: &od, pa: &pa });
+            let spr = u64::from(spr.max(1));
+            assert_eq!(s.steps_per_rev, spr);
+            let v = (u64::from(rpm) * spr / 6).min(u64::from(MAX_STEP_RATE) * 10);
+            assert_eq!(s.max_velocity, v, "PA10 {spr} PA12 {rpm}");
+            assert_eq!(s.od, od);
+        }
+    }
+}
