@@ -342,7 +342,8 @@ impl<D: DriveLayer> Registers<'_, D> {
                 }
                 self.notify(
                     span.covers(Object::ModeOfOperation).then_some(self.od.mode),
-                    span.covers(Object::Controlword).then_some(self.od.controlword),
+                    span.covers(Object::Controlword)
+                        .then_some(self.od.controlword),
                 );
             }
             Region::Legacy(block) => self.write_legacy(block, start, data)?,

@@ -193,9 +193,11 @@ struct Settings {
 
 impl Settings {
     fn from(cfg: Config<'_>) -> Self {
-        let mut s = Self::default();
-        // not PA10's register: `update` derives the step figures
-        s.steps_per_rev_reg = cfg.pa.steps_per_rev().wrapping_add(1);
+        let mut s = Self {
+            // not PA10's register: `update` derives the step figures
+            steps_per_rev_reg: cfg.pa.steps_per_rev().wrapping_add(1),
+            ..Self::default()
+        };
         s.update(cfg);
         s
     }
@@ -1140,7 +1142,13 @@ mod tests {
         };
         let mut pa = Params::defaults();
         let mut s = Settings::from(Config { od: &od, pa: &pa });
-        for (spr, rpm) in [(400, 3000), (400, 100), (0, 100), (12_800, 100), (12_800, 3000)] {
+        for (spr, rpm) in [
+            (400, 3000),
+            (400, 100),
+            (0, 100),
+            (12_800, 100),
+            (12_800, 3000),
+        ] {
             pa.set_unchecked(10, spr);
             pa.set_unchecked(12, rpm);
             s.update(Config { od: &od, pa: &pa });
