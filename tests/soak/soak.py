@@ -46,9 +46,11 @@ from pymodbus.pdu.register_message import (
 )
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "tests" / "e2e"))
+from conftest import crc16, with_crc  # noqa: E402  (the e2e harness' independent CRC)
+
 BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
 DRIVES = (1, 2)
-T35_S = 0.00175  # 115200 baud (SPEC §1)
 # After a frame that must stay unanswered: t3.5 for the frame to close, the
 # virtual drive's 1 ms poll, the reply delay t3.5 again, and a margin for a
 # busy host: the virtual drive stamps bytes when it reads them, so if it
@@ -64,20 +66,6 @@ CONTROLWORD, STATUSWORD, MODE = 0x6040, 0x6041, 0x6060
 VELOCITY, ACCEL, DECEL, QS_DECEL = 0x6081, 0x6083, 0x6084, 0x6085
 TARGET, POSITION, ERROR_REGISTER = 0x607A, 0x6064, 0x1001
 PA20 = 0x0064 + 20  # communication-loss timeout, ms
-
-
-def crc16(data: bytes) -> int:
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc
-
-
-def with_crc(body: bytes) -> bytes:
-    c = crc16(body)
-    return body + bytes([c & 0xFF, c >> 8])
 
 
 def crc_ok(frame: bytes) -> bool:
