@@ -13,7 +13,7 @@ if ! command -v qemu-system-arm >/dev/null; then
   apt-get update -qq && apt-get install -y -qq qemu-system-arm >/dev/null
 fi
 command -v gungraun-runner >/dev/null ||
-  cargo install gungraun-runner --version 0.20.0 --locked --quiet
+  cargo install gungraun-runner --version 0.20.0 --locked --quiet --debug # fast to build, runs as well
 
 # the bench workspace is outside the main crate: lint it here
 (cd benches && cargo fmt --all -- --check)
