@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Firmware stage (issue 6), run by .ci/run: both boards built in release,
+# Firmware stage (issue 6), run by .ci/run: both boards built in profile fw
+# (release, opt-level z),
 # clippy -D warnings on both, flash / static-RAM budgets checked and printed.
 # No board is attached in CI: nothing is flashed or run.
 set -euo pipefail
@@ -15,10 +16,10 @@ llvm_size="$(rustc --print sysroot)/lib/rustlib/$host/bin/llvm-size"
 # board target feature flash_budget_KiB ram_budget_KiB
 check() {
   local board=$1 target=$2 feature=$3 flash_kib=$4 ram_kib=$5
-  local elf="target/$target/release/modbus-drive"
+  local elf="target/$target/fw/modbus-drive"
   echo "---- $board ($target, --features $feature)"
-  cargo clippy --release --bin modbus-drive --target "$target" --features "$feature" -- -D warnings
-  cargo build --release --bin modbus-drive --target "$target" --features "$feature"
+  cargo clippy --profile fw --bin modbus-drive --target "$target" --features "$feature" -- -D warnings
+  cargo build --profile fw --bin modbus-drive --target "$target" --features "$feature"
   # Flash = every section placed in flash (0x0800_0000..) + the .data image;
   # static RAM = every section placed in RAM (0x2000_0000..): .data, .bss,
   # .uninit (defmt-rtt buffer). The stack is not a section (flip-link puts

@@ -15,6 +15,8 @@ use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
 use flash::{FlashRegion, RegionError};
+use modbus_drive::motion::schedule::brake_rate;
+use modbus_drive::motion::{Segment, StepSchedule, StepSource};
 use modbus_drive::rtu::{CharFormat, LineConfig};
 
 const G431_TICK_HZ: u32 = 10_000_000;
@@ -178,39 +180,127 @@ fn a_reversal_leaves_dir_set_up_time_before_the_edge() {
 }
 
 #[test]
-fn no_step_means_idle_periods_and_cancel_drops_the_pending_step() {
+fn no_step_means_idle_periods() {
     let shape = StepShape::safe(G431_TICK_HZ);
     let mut shaper = StepShaper::new(shape);
     let p = shaper.next_period(|| None);
     assert!(p.ccr > p.arr && p.dir.is_none());
     assert_eq!(u32::from(p.arr) + 1, shape.idle_ticks);
-    // a slow step is under way (first chunk issued), then a limit stop
-    let p = shaper.next_period(|| {
-        Some(Step {
-            forward: false,
-            interval_ticks: 200_000,
-        })
-    });
-    assert!(p.dir.is_none());
-    shaper.cancel();
-    let p = shaper.next_period(|| None);
-    assert!(
-        p.dir.is_none() && p.ccr > p.arr,
-        "the cancelled step never fires"
-    );
 }
-
-// ---------------------------------------------------------------- switches, outputs
 
 #[test]
-fn switch_polarity_follows_pa13() {
-    // normally open (PA13 bit 0): pulled up, active when the contact pulls low
-    assert!(switch_active(false, false));
-    assert!(!switch_active(true, false));
-    // normally closed (bit 1): active when the contact opens and the pin goes high
-    assert!(switch_active(true, true));
-    assert!(!switch_active(false, true));
+fn the_step_timer_tick_is_a_whole_division_of_the_timer_clock() {
+    // G431: TIM3 at 170 MHz → 10 MHz; F103: TIM3 at 2 × APB1 = 72 MHz → 8 MHz
+    assert_eq!(step_prescaler(170_000_000, G431_TICK_HZ), Some(16));
+    assert_eq!(step_prescaler(72_000_000, F103_TICK_HZ), Some(8));
+    assert_eq!(
+        step_prescaler(72_000_000, 10_000_000),
+        None,
+        "7.2: not whole"
+    );
+    assert_eq!(
+        step_prescaler(1_000_000, 10_000_000),
+        None,
+        "faster than the clock"
+    );
+    assert_eq!(step_prescaler(170_000_000, 1000), None, "PSC is 16 bits");
+    assert_eq!(step_prescaler(65_536_000, 1000), Some(u16::MAX));
+    assert_eq!(step_prescaler(170_000_000, 0), None);
 }
+
+/// The step interrupt's work (steps.rs `on_update`) on the host: the core's
+/// `StepSource` through the shaper, one call per timer period.
+struct Isr {
+    shaper: StepShaper,
+    source: StepSource,
+}
+
+impl Isr {
+    fn new(hz: u32) -> Self {
+        Self {
+            shaper: StepShaper::new(StepShape::safe(hz)),
+            source: StepSource::new(),
+        }
+    }
+
+    /// Runs until the schedule is done; (ticks since the previous edge,
+    /// forward) per pulse.
+    fn run(&mut self, sched: &StepSchedule, max_periods: usize) -> Vec<(u32, bool)> {
+        let mut out = Vec::new();
+        let mut since_edge = 0;
+        for _ in 0..max_periods {
+            let source = &mut self.source;
+            let p = self.shaper.next_period(|| {
+                source.advance(sched).map(|n| Step {
+                    forward: n.forward,
+                    interval_ticks: n.delay_ticks,
+                })
+            });
+            let len = u32::from(p.arr) + 1;
+            match p.dir {
+                Some(forward) => {
+                    out.push((since_edge + u32::from(p.ccr), forward));
+                    since_edge = len - u32::from(p.ccr);
+                }
+                None => since_edge += len,
+            }
+            if p.dir.is_none() && !sched.is_running() && sched.is_empty() {
+                break;
+            }
+        }
+        out
+    }
+}
+
+const ONE: u64 = 1 << 32;
+
+fn segment(interval_ticks: u64, count: u32, forward: bool) -> Segment {
+    Segment {
+        interval: interval_ticks * ONE,
+        add: 0,
+        add2: 0,
+        count,
+        forward,
+    }
+}
+
+#[test]
+fn the_core_schedule_reaches_the_step_pin_edge_to_edge() {
+    // 1000 steps at 5 kHz forward, 3 slow ones backward (longer than one
+    // 16-bit period), then 50 at the highest rate the core plans (200 kHz)
+    let sched = StepSchedule::new();
+    sched.push(segment(2000, 1000, true)).unwrap();
+    sched.push(segment(100_000, 3, false)).unwrap();
+    sched.push(segment(50, 50, true)).unwrap();
+    let out = Isr::new(G431_TICK_HZ).run(&sched, 10_000);
+    assert_eq!(out.len(), 1053);
+    assert!(out[1..1000].iter().all(|&(gap, f)| gap == 2000 && f));
+    assert!(out[1000..1003].iter().all(|&(gap, f)| gap == 100_000 && !f));
+    assert!(out[1004..].iter().all(|&(gap, f)| gap == 50 && f));
+    assert_eq!(sched.position(), 1000 - 3 + 50);
+}
+
+#[test]
+fn a_limit_brakes_in_the_step_interrupt_within_the_quick_stop_distance_spec_8_7() {
+    // 100 000 steps/s at 8 MHz (F103), quick stop 2e6 steps/s²: 2500 steps
+    let sched = StepSchedule::new();
+    sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
+    sched.push(segment(80, 100_000, true)).unwrap();
+    let mut isr = Isr::new(F103_TICK_HZ);
+    let before = isr.run(&sched, 1000);
+    assert!(before.iter().skip(1).all(|&(gap, _)| gap == 80));
+    sched.set_limits(false, true); // the EXTI handler: CCW limit active
+    let after = isr.run(&sched, 100_000);
+    // the step preloaded before the limit still goes out, then the brake
+    let braking = after.len() as f64;
+    assert!((2490.0..=2502.0).contains(&braking), "{braking} steps");
+    // never faster (to the tick the delays are rounded to), ending slow
+    assert!(after[1..].windows(2).all(|w| w[1].0 + 1 >= w[0].0));
+    assert!(after.last().is_some_and(|&(gap, _)| gap > 1000), "{after:?}");
+    assert!(sched.limit_brake().is_some_and(|b| b.done && b.forward));
+}
+
+// ---------------------------------------------------------------- switches
 
 #[test]
 fn debounce_needs_three_equal_samples() {
@@ -222,34 +312,6 @@ fn debounce_needs_three_equal_samples() {
     assert_eq!(d.sample(true), Some(true));
     assert!(d.state());
     assert_eq!(d.sample(true), None);
-}
-
-#[test]
-fn enable_and_brake_follow_the_power_state_spec_8_1() {
-    // (statusword, enable, brake released)
-    for (sw, enable, released, name) in [
-        (0x0000, false, false, "not ready to switch on"),
-        (0x0040, false, false, "switch on disabled"),
-        (0x0021, false, false, "ready to switch on"),
-        (0x0033, false, true, "switched on"), // + voltage enabled bit 4
-        (0x0037, true, true, "operation enabled"),
-        (0x0017, true, true, "quick stop active"),
-        (0x000F, false, false, "fault reaction active"),
-        (0x0008, false, false, "fault"),
-        // what the drive reports: bit 5 = 1 except in quick stop (§8.2)
-        (0x0060, false, false, "switch on disabled"),
-        (0x002F, false, false, "fault reaction active"),
-        (0x0028, false, false, "fault"),
-        (0xFF37, true, true, "operation enabled"), // other bits ignored
-    ] {
-        let out = power_outputs(sw);
-        assert_eq!(
-            (out.enable, out.brake_released),
-            (enable, released),
-            "{sw:#06x}"
-        );
-        assert_eq!(power_state_name(sw), name, "{sw:#06x}");
-    }
 }
 
 #[test]

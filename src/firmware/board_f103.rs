@@ -7,12 +7,17 @@
 //! | RS-485 DI ← TX | PA9 | USART1_TX (no remap) |
 //! | RS-485 DE + /RE | PA8 | GPIO: high before the first byte, low at TC |
 //! | STEP | PA6 | TIM3_CH1 (no remap), PWM mode 2 |
-//! | DIR | PB0 | GPIO, written by the step interrupt |
+//! | DIR | PB0 | GPIO, written by the step interrupt (`drive::io::DirectionOutput`, PA11) |
 //! | ENABLE | PB1 | GPIO, high = power stage enabled |
 //! | BRAKE | PB10 | GPIO, high = brake released (PB2 is BOOT1 on the blue pill) |
-//! | CW limit | PB12 | EXTI12 → EXTI15_10, pull-up |
-//! | CCW limit | PB13 | EXTI13 → EXTI15_10, pull-up |
-//! | HOME | PB14 | EXTI14 → EXTI15_10, pull-up |
+//! | CW limit | PB12 | EXTI12 → EXTI15_10, pull-down |
+//! | CCW limit | PB13 | EXTI13 → EXTI15_10, pull-down |
+//! | HOME | PB14 | EXTI14 → EXTI15_10, pull-down |
+//!
+//! Switch inputs follow the core's `drive::io` convention (a normally open
+//! switch is active when its pin is high): the contact (or an opto-coupler
+//! output) switches the pin to 3V3, the internal pull-down holds it low
+//! otherwise. ENABLE / BRAKE go through `drive::io::PowerOutputs`.
 //!
 //! This USART has no receiver timeout and no driver-enable output: t3.5 is
 //! timed by `rs485::frame_gap_task`, DE is a GPIO dropped in the TC interrupt.
@@ -99,9 +104,9 @@ pub fn split(p: Peripherals, line: &usart::Config) -> Result<Parts, usart::Confi
         enable: Output::new(p.PB1, Level::Low, Speed::Low),
         brake: Output::new(p.PB10, Level::Low, Speed::Low),
         switches: SwitchInputs {
-            cw: ExtiInput::new_blocking(p.PB12, p.EXTI12, Pull::Up, TriggerEdge::Any),
-            ccw: ExtiInput::new_blocking(p.PB13, p.EXTI13, Pull::Up, TriggerEdge::Any),
-            home: ExtiInput::new_blocking(p.PB14, p.EXTI14, Pull::Up, TriggerEdge::Any),
+            cw_limit: ExtiInput::new_blocking(p.PB12, p.EXTI12, Pull::Down, TriggerEdge::Any),
+            ccw_limit: ExtiInput::new_blocking(p.PB13, p.EXTI13, Pull::Down, TriggerEdge::Any),
+            home: ExtiInput::new_blocking(p.PB14, p.EXTI14, Pull::Down, TriggerEdge::Any),
         },
         param_flash: FlashRegion::new(
             Flash::new_blocking(p.FLASH),

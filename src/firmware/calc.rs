@@ -1,5 +1,6 @@
-//! The arithmetic of the firmware glue: receiver timeout, step-pulse timing,
-//! switch polarity and debounce, power outputs, log rate limiting.
+//! The arithmetic of the firmware glue: receiver timeout, step-timer
+//! prescaler and pulse timing, switch debounce, log rate limiting. (Switch
+//! polarity, ENABLE/BRAKE and DIR inversion are the core's `drive::io`.)
 //!
 //! No HAL types here, so `tests/firmware_calc.rs` includes this file by path
 //! and checks it on the host — the rest of `src/firmware/` only builds for
@@ -51,6 +52,23 @@ pub const IDLE_PERIOD_NS: u32 = 100_000;
 /// Nanoseconds → timer ticks at `tick_hz`, rounded up (a minimum stays a minimum).
 pub const fn ns_to_ticks(ns: u32, tick_hz: u32) -> u32 {
     (ns as u64 * tick_hz as u64).div_ceil(1_000_000_000) as u32
+}
+
+/// The step timer's prescaler register value (PSC) for a tick of `tick_hz`
+/// from a timer clock of `timer_clock_hz`: `None` unless the division is
+/// whole and fits the 16-bit register — the planner times every step in
+/// these ticks (`PlannerConfig::tick_hz`), so an inexact tick would make
+/// every move slower or faster than asked.
+pub const fn step_prescaler(timer_clock_hz: u32, tick_hz: u32) -> Option<u16> {
+    if tick_hz == 0 || !timer_clock_hz.is_multiple_of(tick_hz) {
+        return None;
+    }
+    let div = timer_clock_hz / tick_hz;
+    if div == 0 || div > 1 << 16 {
+        None
+    } else {
+        Some((div - 1) as u16)
+    }
 }
 
 /// A parameter in 0.1 µs as ns, raised to `min_ns` and capped at 100 µs.
@@ -166,12 +184,6 @@ impl StepShaper {
         self.shape = shape;
     }
 
-    /// Drops a step that is under way (limit stop, SPEC §8.7 / issue 6):
-    /// the next period carries no pulse.
-    pub fn cancel(&mut self) {
-        self.remaining = 0;
-    }
-
     /// The next timer period. `next_step` is asked only when the previous
     /// step has been issued.
     pub fn next_period(&mut self, next_step: impl FnOnce() -> Option<Step>) -> Period {
@@ -215,15 +227,6 @@ impl StepShaper {
 
 // ---------------------------------------------------------------- switches
 
-/// Switch level → active (SPEC §7 PA13: bit set = normally closed).
-///
-/// Inputs have pull-ups and the contact switches to ground: a normally open
-/// switch is active when the pin is low, a normally closed one when the
-/// contact opens and the pin goes high.
-pub fn switch_active(pin_high: bool, normally_closed: bool) -> bool {
-    pin_high == normally_closed
-}
-
 /// Samples needed before a switch change is believed (at 1 kHz: 3 ms).
 pub const DEBOUNCE_SAMPLES: u8 = 3;
 
@@ -263,31 +266,6 @@ impl Debounce {
     }
 }
 
-// ---------------------------------------------------------------- power outputs
-
-/// ENABLE and BRAKE outputs for a statusword (SPEC §8.1 "Outputs").
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct PowerOutputs {
-    /// Power stage enabled: operation enabled, quick stop active.
-    pub enable: bool,
-    /// Brake released: switched on, operation enabled, quick stop active.
-    pub brake_released: bool,
-}
-
-pub fn power_outputs(statusword: u16) -> PowerOutputs {
-    // state bits 0–3, 5, 6 (SPEC §8.1)
-    let (switched_on, operation_enabled, quick_stop_active) = match statusword & 0x6F {
-        0x23 => (true, false, false),
-        0x27 => (false, true, false),
-        0x07 => (false, false, true),
-        _ => (false, false, false),
-    };
-    PowerOutputs {
-        enable: operation_enabled || quick_stop_active,
-        brake_released: switched_on || operation_enabled || quick_stop_active,
-    }
-}
-
 // ---------------------------------------------------------------- logging
 
 /// Lets one log line through per `period_ms` and counts the rest, so a noisy
@@ -321,20 +299,5 @@ impl RateLimit {
                 Some(core::mem::take(&mut self.suppressed))
             }
         }
-    }
-}
-
-/// Name of the power state in a statusword (SPEC §8.1 patterns), for logs.
-pub fn power_state_name(statusword: u16) -> &'static str {
-    match (statusword & 0x4F, statusword & 0x6F) {
-        (_, 0x21) => "ready to switch on",
-        (_, 0x23) => "switched on",
-        (_, 0x27) => "operation enabled",
-        (_, 0x07) => "quick stop active",
-        (0x00, _) => "not ready to switch on",
-        (0x40, _) => "switch on disabled",
-        (0x0F, _) => "fault reaction active",
-        (0x08, _) => "fault",
-        _ => "unknown",
     }
 }

@@ -5,8 +5,10 @@
 //! `FrameAssembler`; t3.5 from the G431 receiver timeout or the F103 gap
 //! task) → `dispatch.rs` (`Device::handle_rx`, reply after
 //! `Device::reply_delay_us`, `Device::reply_sent`) → `rs485.rs` (one burst,
-//! DE). Follow one set-point: `control.rs` (1 kHz loop) → `steps.rs` (step
-//! timer interrupt). Switches: `switches.rs`; parameter flash: `flash.rs`;
+//! DE). Follow one set-point: `control.rs` (1 kHz loop, `Device::control`
+//! fills the core's `StepSchedule`) → `steps.rs` (step timer interrupt,
+//! `StepSource::advance`). Switches: `switches.rs` (EXTI → the schedule's
+//! limit brake); parameter flash: `flash.rs`;
 //! pins and peripherals: `board_g431.rs` / `board_f103.rs`; arithmetic:
 //! `calc.rs` (host-tested).
 //!
@@ -39,6 +41,7 @@ use embassy_stm32::interrupt::typelevel::{Interrupt, TIM2};
 use embassy_stm32::interrupt::Priority;
 use embedded_storage::nor_flash::ReadNorFlash;
 use modbus_drive::device::Identity;
+use modbus_drive::motion::PlannerConfig;
 use modbus_drive::params::ParamStore;
 use modbus_drive::rtu::LineConfig;
 use modbus_drive::Device;
@@ -59,6 +62,9 @@ async fn main(spawner: Spawner) {
     TIM2::set_priority(PRIO_TIME);
 
     let parts = defmt::unwrap!(board::split(p, &rs485::usart_config(LineConfig::DEFAULT)));
+    // At once: embassy's init enabled the EXTI interrupts, and the handler
+    // can only clear an edge's pending bit through the installed inputs.
+    switches::install(parts.switches);
 
     // SPEC §9: the saved parameter set (or the defaults, and why) before the
     // first frame; its address and line are in force at once.
@@ -66,6 +72,11 @@ async fn main(spawner: Spawner) {
     let (range, capacity) = (region.range(), region.capacity() as u32);
     let mut store = defmt::unwrap!(ParamStore::new(region, 0..capacity));
     let mut device = Device::new(Identity::new(board::NAME));
+    // The planner times steps in the step timer's ticks (calc::step_prescaler).
+    device.drive.set_planner_config(PlannerConfig {
+        tick_hz: board::STEP_TICK_HZ,
+        ..PlannerConfig::default()
+    });
     device.apply_boot(&store.boot());
     let line = device.line();
     let address = device.address();
@@ -75,10 +86,16 @@ async fn main(spawner: Spawner) {
     defmt::unwrap!(rs485::apply_line(&mut uart, line));
     #[cfg(feature = "board-f103")]
     rs485::set_de_pin(parts.de);
-    switches::install(parts.switches);
-    steps::start(parts.dir, parts.step_timer.get_clock_frequency().0);
-    // SAFETY: the handler is bound in `board::Irqs`; its state (steps::STEPPER)
-    // is initialised by `steps::start` above.
+    let timer_clock_hz = parts.step_timer.get_clock_frequency().0;
+    let prescaler = defmt::unwrap!(
+        calc::step_prescaler(timer_clock_hz, board::STEP_TICK_HZ),
+        "step timer clock {} Hz is no whole multiple of {} Hz",
+        timer_clock_hz,
+        board::STEP_TICK_HZ
+    );
+    steps::start(parts.dir, prescaler);
+    // SAFETY: the handler is bound in `board::Irqs`; its state
+    // (steps::STEPPER) is initialised by `steps::start` above.
     unsafe { board::StepIrq::enable() };
 
     defmt::info!(

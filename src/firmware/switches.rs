@@ -1,49 +1,46 @@
 //! CW limit, CCW limit and home inputs (SPEC §7 PA13/PA14, §8.6, §8.7).
 //!
-//! Every edge raises the EXTI interrupt. It reads the levels at once and, if
-//! an enabled limit has become active while the motor steps towards it
-//! (CW = negative direction, CCW = positive, SPEC §8.6), stops step output
-//! from the interrupt (`steps::limit_stop`) — without waiting for the
-//! control loop. The control loop samples the same pins every millisecond
-//! through a debounce (calc.rs) for everything else.
+//! The pins are read through the core's `drive::io::SwitchInputs` (embedded-
+//! hal `InputPin`, PA13 polarity: a normally open switch is active when its
+//! pin is high), the same code the host doubles run.
 //!
-//! Shared state: the inputs behind a critical section ([`INPUTS`]); PA13
-//! polarity and PA14 enable bits in atomics written by the control loop.
+//! Every edge raises the EXTI interrupt. It reads the three pins at once and
+//! hands the enabled limits (PA14) to the step schedule
+//! (`StepSchedule::set_limits`): the step interrupt then brakes any motion
+//! towards an active limit with 0x6085 at its next step, without waiting
+//! for the control loop (schedule.rs "Limit brake"; disarmed in homing,
+//! where the core's sequencer decides). The control loop reads the pins
+//! every millisecond too ([`refresh`], which also re-sends the limits, so a
+//! change of PA13/PA14 or a missed edge is caught within 1 ms) and
+//! debounces them for the core (calc.rs).
+//!
+//! Shared state: the inputs behind a critical section ([`INPUTS`]), inside
+//! which the limits are also sent, so the EXTI interrupt and the control
+//! loop never overwrite a newer reading with an older one; PA13 polarity and
+//! PA14 enable bits in atomics written by the control loop.
 
 use core::cell::RefCell;
-use core::sync::atomic::{AtomicU16, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicU16, Ordering};
 
 use critical_section::Mutex;
 use embassy_stm32::exti::ExtiInput;
 use embassy_stm32::interrupt::typelevel::Handler;
 use embassy_stm32::mode::Blocking;
+use modbus_drive::drive::io;
+use modbus_drive::motion::Switches;
 
 use super::board;
-use super::calc::switch_active;
-use super::steps;
+use super::steps::SCHEDULE;
 
-/// The three switch inputs (pull-ups, contact to ground; board files).
-pub struct SwitchInputs {
-    pub cw: ExtiInput<'static, Blocking>,
-    pub ccw: ExtiInput<'static, Blocking>,
-    pub home: ExtiInput<'static, Blocking>,
-}
-
-/// Raw switch states, already corrected for polarity.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, defmt::Format)]
-pub struct SwitchStates {
-    pub cw_limit: bool,
-    pub ccw_limit: bool,
-    pub home: bool,
-}
+type Exti = ExtiInput<'static, Blocking>;
+/// The three switch inputs (board files).
+pub type SwitchInputs = io::SwitchInputs<Exti, Exti, Exti>;
 
 static INPUTS: Mutex<RefCell<Option<SwitchInputs>>> = Mutex::new(RefCell::new(None));
 /// PA13: bit 0 CW, bit 1 CCW, bit 2 home; 1 = normally closed.
 static POLARITY: AtomicU16 = AtomicU16::new(0);
 /// PA14: bit 0 CW, bit 1 CCW limit enabled (default both).
 static LIMIT_ENABLE: AtomicU16 = AtomicU16::new(3);
-/// Limit stops made by the interrupt (logged by the control loop).
-pub static LIMIT_STOPS: AtomicU32 = AtomicU32::new(0);
 
 pub fn install(inputs: SwitchInputs) {
     critical_section::with(|cs| *INPUTS.borrow_ref_mut(cs) = Some(inputs));
@@ -55,42 +52,38 @@ pub fn set_params(polarity: u16, limit_enable: u16) {
     LIMIT_ENABLE.store(limit_enable, Ordering::Relaxed);
 }
 
-/// Reads the three pins now.
-pub fn read() -> SwitchStates {
-    let nc = POLARITY.load(Ordering::Relaxed);
-    critical_section::with(|cs| match INPUTS.borrow_ref(cs).as_ref() {
-        Some(i) => SwitchStates {
-            cw_limit: switch_active(i.cw.is_high(), nc & 1 != 0),
-            ccw_limit: switch_active(i.ccw.is_high(), nc & 2 != 0),
-            home: switch_active(i.home.is_high(), nc & 4 != 0),
-        },
-        None => SwitchStates::default(),
+/// Reads the three pins now and sends the enabled limits to the step
+/// schedule; returns the logical states (after PA13, before PA14: the core
+/// applies PA14 itself).
+pub fn refresh() -> Switches {
+    critical_section::with(|cs| {
+        let mut inputs = INPUTS.borrow_ref_mut(cs);
+        // Not installed yet: nothing is blocked, nothing moves either.
+        let Some(i) = inputs.as_mut() else {
+            return Switches::default();
+        };
+        let s = i.read(POLARITY.load(Ordering::Relaxed));
+        let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
+        SCHEDULE.set_limits(
+            s.cw_limit && enabled & 1 != 0,
+            s.ccw_limit && enabled & 2 != 0,
+        );
+        s
     })
 }
 
-/// EXTI lines 10..15 (priority: `board::PRIO_SWITCH`).
+/// EXTI lines 10..15 (priority: `PRIO_SWITCH`).
 pub struct SwitchHandler;
 
 impl Handler<board::SwitchIrq> for SwitchHandler {
     unsafe fn on_interrupt() {
         critical_section::with(|cs| {
             if let Some(i) = INPUTS.borrow_ref_mut(cs).as_mut() {
-                i.cw.clear_pending();
-                i.ccw.clear_pending();
+                i.cw_limit.clear_pending();
+                i.ccw_limit.clear_pending();
                 i.home.clear_pending();
             }
         });
-        let s = read();
-        let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
-        let towards = steps::moving_forward();
-        let stop = match towards {
-            Some(false) => s.cw_limit && enabled & 1 != 0,
-            Some(true) => s.ccw_limit && enabled & 2 != 0,
-            None => false,
-        };
-        if stop {
-            steps::limit_stop();
-            LIMIT_STOPS.fetch_add(1, Ordering::Relaxed);
-        }
+        refresh();
     }
 }
