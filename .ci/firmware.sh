@@ -18,8 +18,8 @@ check() {
   local board=$1 target=$2 feature=$3 flash_kib=$4 ram_kib=$5
   local elf="target/$target/fw/modbus-drive"
   echo "---- $board ($target, --features $feature)"
-  cargo clippy --profile fw --bin modbus-drive --target "$target" --features "$feature" -- -D warnings
-  cargo build --profile fw --bin modbus-drive --target "$target" --features "$feature"
+  cargo clippy --profile fw --bin modbus-drive --target "$target" --features "$feature" -- -D warnings || return 1
+  cargo build --profile fw --bin modbus-drive --target "$target" --features "$feature" || return 1
   # Flash = every section placed in flash (0x0800_0000..) + the .data image;
   # static RAM = every section placed in RAM (0x2000_0000..): .data, .bss,
   # .uninit (defmt-rtt buffer). The stack is not a section (flip-link puts
@@ -36,5 +36,9 @@ check() {
     }'
 }
 
-check STM32G431CB thumbv7em-none-eabihf board-g431 64 16
-check STM32F103C8 thumbv7m-none-eabi board-f103 56 12
+# both boards are checked and printed before the stage fails (set -e does
+# not act inside a function called with ||: hence the explicit returns)
+bad=0
+check STM32G431CB thumbv7em-none-eabihf board-g431 64 16 || bad=1
+check STM32F103C8 thumbv7m-none-eabi board-f103 56 12 || bad=1
+exit $bad

@@ -296,7 +296,10 @@ fn a_limit_brakes_in_the_step_interrupt_within_the_quick_stop_distance_spec_8_7(
     assert!((2490.0..=2502.0).contains(&braking), "{braking} steps");
     // never faster (to the tick the delays are rounded to), ending slow
     assert!(after[1..].windows(2).all(|w| w[1].0 + 1 >= w[0].0));
-    assert!(after.last().is_some_and(|&(gap, _)| gap > 1000), "{after:?}");
+    assert!(
+        after.last().is_some_and(|&(gap, _)| gap > 1000),
+        "{after:?}"
+    );
     assert!(sched.limit_brake().is_some_and(|b| b.done && b.forward));
 }
 
