@@ -15,12 +15,12 @@
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};
 use modbus_drive::drive::io::PowerOutputs;
-use modbus_drive::motion::Switches;
+use modbus_drive::motion::{StepSchedule, Switches};
 
 use super::board;
 use super::calc::{Debounce, StepShape};
 use super::dispatch::{with_device, EventLog};
-use super::steps::{self, SCHEDULE};
+use super::steps;
 use super::switches;
 
 /// Control loop period: 1 kHz.
@@ -58,7 +58,7 @@ impl Debounced {
     }
 }
 
-pub async fn run(mut pins: PowerPins) -> ! {
+pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule) -> ! {
     let mut ticker = Ticker::every(CONTROL_PERIOD);
     let mut debounced = Debounced::new(switches::refresh());
     let mut log = EventLog::new();
@@ -72,7 +72,7 @@ pub async fn run(mut pins: PowerPins) -> ! {
             defmt::info!("switches: {}", switch_states);
         }
         let Some((outputs, params, shape)) = with_device(|d| {
-            d.control(now_us, switch_states, &SCHEDULE);
+            d.control(now_us, switch_states, schedule);
             (
                 d.drive.outputs(),
                 (

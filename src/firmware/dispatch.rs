@@ -3,7 +3,7 @@
 //! `Device::reply_sent` (SPEC §1, §3, §7, §9). It also logs what the core
 //! reports (`Device::take_event`).
 //!
-//! The device lives in [`DEVICE`], a thread-mode mutex: only tasks of the
+//! The device lives in `DEVICE`, a thread-mode mutex: only tasks of the
 //! thread-mode executor (this one and the control loop) touch it, never an
 //! interrupt, so locking it costs no interrupt latency.
 
@@ -15,6 +15,7 @@ use embassy_stm32::mode::Blocking;
 use embassy_stm32::usart::Uart;
 use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
+use embassy_sync::once_lock::OnceLock;
 use modbus_drive::device::Response;
 use modbus_drive::event::Event;
 use modbus_drive::params::ParamStore;
@@ -26,15 +27,24 @@ use super::flash::FlashRegion;
 use super::rs485::{self, FRAMES, FRAMES_DROPPED};
 
 /// The drive core, shared by the dispatcher and the control loop.
-pub static DEVICE: Mutex<ThreadModeRawMutex, RefCell<Option<Device>>> =
-    Mutex::new(RefCell::new(None));
+/// Installed once by `main` ([`install`]). A `OnceLock` is zero-initialised
+/// (.bss): an `Option<Device>` initialiser is not (`None` is a niche value),
+/// and its 2 KiB image would sit in flash as .data (README "Sizes").
+static DEVICE: OnceLock<Mutex<ThreadModeRawMutex, RefCell<Device>>> = OnceLock::new();
 
 /// The parameter store (SPEC §9) on the board's parameter pages.
 pub type Store = ParamStore<FlashRegion<Flash<'static, FlashBlocking>>>;
 
-/// Runs `f` on the device (installed by `main` before any task starts).
+/// Installs the device (`main`, once, before any task starts).
+pub fn install(device: Device) {
+    if DEVICE.init(Mutex::new(RefCell::new(device))).is_err() {
+        defmt::panic!("device installed twice");
+    }
+}
+
+/// Runs `f` on the device (`None` before [`install`]).
 pub fn with_device<R>(f: impl FnOnce(&mut Device) -> R) -> Option<R> {
-    DEVICE.lock(|d| d.borrow_mut().as_mut().map(f))
+    DEVICE.try_get().map(|d| d.lock(|d| f(&mut d.borrow_mut())))
 }
 
 /// Logs the core's events; frame errors and exceptions at most once a

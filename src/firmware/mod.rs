@@ -80,7 +80,7 @@ async fn main(spawner: Spawner) {
     device.apply_boot(&store.boot());
     let line = device.line();
     let address = device.address();
-    dispatch::DEVICE.lock(|d| *d.borrow_mut() = Some(device));
+    dispatch::install(device);
 
     let mut uart = parts.uart;
     defmt::unwrap!(rs485::apply_line(&mut uart, line));
@@ -93,7 +93,7 @@ async fn main(spawner: Spawner) {
         timer_clock_hz,
         board::STEP_TICK_HZ
     );
-    steps::start(parts.dir, prescaler);
+    let schedule = steps::start(parts.dir, prescaler);
     // SAFETY: the handler is bound in `board::Irqs`; its state
     // (steps::STEPPER) is initialised by `steps::start` above.
     unsafe { board::StepIrq::enable() };
@@ -116,9 +116,12 @@ async fn main(spawner: Spawner) {
 
     // The step pin stays owned here for good.
     let _step_pin = parts.step_pin;
-    control::run(control::PowerPins {
-        enable: parts.enable,
-        brake: parts.brake,
-    })
+    control::run(
+        control::PowerPins {
+            enable: parts.enable,
+            brake: parts.brake,
+        },
+        schedule,
+    )
     .await
 }

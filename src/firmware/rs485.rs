@@ -30,6 +30,7 @@ use embassy_stm32::mode::Blocking;
 use embassy_stm32::usart::{self, Uart};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
+use embassy_sync::once_lock::OnceLock;
 use embassy_sync::signal::Signal;
 use heapless::Vec;
 use modbus_drive::rtu::{
@@ -117,16 +118,33 @@ struct Link {
     de: Option<embassy_stm32::gpio::Output<'static>>,
 }
 
-static LINK: Mutex<RefCell<Link>> = Mutex::new(RefCell::new(Link {
-    assembler: FrameAssembler::new(FrameTiming::new(LineConfig::DEFAULT)),
-    t35_us: FrameTiming::new(LineConfig::DEFAULT).t35_us,
-    tx: [0; MAX_FRAME],
-    tx_len: 0,
-    tx_pos: 0,
-    transmitting: false,
-    #[cfg(feature = "board-f103")]
-    de: None,
-}));
+/// Set up at first use. A `OnceLock` is zero-initialised (.bss); a `Link`
+/// initialiser is not, and would cost its size again in flash as a .data
+/// image (README "Sizes").
+static LINK: OnceLock<Mutex<RefCell<Link>>> = OnceLock::new();
+
+/// `f` on the link, inside a critical section (the USART interrupt shares it).
+fn with_link<R>(f: impl FnOnce(&mut Link) -> R) -> R {
+    critical_section::with(|cs| f(&mut link().borrow_ref_mut(cs)))
+}
+
+/// The link, set up at the first call. Not inlined: one copy of the set-up
+/// for all callers.
+#[inline(never)]
+fn link() -> &'static Mutex<RefCell<Link>> {
+    LINK.get_or_init(|| {
+        Mutex::new(RefCell::new(Link {
+            assembler: FrameAssembler::new(FrameTiming::new(LineConfig::DEFAULT)),
+            t35_us: FrameTiming::new(LineConfig::DEFAULT).t35_us,
+            tx: [0; MAX_FRAME],
+            tx_len: 0,
+            tx_pos: 0,
+            transmitting: false,
+            #[cfg(feature = "board-f103")]
+            de: None,
+        }))
+    })
+}
 
 /// Microseconds from the embassy-time driver (tick 1 MHz), wrapping.
 pub fn now_us() -> u32 {
@@ -159,8 +177,7 @@ pub fn apply_line(
     // embassy rewrites CR1/CR2 here (for the whole USART, whichever half is
     // asked), clearing our interrupt enables
     uart.split_ref().1.set_config(&usart_config(line))?;
-    critical_section::with(|cs| {
-        let mut link = LINK.borrow_ref_mut(cs);
+    with_link(|link| {
         link.assembler.set_timing(line.timing());
         link.t35_us = line.timing().t35_us;
         arm_receiver(line);
@@ -213,7 +230,7 @@ pub struct UartHandler;
 impl Handler<board::UartIrq> for UartHandler {
     unsafe fn on_interrupt() {
         let at_us = now_us();
-        critical_section::with(|cs| on_uart(&mut LINK.borrow_ref_mut(cs), at_us));
+        with_link(|link| on_uart(link, at_us));
     }
 }
 
@@ -327,8 +344,7 @@ fn deliver(rx: Received) {
 pub async fn send(bytes: &[u8]) {
     let n = bytes.len().min(MAX_FRAME);
     TX_DONE.reset();
-    critical_section::with(|cs| {
-        let mut link = LINK.borrow_ref_mut(cs);
+    with_link(|link| {
         link.tx[..n].copy_from_slice(&bytes[..n]);
         link.tx_len = n;
         link.tx_pos = 0;
@@ -346,7 +362,7 @@ pub async fn send(bytes: &[u8]) {
 /// The F103's DE GPIO, driven by [`send`] and the TC interrupt.
 #[cfg(feature = "board-f103")]
 pub fn set_de_pin(de: embassy_stm32::gpio::Output<'static>) {
-    critical_section::with(|cs| LINK.borrow_ref_mut(cs).de = Some(de));
+    with_link(|link| link.de = Some(de));
 }
 
 /// STM32F103: closes a frame t3.5 after its last byte (no receiver timeout
@@ -358,8 +374,7 @@ pub async fn frame_gap_task() {
     loop {
         RX_ACTIVITY.wait().await;
         loop {
-            let (receiving, last, t35) = critical_section::with(|cs| {
-                let link = LINK.borrow_ref(cs);
+            let (receiving, last, t35) = with_link(|link| {
                 (
                     link.assembler.is_receiving(),
                     link.assembler.last_byte_at_us(),
@@ -371,8 +386,7 @@ pub async fn frame_gap_task() {
             }
             let wait = super::calc::reply_wait_us(now_us(), last, t35);
             embassy_time::Timer::after_micros(u64::from(wait)).await;
-            critical_section::with(|cs| {
-                let mut link = LINK.borrow_ref_mut(cs);
+            with_link(|link| {
                 let last = link.assembler.last_byte_at_us();
                 if let Some(ev) = link.assembler.poll(now_us()) {
                     deliver(Received::new(ev, last));

@@ -30,7 +30,7 @@ use modbus_drive::drive::io;
 use modbus_drive::motion::Switches;
 
 use super::board;
-use super::steps::SCHEDULE;
+use super::steps;
 
 type Exti = ExtiInput<'static, Blocking>;
 /// The three switch inputs (board files).
@@ -64,10 +64,12 @@ pub fn refresh() -> Switches {
         };
         let s = i.read(POLARITY.load(Ordering::Relaxed));
         let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
-        SCHEDULE.set_limits(
-            s.cw_limit && enabled & 1 != 0,
-            s.ccw_limit && enabled & 2 != 0,
-        );
+        if let Some(schedule) = steps::schedule() {
+            schedule.set_limits(
+                s.cw_limit && enabled & 1 != 0,
+                s.ccw_limit && enabled & 2 != 0,
+            );
+        }
         s
     })
 }
