@@ -15,6 +15,7 @@ use heapless::Deque;
 
 use crate::dictionary::{Config, DriveLayer, OdValues};
 use crate::motion::planner::MAX_STEP_RATE;
+use crate::motion::profile::isqrt;
 use crate::motion::schedule::brake_rate;
 use crate::motion::{
     Fill, Goal, Homing, HomingError, HomingMethod, HomingStep, Planner, PlannerConfig, Ramp,
@@ -935,7 +936,7 @@ fn blend_velocity(sp: SetPoint, next: SetPoint, heading: Option<bool>) -> u64 {
     }
     let v = sp.ramp.velocity.min(next.ramp.velocity);
     // v² ≤ 2·d·s in 0.1 units: V² ≤ 20·D·s
-    let limit = (20 * u128::from(next.ramp.decel) * u128::from(dist.unsigned_abs())).isqrt();
+    let limit = isqrt(20 * u128::from(next.ramp.decel) * u128::from(dist.unsigned_abs()));
     v.min(limit.min(u128::from(u64::MAX)) as u64)
 }
 

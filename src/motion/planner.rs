@@ -25,7 +25,7 @@
 //! steps once the speed is above `sqrt(64·a)` steps/s (below that they are
 //! single steps, at a step rate low enough not to matter).
 
-use super::profile::{slope_of, stop_steps, w_of, Profile, V_FRAC};
+use super::profile::{div, isqrt, slope_of, stop_steps, w_of, Profile, V_FRAC};
 use super::schedule::{Segment, StepSchedule, SCHEDULE_SLOTS, TICK_FRAC_BITS};
 
 /// Highest step rate the drive generates, steps/s. Faster requests are
@@ -197,7 +197,7 @@ impl Planner {
 
     /// Velocity after the last queued step, 0.1 steps/s (signed).
     pub fn end_velocity(&self) -> i64 {
-        let v = (self.w.isqrt() >> V_FRAC) as i64;
+        let v = (isqrt(self.w) >> V_FRAC) as i64;
         if self.forward {
             v
         } else {
@@ -493,7 +493,10 @@ impl Planner {
         };
         // Longest segment allowed by the latency bound at the current speed.
         let v = profile.velocity();
-        let by_time = u128::from(self.cfg.max_segment_us) * u128::from(v) / 10_000_000;
+        let by_time = div(
+            u128::from(self.cfg.max_segment_us) * u128::from(v),
+            10_000_000,
+        );
         let max_steps = (by_time as u64).clamp(1, MAX_PLANNED_SEGMENT);
         let n = profile.segment_len(max_steps);
         let t_first = profile.advance(1);

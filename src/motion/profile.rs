@@ -177,7 +177,7 @@ impl Profile {
             done: 0,
             ax: 0,
             aw: w0,
-            av: w0.isqrt(),
+            av: isqrt(w0),
             at: t0,
             k_time: 20 * u128::from(tick_hz),
             w_end: 0,
@@ -360,14 +360,28 @@ fn div_u64_by_u32(u: u64, v: u32) -> u32 {
 }
 
 /// `⌊√w⌋`: the root of the top 64 bits, then one Newton step with a
-/// 128-by-64 division (within ±1, then corrected).
-fn isqrt(w: u128) -> u128 {
+/// 128-by-64 division (within ±1, then corrected). Used for every u128
+/// root of the crate, so that core's generic `u128::isqrt` (1.5 KiB on a
+/// Cortex-M) is not linked into the firmware (README "Firmware", Sizes).
+pub(crate) fn isqrt(w: u128) -> u128 {
     let bits = 128 - w.leading_zeros();
     if bits <= 64 {
         return u128::from((w as u64).isqrt());
     }
     if bits > 124 {
-        return w.isqrt(); // the Newton step below is exact to ±1 up to here
+        // the Newton step below is exact to ±1 up to here; above (never
+        // for the planner's capped speeds) digit by digit: short and exact
+        let (mut rem, mut root, mut bit) = (w, 0u128, 1u128 << ((bits - 1) & !1));
+        while bit != 0 {
+            if rem >= root + bit {
+                rem -= root + bit;
+                root = (root >> 1) + bit;
+            } else {
+                root >>= 1;
+            }
+            bit >>= 2;
+        }
+        return root;
     }
     let k = (bits - 63) / 2; // w >> 2k keeps 63 or 64 bits
     let y0 = u128::from(((w >> (2 * k)) as u64).isqrt()) << k;
@@ -481,6 +495,13 @@ mod tests {
             u128::from(u64::MAX),
             1 << 64,
             (1 << 84) - 1,
+            // around the digit-by-digit range (> 124 bits)
+            (1 << 124) - 1,
+            1 << 124,
+            (1 << 126) - 1,
+            u128::from(u64::MAX) * u128::from(u64::MAX) - 1,
+            u128::from(u64::MAX) * u128::from(u64::MAX),
+            u128::MAX - 1,
             u128::MAX,
         ] {
             assert_eq!(isqrt(w), w.isqrt(), "isqrt {w}");
