@@ -8,9 +8,11 @@
 //!
 //! `Device::control` wants to be called at least every millisecond, after
 //! each frame and at switch edges; here it runs every millisecond only, so a
-//! frame's set-point reaches the planner ≤ 1 ms after its reply and a home
-//! edge is latched ≤ 1 ms + the debounce late (homing speeds are capped,
-//! SPEC §8.6). Limits do not wait for this loop (switches.rs).
+//! frame's set-point reaches the planner ≤ 1 ms after its reply and the
+//! homing origin is latched 2–3 ms after its switch edge (the debounce's
+//! three samples), not at the edge's step as SPEC §8.6 asks: README
+//! "Firmware", "Homing origin". Limits do not wait for this loop
+//! (switches.rs).
 
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};
