@@ -33,7 +33,7 @@ use embedded_storage::nor_flash::NorFlash;
 use crate::dictionary::{Config, DriveLayer, OdValues, Registers};
 use crate::drive::Drive;
 use crate::event::Event;
-use crate::motion::{StepSchedule, Switches};
+use crate::motion::{StepSchedule, SwitchEdges, Switches};
 use crate::params::{
     execute, Boot, BootOutcome, EeError, EeOp, ParamStore, Params, PendingEe, StoreStatus,
 };
@@ -256,7 +256,8 @@ impl Device {
     /// The control loop (SPEC §8): call it at least every millisecond
     /// (within the planner's horizon, [`crate::motion::PlannerConfig`]),
     /// after each handled frame, and when a switch input changes (so that a
-    /// homing origin is latched at that step). `switches` are the logical
+    /// homing origin is latched at that step; glue that cannot, calls
+    /// [`Self::control_latched`]). `switches` are the logical
     /// states after PA13 ([`crate::drive::io::SwitchInputs::read`]);
     /// `schedule` is the one the step interrupt's
     /// [`crate::motion::StepSource`] consumes (see `motion/schedule.rs` for
@@ -264,11 +265,26 @@ impl Device {
     /// [`Drive::outputs`](crate::drive::Drive::outputs) to ENABLE/BRAKE and
     /// start the step interrupt if it is idle and the schedule is not empty.
     pub fn control(&mut self, now_us: u64, switches: Switches, schedule: &StepSchedule) {
+        self.control_latched(now_us, switches, SwitchEdges::default(), schedule);
+    }
+
+    /// [`Self::control`] for glue that samples the switches later than
+    /// their edges (the firmware's debounced 1 kHz loop): `edges` are the
+    /// step counts ([`StepSchedule::position`]) latched at the edges that
+    /// led to `switches`; a homing origin is taken there (SPEC §8.6) when
+    /// the edge lies on the current search leg.
+    pub fn control_latched(
+        &mut self,
+        now_us: u64,
+        switches: Switches,
+        edges: SwitchEdges,
+        schedule: &StepSchedule,
+    ) {
         let cfg = Config {
             od: &self.od,
             pa: &self.pa,
         };
-        self.drive.control(now_us, switches, schedule, cfg);
+        self.drive.control(now_us, switches, edges, schedule, cfg);
         while let Some(e) = self.drive.take_event() {
             self.push_event(Event::Drive(e));
         }

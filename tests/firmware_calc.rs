@@ -317,6 +317,53 @@ fn debounce_needs_three_equal_samples() {
     assert_eq!(d.sample(true), None);
 }
 
+/// SPEC §8.6 origin at the edge: the switch interrupt latches the step
+/// count at the first reading away from the stable state; the control loop
+/// hands it over with the debounced change, three samples later.
+#[test]
+fn latched_switch_hands_over_the_first_edge_with_the_change() {
+    let mut s = LatchedSwitch::new(false);
+    s.edge(false, 5); // no change: nothing latched
+    s.edge(true, 100); // first contact (EXTI)
+    s.edge(false, 101); // bounce
+    s.edge(true, 103); // contact again: the first edge is kept
+    assert_eq!(s.sample(true), None);
+    assert_eq!(s.sample(true), None);
+    s.edge(true, 140);
+    assert_eq!(s.sample(true), Some(Some(100)));
+    assert!(s.state());
+    // spent: the next change latches anew (release)
+    assert_eq!(s.sample(true), None);
+    s.edge(false, 300);
+    for _ in 0..2 {
+        assert_eq!(s.sample(false), None);
+    }
+    assert_eq!(s.sample(false), Some(Some(300)));
+    assert!(!s.state());
+}
+
+/// A glitch the debounce filters out is forgotten at the first sample that
+/// reads the stable state, so it is never taken for a later change's edge;
+/// a change the interrupt missed (e.g. PA13 polarity flipped) has no edge
+/// unless the sample's own reading latches it.
+#[test]
+fn latched_switch_forgets_a_filtered_glitch() {
+    let mut s = LatchedSwitch::new(false);
+    s.edge(true, 50);
+    assert_eq!(s.sample(true), None);
+    assert_eq!(s.sample(false), None); // back at the stable state: forgotten
+    s.edge(true, 80);
+    for _ in 0..2 {
+        assert_eq!(s.sample(true), None);
+    }
+    assert_eq!(s.sample(true), Some(Some(80)));
+    let mut s = LatchedSwitch::new(false);
+    for _ in 0..2 {
+        assert_eq!(s.sample(true), None);
+    }
+    assert_eq!(s.sample(true), Some(None));
+}
+
 #[test]
 fn frame_error_logs_are_rate_limited() {
     let mut r = RateLimit::new(1000);

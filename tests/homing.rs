@@ -1,11 +1,22 @@
 //! Homing (SPEC §8.6): every method from several start positions with
 //! switches of finite width, the origin at the deciding edge, the offset
-//! move and zeroing, the 13/12/10 status combinations and the errors.
+//! move and zeroing, the 13/12/10 status combinations and the errors; the
+//! origin latched at the edge when the glue samples the switches late (the
+//! firmware's debounced 1 kHz loop, `Device::control_latched`), and stale
+//! latched edges ignored.
 
 mod common;
 
+#[path = "../src/firmware/calc.rs"]
+#[allow(dead_code)]
+mod calc;
+
+use calc::LatchedSwitch;
 use common::axis::Rig;
-use modbus_drive::motion::sim::SimAxis;
+use modbus_drive::drive::DriveEvent;
+use modbus_drive::event::Event;
+use modbus_drive::motion::sim::{RunStop, SimAxis};
+use modbus_drive::motion::{Homing, HomingMethod, HomingStep, SwitchEdges, Switches};
 
 const ENABLED: u16 = 0x0037;
 const RUNNING: u16 = 1 << 9;
@@ -283,4 +294,244 @@ fn leaving_operation_enabled_interrupts() {
     assert!(rig.at_rest());
     rig.write_single(0x6040, 0x000F);
     assert_eq!(rig.statusword() & STATUS, REACHED, "interrupted: 001");
+}
+
+// ------------------------------------------- origin latched at the edge (SPEC §8.6)
+
+/// The firmware's glue (src/firmware/control.rs, switches.rs) on the
+/// simulated axis: `Device::control_latched` every 1 ms only, switch
+/// states debounced over three samples (`calc::LatchedSwitch`, so 2–3 ms
+/// after the edge), and — if `latch` — the step count the switch interrupt
+/// latched at the edge (`StepSchedule::position`).
+struct Firmware {
+    sw: [LatchedSwitch; 3],
+    latch: bool,
+}
+
+impl Firmware {
+    fn new(rig: &Rig, latch: bool) -> Self {
+        let s = rig.axis.switches();
+        Self {
+            sw: [s.cw_limit, s.ccw_limit, s.home].map(LatchedSwitch::new),
+            latch,
+        }
+    }
+
+    /// The EXTI handler (and the control loop's own pin reading).
+    fn read(&mut self, rig: &Rig) -> [bool; 3] {
+        let s = rig.axis.switches();
+        let raw = [s.cw_limit, s.ccw_limit, s.home];
+        for (l, r) in self.sw.iter_mut().zip(raw) {
+            l.edge(r, rig.sched.position());
+        }
+        raw
+    }
+
+    /// One millisecond: the axis runs, the switch interrupt fires at each
+    /// switch change, then the control loop samples.
+    fn run_ms(&mut self, rig: &mut Rig) {
+        let next = rig.now_us + rig.period_us;
+        let until = rig.axis.us_to_ticks(next);
+        while rig.axis.run_until(&rig.sched, until, |_| {}) == RunStop::SwitchChanged {
+            self.read(rig);
+        }
+        rig.now_us = next;
+        let raw = self.read(rig);
+        let [cw, ccw, home] = [0, 1, 2].map(|i| self.sw[i].sample(raw[i]).flatten());
+        let states = Switches {
+            cw_limit: self.sw[0].state(),
+            ccw_limit: self.sw[1].state(),
+            home: self.sw[2].state(),
+        };
+        let edges = if self.latch {
+            SwitchEdges {
+                cw_limit: cw,
+                ccw_limit: ccw,
+                home,
+            }
+        } else {
+            SwitchEdges::default()
+        };
+        rig.bus
+            .device
+            .control_latched(rig.now_us, states, edges, &rig.sched);
+        rig.axis.kick(&rig.sched);
+    }
+}
+
+/// Method `m` from `from` under the firmware's glue: (where the motor
+/// ended, physical; the origin the drive reported, raw steps; the position
+/// at the control call that found it, raw).
+fn home_late(m: i16, from: i64, offset: i32, latch: bool) -> (i64, i64, i64) {
+    let mut rig = rig_at(from, true);
+    start(&mut rig, m, offset);
+    rig.bus.events();
+    let mut fw = Firmware::new(&rig, latch);
+    let mut attained = None;
+    for _ in 0..20_000 {
+        fw.run_ms(&mut rig);
+        for e in rig.bus.events() {
+            if let Event::Drive(DriveEvent::HomingAttained { origin }) = e {
+                attained = Some((i64::from(origin), rig.sched.position()));
+            }
+        }
+        let s = rig.statusword();
+        assert_eq!(s & BIT13, 0, "method {m} from {from}: error");
+        if s & STATUS == BIT12 | REACHED && rig.at_rest() {
+            assert_eq!(rig.position(), 0, "method {m} from {from}: zeroed");
+            let (origin, at_call) = attained.expect("attained reported");
+            // the call's position: the schedule's count when the event came
+            return (rig.axis.position(), origin, i64::from(at_call));
+        }
+    }
+    panic!("method {m} from {from}: not done in 20 s");
+}
+
+/// SPEC §8.6 "the origin is the position at which the deciding switch edge
+/// was seen (latched at that step)": with the switches seen 2–3 ms late,
+/// every method from every side ends exactly at latched edge + 0x607C, and
+/// the origin differs from the position at the control call that found it.
+#[test]
+fn latched_edge_is_the_origin_for_every_method() {
+    for m in 1..=8 {
+        let offset = if m % 2 == 1 { 500 } else { -500 };
+        for from in [-10_000, -1_500, 5_000, CW_EDGE - 300, CCW_EDGE + 300] {
+            let (end, found, at_call) = home_late(m, from, offset, true);
+            let want = origin(m, from);
+            assert_eq!(found, want - from, "method {m} from {from}: origin (raw)");
+            assert_eq!(end, want + i64::from(offset), "method {m} from {from}");
+            assert_ne!(found, at_call, "method {m} from {from}: edge seen late");
+        }
+    }
+}
+
+/// The same glue without the latch takes the origin where the debounced
+/// change was seen: late in the direction of travel (README "Homing
+/// origin") — what the latch above corrects.
+#[test]
+fn without_the_latch_the_origin_is_late() {
+    for m in 1..=8 {
+        let from = if m % 2 == 1 { 5_000 } else { -10_000 };
+        let (end, _, _) = home_late(m, from, 0, false);
+        let want = origin(m, from);
+        let late = if m % 2 == 1 { want - end } else { end - want };
+        assert!(late > 0, "method {m}: origin {end}, edge {want}");
+    }
+}
+
+const NONE: Switches = Switches {
+    cw_limit: false,
+    ccw_limit: false,
+    home: false,
+};
+const HOME_ON: Switches = Switches { home: true, ..NONE };
+
+fn home_edge(at: i32) -> SwitchEdges {
+    SwitchEdges {
+        home: Some(at),
+        ..SwitchEdges::default()
+    }
+}
+
+/// Method 1 searching left from 0 finds the CW limit at the call at -520:
+/// the latched edge at -480 lies on the leg and is the origin; one behind
+/// the leg's start or ahead of the present position is not (the position
+/// at the call is then, as without a latch).
+#[test]
+fn latched_edge_counts_only_on_the_current_leg() {
+    let cw_on = Switches {
+        cw_limit: true,
+        ..NONE
+    };
+    for (edge, origin) in [
+        (Some(-480), -480),
+        (Some(0), 0),
+        (Some(10), -520),
+        (Some(-600), -520),
+        (None, -520),
+    ] {
+        let mut h = Homing::start(HomingMethod::CwLimit, NONE);
+        assert_eq!(
+            h.update(NONE, SwitchEdges::default(), 0),
+            HomingStep::Continue
+        );
+        assert_eq!(
+            h.update(NONE, SwitchEdges::default(), -500),
+            HomingStep::Continue
+        );
+        let edges = SwitchEdges {
+            cw_limit: edge,
+            ccw_limit: Some(-510), // not the deciding switch
+            home: Some(-510),
+        };
+        assert_eq!(
+            h.update(cw_on, edges, -520),
+            HomingStep::Origin(origin),
+            "edge {edge:?}"
+        );
+    }
+}
+
+/// Method 7: the fast search finds the switch, brakes left through it
+/// (edges there are stale: the motor moves against the slow phase), turns
+/// at -1950, passes the switch right, brakes right to -1390 and comes back
+/// left. Only an edge between that turn and now is the origin; one latched
+/// beyond the turn (passed while braking) is ignored.
+#[test]
+fn edges_passed_while_braking_are_stale() {
+    for (edge, origin) in [(-1450, -1450), (-1390, -1390), (-1380, -1460)] {
+        let mut h = Homing::start(HomingMethod::HomeLeftTwoSpeed, NONE);
+        let none = SwitchEdges::default();
+        assert_eq!(h.update(NONE, none, 0), HomingStep::Continue);
+        assert_eq!(
+            h.update(HOME_ON, home_edge(-1400), -1500),
+            HomingStep::NextPhase
+        );
+        // braking left against "pass right": the release at the far edge
+        // is not "passed"
+        assert_eq!(h.update(HOME_ON, none, -1700), HomingStep::Continue);
+        assert_eq!(
+            h.update(NONE, home_edge(-1900), -1950),
+            HomingStep::Continue
+        );
+        assert_eq!(h.update(NONE, none, -1940), HomingStep::Continue);
+        assert_eq!(
+            h.update(HOME_ON, home_edge(-1905), -1850),
+            HomingStep::Continue
+        );
+        assert_eq!(
+            h.update(NONE, home_edge(-1000), -900),
+            HomingStep::NextPhase
+        );
+        // braking right against "seek left", then back
+        assert_eq!(h.update(NONE, none, -1400), HomingStep::Continue);
+        assert_eq!(h.update(NONE, none, -1390), HomingStep::Continue);
+        assert_eq!(h.update(NONE, none, -1395), HomingStep::Continue);
+        assert_eq!(
+            h.update(HOME_ON, home_edge(edge), -1460),
+            HomingStep::Origin(origin),
+            "edge {edge}"
+        );
+    }
+}
+
+/// Latched edges are wrapping i32 step counts (`StepSchedule::position`);
+/// the raw position is unwrapped i64: the edge is taken next to it.
+#[test]
+fn latched_edge_across_the_i32_wrap() {
+    let p = 1i64 << 31;
+    let ccw_on = Switches {
+        ccw_limit: true,
+        ..NONE
+    };
+    let mut h = Homing::start(HomingMethod::CcwLimit, NONE);
+    assert_eq!(
+        h.update(NONE, SwitchEdges::default(), p - 100),
+        HomingStep::Continue
+    );
+    let edges = SwitchEdges {
+        ccw_limit: Some((p + 5) as i32),
+        ..SwitchEdges::default()
+    };
+    assert_eq!(h.update(ccw_on, edges, p + 10), HomingStep::Origin(p + 5));
 }

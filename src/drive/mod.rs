@@ -19,7 +19,7 @@ use crate::motion::profile::isqrt;
 use crate::motion::schedule::brake_rate;
 use crate::motion::{
     Fill, Goal, Homing, HomingError, HomingMethod, HomingStep, Planner, PlannerConfig, Ramp,
-    StepSchedule, Switches,
+    StepSchedule, SwitchEdges, Switches,
 };
 use crate::params::{DriveMonitor, Params};
 
@@ -448,11 +448,14 @@ impl Drive {
     }
 
     /// The control loop (see the module docs). `switches` are the logical
-    /// states (after PA13, e.g. from [`io::SwitchInputs::read`]) sampled now.
+    /// states (after PA13, e.g. from [`io::SwitchInputs::read`]) sampled now;
+    /// `edges` where they began, if the glue latched that (homing origin,
+    /// SPEC §8.6), else [`SwitchEdges::default`].
     pub fn control(
         &mut self,
         now_us: u64,
         switches: Switches,
+        edges: SwitchEdges,
         sched: &StepSchedule,
         cfg: Config<'_>,
     ) {
@@ -487,7 +490,9 @@ impl Drive {
 
         if self.state == PowerState::OperationEnabled {
             if self.mode == MODE_HOMING {
-                self.run_homing();
+                // A disabled limit's edge is never used: the limit never
+                // meets a condition (Homing::update).
+                self.run_homing(edges);
             } else {
                 self.check_limits();
             }
@@ -728,14 +733,14 @@ impl Drive {
         }
     }
 
-    fn run_homing(&mut self) {
+    fn run_homing(&mut self, edges: SwitchEdges) {
         let HomingState::Searching(mut h) = self.homing else {
             return;
         };
         // Also while halted: an edge passed while braking is still the
         // edge (SPEC §8.6: the origin is where it was seen); the next
         // phase's motion waits for the resume (apply_goal).
-        match h.update(self.switches, self.raw_position) {
+        match h.update(self.switches, edges, self.raw_position) {
             HomingStep::Continue => {}
             HomingStep::NextPhase => {
                 self.homing = HomingState::Searching(h);

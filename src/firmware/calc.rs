@@ -266,6 +266,56 @@ impl Debounce {
     }
 }
 
+/// One switch input: the control loop's [`Debounce`] plus the step count
+/// at which its pending change began (SPEC §8.6: the homing origin is the
+/// position at the deciding edge, not where the debounce believed it).
+///
+/// With a bouncing contact the latch keeps the *first* raw reading away from
+/// the stable state (the contact's first touch or release: where the switch
+/// physically is) and forgets it only at a sample that reads the stable
+/// state again — a filtered glitch, or a bounce long enough for the
+/// debounce to restart its count, which then latches anew from there.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LatchedSwitch {
+    debounce: Debounce,
+    edge: Option<i32>,
+}
+
+impl LatchedSwitch {
+    pub const fn new(initial: bool) -> Self {
+        Self {
+            debounce: Debounce::new(initial),
+            edge: None,
+        }
+    }
+
+    pub fn state(&self) -> bool {
+        self.debounce.state()
+    }
+
+    /// A raw reading at step count `position` (the switch interrupt at each
+    /// edge, and the control loop before each sample).
+    pub fn edge(&mut self, raw: bool, position: i32) {
+        if raw != self.state() && self.edge.is_none() {
+            self.edge = Some(position);
+        }
+    }
+
+    /// One control-loop sample of the raw reading: `Some(edge)` when the
+    /// stable state changes now, with the latched step count if any.
+    pub fn sample(&mut self, raw: bool) -> Option<Option<i32>> {
+        let changed = self.debounce.sample(raw).is_some();
+        // at the stable state (just changed to it, or back after a glitch)
+        // the latch is spent
+        let edge = if raw == self.state() {
+            self.edge.take()
+        } else {
+            None
+        };
+        changed.then_some(edge)
+    }
+}
+
 // ---------------------------------------------------------------- logging
 
 /// Lets one log line through per `period_ms` and counts the rest, so a noisy

@@ -8,19 +8,19 @@
 //!
 //! `Device::control` wants to be called at least every millisecond, after
 //! each frame and at switch edges; here it runs every millisecond only, so a
-//! frame's set-point reaches the planner ≤ 1 ms after its reply and the
-//! homing origin is latched 2–3 ms after its switch edge (the debounce's
-//! three samples), not at the edge's step as SPEC §8.6 asks: README
-//! "Firmware", "Homing origin". Limits do not wait for this loop
-//! (switches.rs).
+//! frame's set-point reaches the planner ≤ 1 ms after its reply, and the
+//! debounced switch states come 2–3 ms after their edges — with the step
+//! count latched at each edge (switches.rs), which the core takes as the
+//! homing origin (`Device::control_latched`, SPEC §8.6; README "Firmware",
+//! "Homing origin"). Limits do not wait for this loop (switches.rs).
 
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};
 use modbus_drive::drive::io::PowerOutputs;
-use modbus_drive::motion::{StepSchedule, Switches};
+use modbus_drive::motion::StepSchedule;
 
 use super::board;
-use super::calc::{Debounce, StepShape};
+use super::calc::StepShape;
 use super::dispatch::{with_device, EventLog};
 use super::steps;
 use super::switches;
@@ -31,50 +31,20 @@ pub const CONTROL_PERIOD: Duration = Duration::from_micros(1000);
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;
 
-struct Debounced {
-    cw: Debounce,
-    ccw: Debounce,
-    home: Debounce,
-}
-
-impl Debounced {
-    fn new(s: Switches) -> Self {
-        Self {
-            cw: Debounce::new(s.cw_limit),
-            ccw: Debounce::new(s.ccw_limit),
-            home: Debounce::new(s.home),
-        }
-    }
-
-    /// One sample of all three; the stable states and whether any changed.
-    fn sample(&mut self, raw: Switches) -> (Switches, bool) {
-        let changed = self.cw.sample(raw.cw_limit).is_some()
-            | self.ccw.sample(raw.ccw_limit).is_some()
-            | self.home.sample(raw.home).is_some();
-        let stable = Switches {
-            cw_limit: self.cw.state(),
-            ccw_limit: self.ccw.state(),
-            home: self.home.state(),
-        };
-        (stable, changed)
-    }
-}
-
 pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule) -> ! {
     let mut ticker = Ticker::every(CONTROL_PERIOD);
-    let mut debounced = Debounced::new(switches::refresh());
     let mut log = EventLog::new();
     let mut last_shape = None;
     let mut pins_ok = true;
     loop {
         ticker.next().await;
         let now_us = Instant::now().as_micros();
-        let (switch_states, switches_changed) = debounced.sample(switches::refresh());
+        let (switch_states, edges, switches_changed) = switches::sample();
         if switches_changed {
             defmt::info!("switches: {}", switch_states);
         }
         let Some((outputs, params, shape)) = with_device(|d| {
-            d.control(now_us, switch_states, schedule);
+            d.control_latched(now_us, switch_states, edges, schedule);
             (
                 d.drive.outputs(),
                 (

@@ -10,14 +10,24 @@
 //! towards an active limit with 0x6085 at its next step, without waiting
 //! for the control loop (schedule.rs "Limit brake"; disarmed in homing,
 //! where the core's sequencer decides). The control loop reads the pins
-//! every millisecond too ([`refresh`], which also re-sends the limits, so a
+//! every millisecond too ([`sample`], which also re-sends the limits, so a
 //! change of PA13/PA14 or a missed edge is caught within 1 ms) and
-//! debounces them for the core (calc.rs).
+//! debounces them for the core ([`sample`], calc.rs `LatchedSwitch`).
 //!
-//! Shared state: the inputs behind a critical section ([`INPUTS`]), inside
-//! which the limits are also sent, so the EXTI interrupt and the control
-//! loop never overwrite a newer reading with an older one; PA13 polarity and
-//! PA14 enable bits in atomics written by the control loop.
+//! Homing origin (SPEC §8.6): at every reading that finds a switch away
+//! from its debounced state, the first such reading latches the step
+//! schedule's position (`StepSchedule::position`); the control loop hands
+//! it to the core with the debounced change (`Device::control_latched`),
+//! which takes it as the origin if it lies on the current search leg. The
+//! position is read inside the critical section: the step interrupt cannot
+//! be half-way through a step then (it is either done or not started), so
+//! the read is consistent.
+//!
+//! Shared state: the inputs and latches behind a critical section
+//! ([`INPUTS`]), inside which the limits are also sent, so the EXTI
+//! interrupt and the control loop never overwrite a newer reading with an
+//! older one; PA13 polarity and PA14 enable bits in atomics written by the
+//! control loop.
 
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicU16, Ordering};
@@ -27,23 +37,40 @@ use embassy_stm32::exti::ExtiInput;
 use embassy_stm32::interrupt::typelevel::Handler;
 use embassy_stm32::mode::Blocking;
 use modbus_drive::drive::io;
-use modbus_drive::motion::Switches;
+use modbus_drive::motion::{SwitchEdges, Switches};
 
 use super::board;
+use super::calc::LatchedSwitch;
 use super::steps;
 
 type Exti = ExtiInput<'static, Blocking>;
 /// The three switch inputs (board files).
 pub type SwitchInputs = io::SwitchInputs<Exti, Exti, Exti>;
 
-static INPUTS: Mutex<RefCell<Option<SwitchInputs>>> = Mutex::new(RefCell::new(None));
+struct Inputs {
+    pins: SwitchInputs,
+    cw: LatchedSwitch,
+    ccw: LatchedSwitch,
+    home: LatchedSwitch,
+}
+
+static INPUTS: Mutex<RefCell<Option<Inputs>>> = Mutex::new(RefCell::new(None));
 /// PA13: bit 0 CW, bit 1 CCW, bit 2 home; 1 = normally closed.
 static POLARITY: AtomicU16 = AtomicU16::new(0);
 /// PA14: bit 0 CW, bit 1 CCW limit enabled (default both).
 static LIMIT_ENABLE: AtomicU16 = AtomicU16::new(3);
 
-pub fn install(inputs: SwitchInputs) {
-    critical_section::with(|cs| *INPUTS.borrow_ref_mut(cs) = Some(inputs));
+/// The debounced states start inactive: a switch active at power-up is
+/// reported 3 ms later, like any change.
+pub fn install(pins: SwitchInputs) {
+    critical_section::with(|cs| {
+        *INPUTS.borrow_ref_mut(cs) = Some(Inputs {
+            pins,
+            cw: LatchedSwitch::new(false),
+            ccw: LatchedSwitch::new(false),
+            home: LatchedSwitch::new(false),
+        })
+    });
 }
 
 /// PA13 / PA14 as they are now (called by the control loop).
@@ -52,25 +79,52 @@ pub fn set_params(polarity: u16, limit_enable: u16) {
     LIMIT_ENABLE.store(limit_enable, Ordering::Relaxed);
 }
 
-/// Reads the three pins now and sends the enabled limits to the step
-/// schedule; returns the logical states (after PA13, before PA14: the core
+/// Reads the three pins now, sends the enabled limits to the step schedule
+/// and latches the step count for a switch that has left its debounced
+/// state; returns the logical states (after PA13, before PA14: the core
 /// applies PA14 itself).
-pub fn refresh() -> Switches {
+fn read(i: &mut Inputs) -> Switches {
+    let s = i.pins.read(POLARITY.load(Ordering::Relaxed));
+    let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
+    if let Some(schedule) = steps::schedule() {
+        schedule.set_limits(
+            s.cw_limit && enabled & 1 != 0,
+            s.ccw_limit && enabled & 2 != 0,
+        );
+        let position = schedule.position();
+        i.cw.edge(s.cw_limit, position);
+        i.ccw.edge(s.ccw_limit, position);
+        i.home.edge(s.home, position);
+    }
+    s
+}
+
+/// The control loop's sample: the debounced states, the latched edges of
+/// the switches whose debounced state changed now, and whether any did.
+pub fn sample() -> (Switches, SwitchEdges, bool) {
     critical_section::with(|cs| {
         let mut inputs = INPUTS.borrow_ref_mut(cs);
         // Not installed yet: nothing is blocked, nothing moves either.
         let Some(i) = inputs.as_mut() else {
-            return Switches::default();
+            return Default::default();
         };
-        let s = i.read(POLARITY.load(Ordering::Relaxed));
-        let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
-        if let Some(schedule) = steps::schedule() {
-            schedule.set_limits(
-                s.cw_limit && enabled & 1 != 0,
-                s.ccw_limit && enabled & 2 != 0,
-            );
-        }
-        s
+        let raw = read(i);
+        let (cw, ccw, home) = (
+            i.cw.sample(raw.cw_limit),
+            i.ccw.sample(raw.ccw_limit),
+            i.home.sample(raw.home),
+        );
+        let states = Switches {
+            cw_limit: i.cw.state(),
+            ccw_limit: i.ccw.state(),
+            home: i.home.state(),
+        };
+        let edges = SwitchEdges {
+            cw_limit: cw.flatten(),
+            ccw_limit: ccw.flatten(),
+            home: home.flatten(),
+        };
+        (states, edges, cw.or(ccw).or(home).is_some())
     })
 }
 
@@ -81,11 +135,11 @@ impl Handler<board::SwitchIrq> for SwitchHandler {
     unsafe fn on_interrupt() {
         critical_section::with(|cs| {
             if let Some(i) = INPUTS.borrow_ref_mut(cs).as_mut() {
-                i.cw_limit.clear_pending();
-                i.ccw_limit.clear_pending();
-                i.home.clear_pending();
+                i.pins.cw_limit.clear_pending();
+                i.pins.ccw_limit.clear_pending();
+                i.pins.home.clear_pending();
+                read(i);
             }
         });
-        refresh();
     }
 }

@@ -2,9 +2,11 @@
 //!
 //! Each phase runs in one direction at the fast (0x6099) or slow (0x609B)
 //! speed until a switch condition holds; the drive's control loop feeds it
-//! the switch states and the raw position at every call (the glue calls
-//! control at the step where a switch changed, so the latched origin is that
-//! step). Phases ("left" = negative = towards the CW limit):
+//! the switch states and the raw position at every call. The origin is the
+//! deciding switch's latched edge ([`SwitchEdges`], glue that samples the
+//! switches late) if that edge lies on the current leg, else the position
+//! at the call (glue that calls control at the step where a switch changed,
+//! e.g. the virtual drive). Phases ("left" = negative = towards the CW limit):
 //!
 //! | method | phases |
 //! |---|---|
@@ -28,7 +30,7 @@
 //! a reversal, reaching the other limit (or the same one again) is a
 //! homing error.
 
-use super::Switches;
+use super::{SwitchEdges, Switches};
 
 /// 0x6098 (SPEC §8.6).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -178,6 +180,11 @@ pub struct Homing {
     /// Raw position at the previous update: tells which way the motor
     /// moves.
     last_position: Option<i64>,
+    /// Where the current leg began: the phase's start, moved along while
+    /// the motor still brakes against the phase's direction (so it ends at
+    /// the turn, to within one control call). A latched edge counts only
+    /// between here and the present position.
+    leg_start: Option<i64>,
 }
 
 impl Homing {
@@ -238,6 +245,7 @@ impl Homing {
             reversed: false,
             home_seen: sw.home,
             last_position: None,
+            leg_start: None,
         }
     }
 
@@ -255,12 +263,15 @@ impl Homing {
     }
 
     /// Checks the current phase's condition against the switch states at
-    /// raw position `position`.
-    pub fn update(&mut self, sw: Switches, position: i64) -> HomingStep {
+    /// raw position `position`; `edges` are where the switches' states
+    /// began, if the glue latched them (SPEC §8.6 origin).
+    pub fn update(&mut self, sw: Switches, edges: SwitchEdges, position: i64) -> HomingStep {
         let p = self.phase();
         let moved = position - self.last_position.unwrap_or(position);
         self.last_position = Some(position);
+        let leg_start = self.leg_start.get_or_insert(position);
         if moved != 0 && (moved < 0) != p.left {
+            *leg_start = position;
             // Still braking from the previous phase, against this one: what
             // the switches do now is no edge of this phase (e.g. 7 overshoots
             // the switch it found fast and must not take its far edge as
@@ -269,10 +280,10 @@ impl Homing {
             return HomingStep::Continue;
         }
         // the limit in the direction of travel, and the one behind
-        let (ahead, behind) = if p.left {
-            (sw.cw_limit, sw.ccw_limit)
+        let (ahead, behind, edge_ahead) = if p.left {
+            (sw.cw_limit, sw.ccw_limit, edges.cw_limit)
         } else {
-            (sw.ccw_limit, sw.cw_limit)
+            (sw.ccw_limit, sw.cw_limit, edges.ccw_limit)
         };
         if sw.home {
             self.home_seen = true;
@@ -285,9 +296,19 @@ impl Homing {
         };
         if met {
             if p.origin {
-                return HomingStep::Origin(position);
+                // The deciding edge: origin phases wait for the limit ahead
+                // (an enabled one: `sw` has PA14 applied, so a disabled
+                // limit's edge never gets here) or for the home switch.
+                let edge = if p.until == Until::LimitActive {
+                    edge_ahead
+                } else {
+                    edges.home
+                };
+                return HomingStep::Origin(
+                    self.edge_on_leg(edge, position, p.left).unwrap_or(position),
+                );
             }
-            self.advance(sw);
+            self.advance(sw, position);
             return HomingStep::NextPhase;
         }
         if ahead && p.until != Until::LimitActive {
@@ -304,15 +325,34 @@ impl Homing {
             let here = &mut self.plan.phases[self.idx];
             here.left = !here.left;
             self.home_seen = sw.home;
+            self.leg_start = Some(position);
             return HomingStep::NextPhase;
         }
         HomingStep::Continue
     }
 
-    fn advance(&mut self, sw: Switches) {
+    fn advance(&mut self, sw: Switches, position: i64) {
         if self.idx + 1 < self.plan.len {
             self.idx += 1;
         }
         self.home_seen = sw.home;
+        self.leg_start = Some(position);
+    }
+
+    /// A latched edge (wrapping step count) if it lies on the current leg,
+    /// running `left` or not: between where the motion in this phase's
+    /// direction began and `position`. Anything else is stale (e.g. passed
+    /// while still braking against the phase) and is not the origin.
+    fn edge_on_leg(&self, edge: Option<i32>, position: i64, left: bool) -> Option<i64> {
+        // Relative to now, in wrapping i32 like the step counts (a leg is
+        // far shorter than 2^31 steps).
+        let back = edge?.wrapping_sub(position as i32);
+        let leg = self.leg_start.map_or(0, |s| (s - position) as i32);
+        let on_leg = if left {
+            (0..=leg).contains(&back)
+        } else {
+            (leg..=0).contains(&back)
+        };
+        on_leg.then_some(position + i64::from(back))
     }
 }

@@ -27,3 +27,20 @@ pub struct Switches {
     pub ccw_limit: bool,
     pub home: bool,
 }
+
+/// Where each switch's current state began, latched by glue whose control
+/// calls come later than the switch edges (SPEC §8.6: "the origin is the
+/// position at which the deciding switch edge was seen (latched at that
+/// step)"). Positions are raw step counts as [`StepSchedule::position`]
+/// reads them (wrapping `i32`); `None` = not latched (the drive then takes
+/// the position at the control call, as for glue that calls
+/// [`crate::device::Device::control`] at the edge's step). Only homing uses
+/// them, and only an edge on its current search leg
+/// ([`Homing::update`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SwitchEdges {
+    pub cw_limit: Option<i32>,
+    pub ccw_limit: Option<i32>,
+    pub home: Option<i32>,
+}
