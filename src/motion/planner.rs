@@ -118,8 +118,8 @@ impl Default for PlannerConfig {
     fn default() -> Self {
         Self {
             tick_hz: 10_000_000,
-            horizon_us: 4_000,
-            max_segment_us: 1_000,
+            horizon_us: 3_000,
+            max_segment_us: 2_000,
         }
     }
 }
@@ -570,8 +570,12 @@ fn fit_segment(n: u64, first: u64, last: u64, span: u64) -> (i64, i64) {
 /// `C(n,2)` and `C(n,3)`: exact in 64 bits for `n ≤ 2^20`
 /// (`MAX_PLANNED_SEGMENT`).
 fn pair_triple(n: u64) -> (u64, u64) {
-    let c2 = n * n.saturating_sub(1) / 2;
-    (c2, c2 * n.saturating_sub(2) / 3)
+    let c2 = (n * n.saturating_sub(1)) >> 1;
+    // C(n,2)·(n−2) is a multiple of 3: dividing it exactly is multiplying
+    // by the inverse of 3 modulo 2^64 (a u64 division is a software
+    // routine on a 32-bit core)
+    const INV3: u64 = 0xAAAA_AAAA_AAAA_AAAB;
+    (c2, (c2 * n.saturating_sub(2)).wrapping_mul(INV3))
 }
 
 /// `num / den` rounded to nearest, ties away from zero, through the fast
@@ -585,5 +589,22 @@ fn round_div(num: i128, den: u64) -> i128 {
         -(q as i128)
     } else {
         q as i128
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The 32-bit-division form of C(n,2), C(n,3) equals the plain one
+    /// up to the largest segment.
+    #[test]
+    fn pair_triple_is_exact() {
+        let check = |n: u64| {
+            let c2 = n * n.saturating_sub(1) / 2;
+            assert_eq!(pair_triple(n), (c2, c2 * n.saturating_sub(2) / 3), "{n}");
+        };
+        (0..5000).for_each(check);
+        (MAX_PLANNED_SEGMENT - 5000..=MAX_PLANNED_SEGMENT).for_each(check);
     }
 }

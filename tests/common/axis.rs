@@ -29,7 +29,10 @@ impl PlannerRun {
         let cfg = PlannerConfig {
             tick_hz,
             horizon_us: (2 * period_us + 1000) as u32,
-            max_segment_us: 1000,
+            // the shipped segment length: the exactness bounds hold for
+            // what the drive runs (segments end on the fit's error bound
+            // or this time, profile.rs `segment_len`)
+            max_segment_us: PlannerConfig::default().max_segment_us,
         };
         Self {
             sched: Box::new(StepSchedule::new()),
