@@ -40,7 +40,7 @@ use super::transport::{Listener, Pty, ReadOutcome, Stream};
 /// Longest sleep of the loop: the status line and trace keep ticking.
 const IDLE_WAKE_US: u64 = 20_000;
 /// Control loop period, as on the firmware (SPEC §8; within the planner's
-/// 4 ms horizon).
+/// 3 ms horizon).
 const CONTROL_PERIOD_US: u64 = 1_000;
 /// Control periods made up at once after the process was held up longer
 /// (suspended, debugger); beyond that simulated time skips ahead.
