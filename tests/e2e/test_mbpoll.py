@@ -2,9 +2,12 @@
 0x6041 and a write of 0x6083 (issue 4). `-P none`: mbpoll's default parity
 is even, the drive's line is 8N1 (SPEC §1)."""
 
+import re
+import signal
 import subprocess
+import time
 
-from conftest import ACCELERATION, Master
+from conftest import ACCELERATION, ACTUAL_POSITION, ROOT, Master
 
 
 def mbpoll(link, *args):
@@ -33,3 +36,32 @@ def test_mbpoll_writes_the_acceleration(start_drive):
     assert r.returncode == 0, r.stdout + r.stderr
     assert "Written 1 references" in r.stdout, r.stdout
     assert Master(d.client("tcp")).read(ACCELERATION) == 250
+
+
+def readme_session() -> str:
+    """The mbpoll block of the README's "First commands", as a newcomer
+    copies it."""
+    readme = (ROOT / "README.md").read_text()
+    m = re.search(r"```sh\n(M=\"mbpoll.*?)```", readme, re.S)
+    assert m, "README: the mbpoll session block is gone"
+    return m.group(1)
+
+
+def test_the_readme_session_works_as_written(start_drive, tmp_path):
+    """The README's first commands: start the drive with a pty link, run
+    the mbpoll lines unchanged (only the link path differs), and the move
+    arrives at 200000 steps; the plot is written on exit."""
+    plot = tmp_path / "move.svg"
+    d = start_drive("--no-status", "--plot", str(plot))
+    script = readme_session().replace("/tmp/ttyDRIVE", str(d.link))
+    r = subprocess.run(["bash", "-euo", "pipefail", "-c", script],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert f"[{0x6064}]:" in r.stdout, r.stdout  # the position was read
+    m = Master(d.client("tcp"))
+    deadline = time.monotonic() + 30
+    while m.read32(ACTUAL_POSITION) != 200000:
+        assert time.monotonic() < deadline, "the README's move did not arrive"
+        time.sleep(0.1)
+    assert d.stop(signal.SIGINT) == 0
+    assert plot.exists() and plot.stat().st_size > 0
