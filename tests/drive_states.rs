@@ -23,21 +23,13 @@ fn rig() -> Rig {
 }
 
 fn cw(rig: &mut Rig, v: u16) {
-    rig.bus
-        .write_single(0x6040, v)
-        .expect("controlword accepted");
-    rig.control();
+    rig.controlword(v);
 }
 
-/// Position mode, 10 r/s, 100 r/s² (1e6 steps/s²), quick stop 200 r/s².
+/// Enabled at once (0x000F), then the common position move.
 fn moving(rig: &mut Rig, target: i32) {
-    cw(rig, 0x000F);
-    rig.bus.write_single(0x6060, 1).unwrap();
-    rig.write_i32(0x6081, 100);
-    rig.write(0x6083, &[1000, 1000, 2000]);
-    rig.write_i32(0x607A, target);
-    cw(rig, 0x001F);
-    cw(rig, 0x000F);
+    rig.controlword(0x000F);
+    rig.start_position_move(target);
 }
 
 #[test]

@@ -16,22 +16,16 @@ const CW: u16 = 1 << 14;
 const CCW: u16 = 1 << 15;
 
 fn cw(rig: &mut Rig, v: u16) {
-    rig.bus.write_single(0x6040, v).expect("controlword");
-    rig.control();
+    rig.controlword(v);
 }
 
-/// Position mode, 10 r/s (100 000 steps/s), 100 r/s², quick stop 200 r/s²
-/// (2e6 steps/s²: 2500 steps from full speed).
+/// Enabled by the CiA 402 sequence, then the common position move
+/// (quick stop 2e6 steps/s²: 2500 steps from full speed).
 fn moving(rig: &mut Rig, target: i32) {
-    cw(rig, 0x0006);
-    cw(rig, 0x0007);
-    cw(rig, 0x000F);
-    rig.bus.write_single(0x6060, 1).unwrap();
-    rig.write_i32(0x6081, 100);
-    rig.write(0x6083, &[1000, 1000, 2000]);
-    rig.write_i32(0x607A, target);
-    cw(rig, 0x001F);
-    cw(rig, 0x000F);
+    for v in [0x0006, 0x0007, 0x000F] {
+        rig.controlword(v);
+    }
+    rig.start_position_move(target);
 }
 
 /// The firmware's EXTI handler: the enabled limits, at once.

@@ -526,6 +526,26 @@ impl Rig {
         self.write(start, &[(v >> 16) as u16, v as u16]);
     }
 
+    /// Writes 0x6040 and runs the control loop once.
+    pub fn controlword(&mut self, v: u16) {
+        self.bus
+            .write_single(0x6040, v)
+            .expect("controlword accepted");
+        self.control();
+    }
+
+    /// From operation enabled: position mode, 10 r/s, 100 r/s², quick stop
+    /// 200 r/s² (PA10 = 10 000: 1e5 steps/s, 1e6 and 2e6 steps/s²), then
+    /// latches `target` with a bit 4 edge (SPEC §8.4).
+    pub fn start_position_move(&mut self, target: i32) {
+        self.bus.write_single(0x6060, 1).expect("mode accepted");
+        self.write_i32(0x6081, 100);
+        self.write(0x6083, &[1000, 1000, 2000]);
+        self.write_i32(0x607A, target);
+        self.controlword(0x001F);
+        self.controlword(0x000F);
+    }
+
     /// Runs the control loop for `us`, stopping at every switch change to
     /// call it at that exact step.
     pub fn run_us(&mut self, us: u64) {
