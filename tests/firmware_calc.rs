@@ -259,6 +259,8 @@ fn segment(interval_ticks: u64, count: u32, forward: bool) -> Segment {
         interval: interval_ticks * ONE,
         add: 0,
         add2: 0,
+        add3: 0,
+        add4: 0,
         count,
         forward,
     }

@@ -25,7 +25,7 @@
 //! steps once the speed is above `sqrt(64·a)` steps/s (below that they are
 //! single steps, at a step rate low enough not to matter).
 
-use super::profile::{div, isqrt, slope_of, stop_steps, w_of, Profile, V_FRAC};
+use super::profile::{isqrt, slope_of, stop_steps, w_of, Profile, SegmentBudget, V_FRAC};
 use super::schedule::{Segment, StepSchedule, SCHEDULE_SLOTS, TICK_FRAC_BITS};
 
 /// Highest step rate the drive generates, steps/s. Faster requests are
@@ -37,9 +37,6 @@ pub const MAX_STEP_RATE: u32 = 200_000;
 /// more single-step segments than [`SCHEDULE_SLOTS`] to cover a 2 ms
 /// control period; larger register values are clamped.
 pub const MAX_ACCEL: u64 = 2_000_000;
-
-/// Largest segment the planner emits (steps).
-const MAX_PLANNED_SEGMENT: u64 = 1 << 20;
 
 /// Velocity / acceleration limits of one motion, in 0.1 steps/s and
 /// 0.1 steps/s² (the registers' units times PA10).
@@ -119,7 +116,7 @@ impl Default for PlannerConfig {
         Self {
             tick_hz: 10_000_000,
             horizon_us: 3_000,
-            max_segment_us: 2_000,
+            max_segment_us: 1_000_000,
         }
     }
 }
@@ -163,11 +160,18 @@ pub struct Planner {
     /// Steps queued since start (wrapping; a stop at once drops some of
     /// them unmade): lets a test tell which profile timed a step.
     pub planned_steps: u64,
+    budget: SegmentBudget,
+    /// `horizon_us` in Q32.32 ticks.
+    horizon_q: u64,
+    /// Time per step at the end of the last segment (Q32.32 ticks, 0 =
+    /// none) and the v² it belongs to.
+    s_end: u64,
+    s_end_w: u128,
 }
 
 impl Planner {
     pub fn new(cfg: PlannerConfig) -> Self {
-        Self {
+        let mut p = Self {
             cfg,
             pos: 0,
             forward: true,
@@ -183,7 +187,13 @@ impl Planner {
             late_segments: 0,
             now: 0,
             planned_steps: 0,
-        }
+            budget: SegmentBudget::new(cfg.tick_hz, cfg.max_segment_us),
+            horizon_q: 0,
+            s_end: 0,
+            s_end_w: 0,
+        };
+        p.horizon_q = p.ticks_q(u64::from(cfg.horizon_us));
+        p
     }
 
     pub fn config(&self) -> PlannerConfig {
@@ -335,6 +345,16 @@ impl Planner {
     pub fn fill(&mut self, now_us: u64, sched: &StepSchedule) -> Fill {
         let now = self.ticks_q(now_us);
         self.now = now;
+        let covered = self.t_ideal.wrapping_sub(now) as i64 >= self.horizon_q as i64;
+        if covered
+            && !self.flushing
+            && self.profile.as_ref().is_some_and(|p| p.remaining() != 0)
+            && (sched.is_running() || !sched.is_empty())
+        {
+            // the common call: the horizon is covered (what the loop
+            // below would find, without its set-up)
+            return Fill::Full;
+        }
         if self.flushing {
             let braking = sched.limit_brake().is_some_and(|b| !b.done);
             if braking || sched.flush_pending() && (sched.is_running() || !sched.is_empty()) {
@@ -356,7 +376,7 @@ impl Planner {
             self.t_isr = now;
             self.t_ideal = now;
         }
-        let horizon = self.ticks_q(u64::from(self.cfg.horizon_us));
+        let horizon = self.horizon_q;
         loop {
             let Some(profile) = self.profile.as_mut() else {
                 if let Some(goal) = self.then.take() {
@@ -379,10 +399,9 @@ impl Planner {
                 }
                 return Fill::Ended;
             }
-            if sched.free() == 0 || self.t_ideal.wrapping_sub(now) as i64 >= horizon as i64 {
+            if self.t_ideal.wrapping_sub(now) as i64 >= horizon as i64 || !self.emit(sched) {
                 return Fill::Full;
             }
-            self.emit(sched);
         }
     }
 
@@ -486,43 +505,56 @@ impl Planner {
         self.then = Some(goal);
     }
 
+    /// Time per step (Q32.32 ticks) after the last queued step: the end
+    /// slope of the previous segment when it is still the state's (one
+    /// division saved per segment), else from the profile.
+    fn start_step_ticks(&self, profile: &Profile) -> Option<u64> {
+        if self.s_end_w == self.w && self.s_end != 0 {
+            return Some(self.s_end);
+        }
+        profile.step_ticks()
+    }
+
     /// Times the next run of steps of the current profile and queues it.
-    fn emit(&mut self, sched: &StepSchedule) {
-        let Some(profile) = self.profile.as_mut() else {
-            return;
+    /// False (nothing done) if the schedule has no room for it.
+    fn emit(&mut self, sched: &StepSchedule) -> bool {
+        let Some(profile) = self.profile.as_ref() else {
+            return true;
         };
-        // Longest segment allowed by the latency bound at the current speed.
-        let v = profile.velocity();
-        let by_time = div(
-            u128::from(self.cfg.max_segment_us) * u128::from(v),
-            10_000_000,
-        );
-        let max_steps = (by_time as u64).clamp(1, MAX_PLANNED_SEGMENT);
-        let n = profile.segment_len(max_steps);
-        let t_first = profile.advance(1);
+        let s0 = self.start_step_ticks(profile);
+        let c0 = s0.map_or(0, |s0| profile.curvature(s0));
+        let n = profile.segment_len(s0, c0, &self.budget);
+        if sched.free() == 0 {
+            return false;
+        }
+        let Some(profile) = self.profile.as_mut() else {
+            return true;
+        };
+        let t_last = profile.advance(n);
+        let s1 = profile.step_ticks();
+        // the span the interrupt must make, from where it will be
+        let span = t_last.wrapping_sub(self.t_isr);
+        let seg = match (n, s0, s1) {
+            (2.., Some(s0), Some(s1)) => {
+                let ends = [(s0, c0), (s1, profile.curvature(s1))];
+                fit_segment(n, ends, span)
+            }
+            // single steps (or no slope at the end: evenly, the rest of
+            // the span is carried to the next segment through t_isr)
+            _ => [span >> n.trailing_zeros(), 0, 0, 0, 0],
+        };
+        let [first, add, add2, add3, add4] = seg;
+        let t_first = self.t_isr.wrapping_add(first);
         if (t_first.wrapping_sub(self.now) as i64) < 0 {
             self.late_segments = self.late_segments.wrapping_add(1);
         }
-        let first = t_first.wrapping_sub(self.t_isr);
-        let (t_last, (add, add2)) = match n {
-            1 => (t_first, (0, 0)),
-            2 => {
-                let t2 = profile.advance(1);
-                (t2, (t2.wrapping_sub(t_first) as i64 - first as i64, 0))
-            }
-            _ => {
-                let t_pen = profile.advance(n - 2);
-                let t_last = profile.advance(1);
-                let last = t_last.wrapping_sub(t_pen);
-                let span = t_last.wrapping_sub(self.t_isr);
-                (t_last, fit_segment(n, first, last, span))
-            }
-        };
-        let (c2, c3) = pair_triple(n);
-        let span = i128::from(n) * i128::from(first)
-            + i128::from(c2) * i128::from(add)
-            + i128::from(c3) * i128::from(add2);
-        self.t_isr = self.t_isr.wrapping_add(span as u64);
+        // Σ intervals = Σ_k C(n, k+1)·(k-th term): wrapping, like the
+        // interrupt's sums
+        let made = binomials(n)
+            .iter()
+            .zip(seg)
+            .fold(0u64, |t, (c, term)| t.wrapping_add(c.wrapping_mul(term)));
+        self.t_isr = self.t_isr.wrapping_add(made);
         self.t_ideal = t_last;
         self.planned_steps = self.planned_steps.wrapping_add(n);
         self.pos += if profile.forward {
@@ -532,6 +564,7 @@ impl Planner {
         };
         self.w = profile.w();
         self.forward = profile.forward;
+        (self.s_end, self.s_end_w) = (s1.unwrap_or(0), self.w);
         let speed = profile.velocity() as i64;
         let info = SlotInfo {
             velocity: if profile.forward { speed } else { -speed },
@@ -540,71 +573,94 @@ impl Planner {
         let slot = sched.pushed() as usize % SCHEDULE_SLOTS;
         let seg = Segment {
             interval: first,
-            add,
-            add2,
+            add: add as i64,
+            add2: add2 as i64,
+            add3: add3 as i64,
+            add4: add4 as i64,
             count: n as u32,
             forward: profile.forward,
         };
         if sched.push(seg).is_ok() {
             self.slots[slot] = info;
         }
+        true
     }
 }
 
-/// `add` and `add2` (Q32.32) of a segment of `n ≥ 3` steps whose first
-/// interval is `first`, last interval `last` and total `span`:
-/// `(n−1)·add + C(n−1,2)·add2 = last − first` and
-/// `C(n,2)·add + C(n,3)·add2 = span − n·first`. `add2` is solved from both,
-/// `add` from the second (so the end time is exact up to rounding of `add`,
-/// which the caller accounts for).
-fn fit_segment(n: u64, first: u64, last: u64, span: u64) -> (i64, i64) {
-    let n = i128::from(n);
-    let p = i128::from(last) - i128::from(first);
-    let s = i128::from(span) - n * i128::from(first);
-    let (c2, c3) = pair_triple(n as u64);
-    let add2 = round_div(n * p - 2 * s, c3);
-    let add = round_div(s - i128::from(c3) * add2, c2);
-    (add as i64, add2 as i64)
+/// `[interval, add, add2, add3, add4]` (Q32.32, two's complement) of a
+/// segment of `n = 2^k ≥ 2` steps whose step times follow the quintic
+/// `T(j)` with `T(0) = 0`, `T(n) = span` and the slopes and curvatures
+/// `ends = [(T'(0), T''(0)), (T'(n), T''(n))]` (quintic Hermite: the
+/// profile's `dt/dx = 1/v` and `d²t/dx² = −a/v³` at both ends, so that
+/// consecutive segments join with continuous velocity *and*
+/// acceleration). With `T(j) = s0·j + c0/2·j² + (N3·j³ + N4·j⁴/n +
+/// N5·j⁵/n²)/n³` the terms are the forward differences of `T` at 0, each
+/// rounded once from exact numerators over `n⁵` (a shift): the rounding
+/// of the highest term, summed over the segment, stays below 1/100 tick.
+/// The caller accounts the rest: it tracks the time the interrupt will
+/// really reach.
+fn fit_segment(n: u64, ends: [(u64, i64); 2], span: u64) -> [u64; 5] {
+    let [(s0, c0), (s1, c1)] = ends;
+    let k = n.trailing_zeros();
+    // R, R1 are small remainders of large numbers: wrapping arithmetic
+    // gives them exactly. Sizes: R ≈ t‴·n³/6 ≤ span·2^27 (n ≤ m/2), and
+    // spans ≤ 2^22 ticks (SegmentBudget): every number below < 2^62.
+    let h = n as i64;
+    let r = span
+        .wrapping_sub(s0.wrapping_mul(n))
+        .wrapping_sub((c0.wrapping_mul(h * h) >> 1) as u64) as i64;
+    let r1 = s1.wrapping_sub(s0).wrapping_sub(c0.wrapping_mul(h) as u64) as i64;
+    let r2h2 = (c1.wrapping_sub(c0) << (2 * k)) >> 1;
+    let r1h = r1 << k;
+    let n3 = 10 * r - 4 * r1h + r2h2;
+    let n4 = -15 * r + 7 * r1h - 2 * r2h2;
+    let n5 = 6 * r - 3 * r1h + r2h2;
+    // a3 = N3/n³, a4 = N4/n⁴, a5 = N5/n⁵; Δ^k of j^m at 0 is k!·S(m,k):
+    // (1,6,6), (1,14,36,24), (1,30,150,240,120). Each term rounded
+    // separately (≤ 1.5 units of 2^-32 tick), the highest once.
+    let rnd = |x: i64, sh: u32| ((x >> (sh - 1)) + 1) >> 1;
+    let t = |c3: i64, c4: i64, c5: i64| {
+        (rnd(c3 * n3, 3 * k) + rnd(c4 * n4, 4 * k) + rnd(c5 * n5, 5 * k)) as u64
+    };
+    [
+        s0.wrapping_add((c0 >> 1) as u64).wrapping_add(t(1, 1, 1)),
+        (c0 as u64).wrapping_add(t(6, 14, 30)),
+        t(6, 36, 150),
+        t(0, 24, 240),
+        t(0, 0, 120),
+    ]
 }
 
-/// `C(n,2)` and `C(n,3)`: exact in 64 bits for `n ≤ 2^20`
-/// (`MAX_PLANNED_SEGMENT`).
-fn pair_triple(n: u64) -> (u64, u64) {
-    let c2 = (n * n.saturating_sub(1)) >> 1;
-    // C(n,2)·(n−2) is a multiple of 3: dividing it exactly is multiplying
-    // by the inverse of 3 modulo 2^64 (a u64 division is a software
-    // routine on a 32-bit core)
+/// `C(n, 1..=5)`, exact in 64 bits for `n ≤ 2^12` (segments hold at most
+/// 2^8 steps). The divisions are exact: by 2 and 4 shifts, by 3 and 5
+/// multiplications by the inverse modulo 2^64 (a u64 division is a
+/// software routine on a 32-bit core).
+fn binomials(n: u64) -> [u64; 5] {
     const INV3: u64 = 0xAAAA_AAAA_AAAA_AAAB;
-    (c2, (c2 * n.saturating_sub(2)).wrapping_mul(INV3))
-}
-
-/// `num / den` rounded to nearest, ties away from zero, through the fast
-/// 128-by-64 division (profile.rs) on the magnitude.
-fn round_div(num: i128, den: u64) -> i128 {
-    let q = super::profile::div(
-        2 * num.unsigned_abs() + u128::from(den),
-        2 * u128::from(den),
-    );
-    if num < 0 {
-        -(q as i128)
-    } else {
-        q as i128
-    }
+    const INV5: u64 = 0xCCCC_CCCC_CCCC_CCCD;
+    let m = |k: u64| n.saturating_sub(k);
+    let c2 = (n * m(1)) >> 1;
+    let c3 = (c2 * m(2)).wrapping_mul(INV3);
+    let c4 = (c3 * m(3)) >> 2;
+    let c5 = (c4 * m(4)).wrapping_mul(INV5);
+    [n, c2, c3, c4, c5]
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// The 32-bit-division form of C(n,2), C(n,3) equals the plain one
-    /// up to the largest segment.
+    /// The division-free binomials equal the plain ones up to 2^12.
     #[test]
-    fn pair_triple_is_exact() {
-        let check = |n: u64| {
-            let c2 = n * n.saturating_sub(1) / 2;
-            assert_eq!(pair_triple(n), (c2, c2 * n.saturating_sub(2) / 3), "{n}");
-        };
-        (0..5000).for_each(check);
-        (MAX_PLANNED_SEGMENT - 5000..=MAX_PLANNED_SEGMENT).for_each(check);
+    fn binomials_are_exact() {
+        for n in 0..=4096u64 {
+            let mut c = [0u64; 5];
+            let mut b = 1u128;
+            for (k, ck) in c.iter_mut().enumerate() {
+                b = b * u128::from(n.saturating_sub(k as u64)) / (k as u128 + 1);
+                *ck = b as u64;
+            }
+            assert_eq!(binomials(n), c, "{n}");
+        }
     }
 }

@@ -28,13 +28,6 @@ pub const X_FRAC: u32 = 32;
 /// v² slope per Q32 position unit for a slope of 1 (V² per step).
 const SLOPE_SHIFT: u32 = W_FRAC - X_FRAC;
 
-/// Relative velocity change allowed within one segment: 2^-5 ≈ 3 %. The
-/// segment's intervals are a quadratic in the step number matched to the
-/// exact ones at both ends; the ideal ones go as 1/v, whose next term makes
-/// the shown acceleration deviate by about 15·δ²/12 ≈ 0.1 % (SPEC
-/// exactness: ≤ +2 %).
-const SEGMENT_DV_SHIFT: u32 = 5;
-
 /// v² in fixed point from a velocity in 0.1 steps/s.
 pub const fn w_of(v: u64) -> u128 {
     (v as u128 * v as u128) << W_FRAC
@@ -57,12 +50,74 @@ pub fn stop_steps(w: u128, sd: u128) -> u64 {
     div(w + (per_step - 1), per_step) as u64
 }
 
+/// Largest segment, as a power of two (steps): the schedule's ring must
+/// take a whole segment ([`crate::motion::schedule`]).
+pub const MAX_SEGMENT_LOG2: u32 = 8;
+
+/// What bounds a segment's length besides the fit (set once from the
+/// planner's configuration).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SegmentBudget {
+    /// 256·log2 of the longest segment, in Q32.32 ticks.
+    pub log_max_ticks: i32,
+    /// Timer ticks per µs, × 256 (the 1 µs error bound).
+    pub us_q8: u64,
+}
+
+impl SegmentBudget {
+    pub fn new(tick_hz: u32, max_segment_us: u32) -> Self {
+        let ticks = u128::from(max_segment_us.max(1)) * u128::from(tick_hz) / 1_000_000;
+        // and at most 2^22 ticks: the segment fit's numbers stay in 64 bits
+        let ticks = ticks.min(1 << 22);
+        Self {
+            log_max_ticks: log2_q8(ticks.max(1) << 32),
+            us_q8: (u64::from(tick_hz) << 8) / 1_000_000,
+        }
+    }
+}
+
+/// `num / den ≈ m / 2^sh` with `m` in [2^30, 2^32) (`num`, `den` > 0,
+/// `num` < 2^96): 30 bits of a ratio of any size, one division.
+fn ratio(num: u128, den: u128) -> (u64, u32) {
+    let sh = (31 + den.ilog2() as i32 - num.ilog2() as i32).max(0) as u32;
+    (div(num << sh.min(127 - num.ilog2()), den) as u64, sh)
+}
+
+/// `⌊256·log2(1 + i/32)⌋`.
+const LOG2_FRAC_Q8: [u8; 32] = [
+    0, 11, 22, 33, 43, 53, 63, 73, 82, 91, 100, 109, 117, 125, 134, 141, 149, 157, 164, 172, 179,
+    186, 193, 200, 206, 213, 219, 225, 232, 238, 244, 250,
+];
+/// `⌊256·log2 1000⌋`, `⌊256·log2 250⌋` (segment_len's fit constants).
+const LOG2_Q8_1000: i32 = 2551;
+const LOG2_Q8_250: i32 = 2039;
+/// `⌈256·log2 40⌉`.
+const LOG2_Q8_40_UP: i32 = 1363;
+/// Longest segment on a ramp, as a power of two (steps).
+const MAX_RAMP_SEGMENT_LOG2: u32 = 7;
+
+/// A lower bound of `256·log2 x` (`x > 0`), at most 12/256 bit below:
+/// the exponent and five bits of mantissa through a table.
+pub(crate) fn log2_q8(x: u128) -> i32 {
+    let e = 127 - x.leading_zeros();
+    let top = (if e >= 5 { x >> (e - 5) } else { x << (5 - e) }) as usize & 31;
+    e as i32 * 256 + i32::from(LOG2_FRAC_Q8[top])
+}
+
+/// An upper bound of `256·log2 x` (`x > 0`).
+fn log2_q8_up(x: u128) -> i32 {
+    log2_q8(x) + 12
+}
+
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct Piece {
     /// End position, Q32 steps from the profile origin.
     end: u128,
     /// v² slope per Q32 unit (0 = cruise).
     slope: i128,
+    /// The acceleration in steps/tick² as `m / 2^sh` ([`ratio`]): the
+    /// step times' curvature is `t'' = ∓a·(dt/dx)³` ([`Profile::curvature`]).
+    accel: (u64, u32),
 }
 
 /// See the module docs.
@@ -116,24 +171,24 @@ impl Profile {
         let we = we.min(wc);
         let d = u128::from(steps) << X_FRAC;
         let sd_i = sd as i128;
-        let fall_len = (wc - we) / sd.max(1);
+        let fall_len = div(wc - we, sd.max(1));
         let x_ce = d.saturating_sub(fall_len);
         let mut p = Self::start(forward, Some(steps), w0, t0, tick_hz);
         p.w_end = we;
         p.w_cruise = wc;
         if w0 <= wc {
-            let x_rc = (wc - w0).checked_div(su).unwrap_or(0);
+            let x_rc = if su == 0 { 0 } else { div(wc - w0, su) };
             if x_rc <= x_ce {
                 p.push(x_rc, su as i128);
                 p.push(x_ce, 0);
                 p.push(d, -sd_i);
             } else {
-                let x_p = ((we + sd * d).saturating_sub(w0) / (su + sd)).min(d);
+                let x_p = div((we + sd * d).saturating_sub(w0), su + sd).min(d);
                 p.push(x_p, su as i128);
                 p.push(d, -sd_i);
             }
         } else {
-            let x_fc = ((w0 - wc) / sd.max(1)).min(x_ce);
+            let x_fc = div(w0 - wc, sd.max(1)).min(x_ce);
             p.push(x_fc, -sd_i);
             p.push(x_ce, 0);
             p.push(d, -sd_i);
@@ -188,7 +243,13 @@ impl Profile {
     }
 
     fn push(&mut self, end: u128, slope: i128) {
-        self.pieces[self.n_pieces] = Piece { end, slope };
+        // a = |slope|·2^32 / 2^40 / 200 steps/s² (V² per step over 2·10²),
+        // over f² = (k_time/20)²: |slope| / (128·k_time²) steps/tick²
+        let accel = match slope.unsigned_abs() {
+            0 => (0, 0),
+            sl => ratio(sl, 128 * self.k_time * self.k_time),
+        };
+        self.pieces[self.n_pieces] = Piece { end, slope, accel };
         self.n_pieces += 1;
     }
 
@@ -224,41 +285,118 @@ impl Profile {
             && u128::from(self.done) < self.pieces[self.idx].end >> X_FRAC
     }
 
-    /// How many steps the next schedule segment should hold: whole steps
-    /// inside the current piece, short enough that the velocity changes by at
-    /// most 2^-8 over it (1 if the next step crosses a piece boundary).
-    pub fn segment_len(&self, max_steps: u64) -> u64 {
+    /// Time per step (Q32.32 ticks) at the last timed step: `dt/dx = 1/v`,
+    /// the slope the planner's segment fit matches at each end. `None` at
+    /// rest or below about 0.2 steps/s (the quotient would not fit), where
+    /// segments are single steps anyway.
+    pub fn step_ticks(&self) -> Option<u64> {
+        // 1/v in ticks per step = 10·f·2^V_FRAC / av = k_time·2^(V_FRAC-1) / av,
+        // and 2^32 more for Q32.32
+        let num = self.k_time << (V_FRAC - 1 + 32);
+        (self.av > num >> 64).then(|| div(num, self.av) as u64)
+    }
+
+    /// `t''(x)`, the change of the time per step per step (Q32.32 ticks),
+    /// at a point of the current piece where the time per step is `s`
+    /// ([`Profile::step_ticks`]): `t' = 1/v`, `t'' = −v'/v² = −a/v³ =
+    /// −a·s³` (negative while accelerating). Relative precision 2^-29:
+    /// it shapes the segment fit's curvature, not its end points.
+    pub fn curvature(&self, s: u64) -> i64 {
+        let piece = self.pieces[self.idx];
+        let (m, sh) = piece.accel;
+        if m == 0 || s == 0 {
+            return 0;
+        }
+        let z = s.leading_zeros();
+        let sn = u128::from(s << z);
+        let s3 = (((sn * sn) >> 64) * sn) >> 64; // (s·2^z)³ / 2^128
+                                                 // a·s³/2^64 = m·s3 · 2^(128 − 3z − sh − 64)
+        let prod = u128::from(m) * s3;
+        let e = 64 - 3 * z as i32 - sh as i32;
+        let c = if e >= 0 {
+            if prod >> (127 - e.min(127)) != 0 {
+                u128::from(u64::MAX >> 1)
+            } else {
+                prod << e
+            }
+        } else {
+            prod >> (-e).min(127)
+        };
+        let c = c.min(u128::from(u64::MAX >> 1)) as i64;
+        if piece.slope > 0 {
+            -c
+        } else {
+            c
+        }
+    }
+
+    /// How many steps the next schedule segment should hold: a power of
+    /// two, inside the current piece and the profile, within `budget`'s
+    /// length bound, and short enough that the planner's quintic Hermite
+    /// fit of the step times (it matches `t`, `t'` and `t''` at both ends,
+    /// planner.rs `fit_segment`) stays within the exactness bounds
+    /// (issue 3):
+    ///
+    /// - Time: on a ramp the step time is `t(x) ∝ √(m + x)` (`m` steps from
+    ///   the rest point of the ramp's slope), and the fit misses it by at
+    ///   most `max|t⁽⁶⁾|·n⁶/46080 = p·n⁶/(1562·m⁵)` ticks (`p` the
+    ///   interval). That error plus the timer's ½-tick rounding must stay
+    ///   inside `min(1 µs, 5 % of the interval)`: the fit may use
+    ///   `E = B/2 − ¼` ticks of `B = min(1 µs, p/25)` (p/25: the interval
+    ///   shrinks by up to 18 % along an accelerating segment), so
+    ///   `n⁶ ≤ K·E·m⁵/p` with `K = 1000` when accelerating, and `K = 250`
+    ///   when decelerating, whose worst point is the segment's end
+    ///   (`m − n ≥ 3m/4`, `p` 15 % longer there).
+    /// - Acceleration: the fit's `t''` is exact at both ends and misses by
+    ///   at most `t⁽⁶⁾·n⁴/1920`, i.e. `0.031·(n/m)⁴` relative, inside:
+    ///   `n ≤ m/2` (`m/4` decelerating) keeps the acceleration the motor
+    ///   sees within 0.2 % (issue 3: ≤ +2 %).
+    /// - Precision: `curv` is the curvature at the start
+    ///   ([`Profile::curvature`] at `step_ticks`). The segment's terms are
+    ///   rounded to 2^-32 tick, and the highest one's rounding (½ unit)
+    ///   reaches the last interval `C(n−1, 4)` times: kept below 0.1 % of
+    ///   the interval change per step (`|t''|`, which shrinks by up to
+    ///   45 % along an accelerating segment), `n⁴ ≤ |t''|/40` in units of
+    ///   2^-32 tick; its time error, `C(n, 5)` half units, stays below
+    ///   1/30 tick with ramp segments of at most 2^7 steps.
+    ///
+    /// No division or root: the bounds are compared as logarithms
+    /// ([`log2_q8`], 1/256 bit, rounded towards shorter segments).
+    pub fn segment_len(&self, step_ticks: Option<u64>, curv: i64, budget: &SegmentBudget) -> u64 {
         let piece = self.pieces[self.idx];
         let piece_end = (piece.end >> X_FRAC).min(u128::from(u64::MAX)) as u64;
         let avail = piece_end.saturating_sub(self.done).min(self.remaining());
-        if avail == 0 {
+        let Some(s0) = step_ticks.filter(|_| avail > 1) else {
             return 1;
-        }
-        let n = if piece.slope == 0 {
-            avail
-        } else {
-            let s = piece.slope.unsigned_abs();
-            // m: steps from here to rest at this slope (w over the slope)
-            let m = div(self.aw, s << X_FRAC).min(1 << 28) as u64;
-            let n = m >> (SEGMENT_DV_SHIFT - 1);
-            let n = if piece.slope < 0 { n - (n >> 6) } else { n };
-            // Time error of the fit: the quadratic in the step number misses
-            // the exact intervals (∝ 1/v) by their fourth-order term, about
-            // p·n·δ³/8 ticks mid-segment (p the interval, δ = n/2m the
-            // relative velocity change): n⁴ ≤ 8·e·m³/p with p = 20·f/(10·v)
-            // ticks (v in 0.1 steps/s) and e = 1/16 tick.
-            let mv = m * (self.av >> V_FRAC) as u64; // < 2^28 · 2^21
-            let n_fit = isqrt(isqrt(div(u128::from(m * m) * u128::from(mv), self.k_time)));
-            // Precision of the fit: add2 is rounded to 2^-32 ticks, which
-            // moves the last interval by up to n²/6 · 2^-33 ticks; keep that
-            // below 1/1536 of the interval change per step, f/(2·m·v) ticks,
-            // so that the acceleration at a junction stays exact to 0.07 %:
-            // n² ≤ 2^23 · 20f / (m · v).
-            let n_prec = isqrt(div(self.k_time << 23, u128::from(mv.max(1))));
-            let n = u128::from(n).min(n_fit).min(n_prec);
-            n.min(u128::from(avail)) as u64
         };
-        n.clamp(1, max_steps.max(1))
+        // length bound: n·p ≤ the longest segment
+        let mut k = (budget.log_max_ticks - log2_q8_up(u128::from(s0))) >> 8;
+        k = k.min(avail.ilog2() as i32);
+        if piece.slope != 0 {
+            let sl = piece.slope.unsigned_abs();
+            // m = aw / (sl·2^32) steps
+            let log_m = log2_q8(self.aw.max(1)) - log2_q8_up(sl) - (X_FRAC as i32) * 256;
+            let accel = piece.slope > 0;
+            k = k.min((log_m - if accel { 256 } else { 512 }) >> 8);
+            // E (ticks·256) = B/2 − ¼ with B = min(1 µs, p/25)
+            let p_q8 = s0 >> 24;
+            let b_q8 = budget.us_q8.min((p_q8 * 41) >> 10);
+            let e_q8 = (b_q8 >> 1).saturating_sub(64);
+            if e_q8 == 0 {
+                return 1;
+            }
+            let log_k = if accel { LOG2_Q8_1000 } else { LOG2_Q8_250 };
+            let log_e = log2_q8(u128::from(e_q8)) - 8 * 256;
+            let log_p = log2_q8_up(u128::from(s0)) - 32 * 256;
+            let x = log_k + log_e + 5 * log_m - log_p;
+            k = k.min(x.div_euclid(6 * 256));
+            let c = u128::from(curv.unsigned_abs()).max(1);
+            k = k.min((log2_q8(c) - LOG2_Q8_40_UP).div_euclid(4 * 256));
+            // and the time error of that rounding, C(n, 5)·½ of 2^-32
+            // tick summed over the segment: ≤ 1/30 tick up to 2^7
+            k = k.min(MAX_RAMP_SEGMENT_LOG2 as i32);
+        }
+        1 << k.clamp(0, MAX_SEGMENT_LOG2 as i32)
     }
 
     /// Time (Q32.32 ticks) of step `done + n`, which becomes the new anchor.
@@ -451,9 +589,17 @@ mod tests {
         let w = w_of(1234);
         let mut p = Profile::new_run(true, w, w, slope_of(1), slope_of(1), 0, F);
         let mut t = 0;
-        // 300 × 100 steps = 243 s, inside the 2^32-tick wrap of Q32.32 times
-        for _ in 0..300 {
-            let n = p.segment_len(100);
+        // 0.4 s segments: 32 steps each (a power of two), 300 × 32 steps =
+        // 78 s, inside the 2^32-tick wrap of Q32.32 times
+        let budget = SegmentBudget::new(F, 400_000);
+        // (the ramp piece before the cruise has no length: one step)
+        for i in 0..300 {
+            let n = p.segment_len(
+                p.step_ticks(),
+                p.step_ticks().map_or(0, |s| p.curvature(s)),
+                &budget,
+            );
+            assert_eq!(n, if i == 0 { 1 } else { 32 });
             t = p.advance(n);
         }
         let expect = p.done() as f64 / 123.4 * f64::from(F);
@@ -467,11 +613,21 @@ mod tests {
         assert_eq!(stop_steps(w0, sd), 125);
         let mut p = Profile::new_stop(false, w0, sd, 0, F);
         assert_eq!(p.steps, Some(125));
+        let budget = SegmentBudget::new(F, 100_000);
+        let mut segments = 0;
         while p.remaining() > 0 {
-            let n = p.segment_len(1000);
+            let n = p.segment_len(
+                p.step_ticks(),
+                p.step_ticks().map_or(0, |s| p.curvature(s)),
+                &budget,
+            );
+            assert!(n.is_power_of_two() && n <= p.remaining(), "{n}");
             p.advance(n);
+            segments += 1;
         }
         assert_eq!(p.w(), 0);
+        // single steps only near rest, where the fit bound is tight
+        assert!(segments <= 40, "{segments} segments");
     }
 
     /// The fast root and divisions agree with the generic ones, at the
@@ -538,6 +694,31 @@ mod tests {
         let su = slope_of(100_000);
         let p = Profile::new_move(true, 0, w_of(100_000), 0, su, su, 1_000_000, 0, F);
         // at rest: single steps
-        assert_eq!(p.segment_len(1 << 20), 1);
+        let budget = SegmentBudget::new(F, 2000);
+        assert_eq!(
+            p.segment_len(
+                p.step_ticks(),
+                p.step_ticks().map_or(0, |s| p.curvature(s)),
+                &budget
+            ),
+            1
+        );
+    }
+
+    /// The logarithms bracket the exact ones within 12/256 bit.
+    #[test]
+    fn log2_bounds() {
+        let mut x: u128 = 0x9E37_79B9_7F4A_7C15_F39C_C060_5CED_C834;
+        for i in 0..20_000u32 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let v = (x >> (i % 127)).max(1);
+            let exact = 256.0 * (v as f64).log2();
+            let (lo, hi) = (f64::from(log2_q8(v)), f64::from(log2_q8_up(v)));
+            assert!(lo <= exact + 1e-9 && exact <= hi, "{v}: {lo} {exact} {hi}");
+        }
+        assert_eq!(log2_q8(1), 0);
+        assert_eq!(log2_q8(160) >> 8, 7);
     }
 }

@@ -193,6 +193,10 @@ pub struct Segment {
     pub add: i64,
     /// Ticks (Q32.32) added to `add` after every step.
     pub add2: i64,
+    /// Added to `add2` after every step, and `add4` to it: the intervals
+    /// are a quartic in the step number.
+    pub add3: i64,
+    pub add4: i64,
     /// Steps, 1..=[`MAX_SEGMENT_STEPS`].
     pub count: u32,
     /// Positive direction (position counts up).
@@ -200,13 +204,13 @@ pub struct Segment {
 }
 
 struct Slot {
-    words: [AtomicU32; 7],
+    words: [AtomicU32; 11],
 }
 
 impl Slot {
     const fn new() -> Self {
         Self {
-            words: [const { AtomicU32::new(0) }; 7],
+            words: [const { AtomicU32::new(0) }; 11],
         }
     }
 }
@@ -293,6 +297,10 @@ impl StepSchedule {
         w[3].store((seg.add >> 32) as u32, Ordering::Relaxed);
         w[4].store(seg.add2 as u32, Ordering::Relaxed);
         w[5].store((seg.add2 >> 32) as u32, Ordering::Relaxed);
+        w[7].store(seg.add3 as u32, Ordering::Relaxed);
+        w[8].store((seg.add3 >> 32) as u32, Ordering::Relaxed);
+        w[9].store(seg.add4 as u32, Ordering::Relaxed);
+        w[10].store((seg.add4 >> 32) as u32, Ordering::Relaxed);
         let dir = if seg.forward { FORWARD_BIT } else { 0 };
         w[6].store(seg.count | dir, Ordering::Relaxed);
         self.head.store(head.wrapping_add(1), Ordering::Release);
@@ -446,6 +454,8 @@ pub struct StepSource {
     interval: [u32; 2],
     add: [u32; 2],
     add2: [u32; 2],
+    add3: [u32; 2],
+    add4: [u32; 2],
     forward: bool,
     /// A step has been announced and not yet made.
     pending: bool,
@@ -468,6 +478,8 @@ impl StepSource {
             interval: [0; 2],
             add: [0; 2],
             add2: [0; 2],
+            add3: [0; 2],
+            add4: [0; 2],
             forward: true,
             pending: false,
             braking: 0,
@@ -499,6 +511,8 @@ impl StepSource {
         self.frac = frac;
         self.interval = split(join(self.interval).wrapping_add(add));
         self.add = split(add.wrapping_add(join(self.add2)));
+        self.add2 = split(join(self.add2).wrapping_add(join(self.add3)));
+        self.add3 = split(join(self.add3).wrapping_add(join(self.add4)));
         NextStep {
             delay_ticks: ihi.wrapping_add(u32::from(carry)),
             forward: self.forward,
@@ -579,6 +593,8 @@ impl StepSource {
         self.interval = split(interval);
         self.add = [0; 2];
         self.add2 = [0; 2];
+        self.add3 = [0; 2];
+        self.add4 = [0; 2];
         self.pending = true;
         self.announce()
     }
@@ -627,6 +643,8 @@ impl StepSource {
         self.interval = [word(0), word(1)];
         self.add = [word(2), word(3)];
         self.add2 = [word(4), word(5)];
+        self.add3 = [word(7), word(8)];
+        self.add4 = [word(9), word(10)];
         let count = w[6].load(Ordering::Relaxed);
         self.forward = count & FORWARD_BIT != 0;
         let count = count & !FORWARD_BIT;
@@ -680,6 +698,8 @@ mod tests {
             interval,
             add,
             add2,
+            add3: 0,
+            add4: 0,
             count,
             forward,
         }

@@ -204,6 +204,8 @@ mod tests {
                 interval: 10 << 32,
                 add: 0,
                 add2: 0,
+                add3: 0,
+                add4: 0,
                 count: 10,
                 forward: true,
             })
