@@ -268,18 +268,18 @@ fn segment(interval_ticks: u64, count: u32, forward: bool) -> Segment {
 
 #[test]
 fn the_core_schedule_reaches_the_step_pin_edge_to_edge() {
-    // 1000 steps at 5 kHz forward, 3 slow ones backward (longer than one
+    // 400 steps at 5 kHz forward, 3 slow ones backward (longer than one
     // 16-bit period), then 50 at the highest rate the core plans (200 kHz)
     let sched = StepSchedule::new();
-    sched.push(segment(2000, 1000, true)).unwrap();
+    sched.push(segment(2000, 400, true)).unwrap();
     sched.push(segment(100_000, 3, false)).unwrap();
     sched.push(segment(50, 50, true)).unwrap();
     let out = Isr::new(G431_TICK_HZ).run(&sched, 10_000);
-    assert_eq!(out.len(), 1053);
-    assert!(out[1..1000].iter().all(|&(gap, f)| gap == 2000 && f));
-    assert!(out[1000..1003].iter().all(|&(gap, f)| gap == 100_000 && !f));
-    assert!(out[1004..].iter().all(|&(gap, f)| gap == 50 && f));
-    assert_eq!(sched.position(), 1000 - 3 + 50);
+    assert_eq!(out.len(), 453);
+    assert!(out[1..400].iter().all(|&(gap, f)| gap == 2000 && f));
+    assert!(out[400..403].iter().all(|&(gap, f)| gap == 100_000 && !f));
+    assert!(out[404..].iter().all(|&(gap, f)| gap == 50 && f));
+    assert_eq!(sched.position(), 400 - 3 + 50);
 }
 
 #[test]
@@ -287,9 +287,9 @@ fn a_limit_brakes_in_the_step_interrupt_within_the_quick_stop_distance_spec_8_7(
     // 100 000 steps/s at 8 MHz (F103), quick stop 2e6 steps/s²: 2500 steps
     let sched = StepSchedule::new();
     sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
-    sched.push(segment(80, 100_000, true)).unwrap();
+    sched.push(segment(80, sched.free() as u32, true)).unwrap();
     let mut isr = Isr::new(F103_TICK_HZ);
-    let before = isr.run(&sched, 1000);
+    let before = isr.run(&sched, 200);
     assert!(before.iter().skip(1).all(|&(gap, _)| gap == 80));
     sched.set_limits(false, true); // the EXTI handler: CCW limit active
     let after = isr.run(&sched, 100_000);

@@ -218,8 +218,8 @@ fn seed_move_precision_margins() {
     assert!(v_max <= 50_000.0 * (1.0 + 1e-9), "velocity {v_max}");
     assert!(a_max <= 100_000.0 * 1.001, "acceleration {a_max}");
     assert!(
-        run.sched.pushed() < 5_000,
+        run.planner.segments_pushed() < 5_000,
         "segments {}",
-        run.sched.pushed()
+        run.planner.segments_pushed()
     );
 }

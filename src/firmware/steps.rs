@@ -35,22 +35,20 @@ use critical_section::Mutex;
 use embassy_stm32::gpio::Output;
 use embassy_stm32::interrupt::typelevel::Handler;
 use embassy_stm32::pac::timer::vals::Ocm;
-use embassy_sync::once_lock::OnceLock;
 use modbus_drive::drive::io::DirectionOutput;
 use modbus_drive::motion::{StepSchedule, StepSource};
 
 use super::board;
 use super::calc::{Period, Step, StepShape, StepShaper};
 
-/// The step schedule between the control loop and this interrupt, set up
-/// by [`start`]. A `OnceLock` is zero-initialised (.bss); the schedule's own
-/// `const` initialiser is not, and would cost its 1.8 KiB again in flash as
-/// a .data image (README "Sizes").
-static SCHEDULE: OnceLock<StepSchedule> = OnceLock::new();
+/// The step schedule between the control loop and this interrupt. Its
+/// `const` initialiser is all zeros, so it lives in .bss and costs no flash
+/// image (README "Sizes").
+static SCHEDULE: StepSchedule = StepSchedule::new();
 
-/// The step schedule, once [`start`] has set it up.
-pub fn schedule() -> Option<&'static StepSchedule> {
-    SCHEDULE.try_get()
+/// The step schedule.
+pub fn schedule() -> &'static StepSchedule {
+    &SCHEDULE
 }
 
 /// PA11: DIR inverted (written by the control loop).
@@ -77,7 +75,6 @@ static STEPPER: Mutex<RefCell<Stepper>> = Mutex::new(RefCell::new(Stepper {
 /// `calc::step_prescaler` of the timer's clock. Returns the step schedule
 /// for the control loop.
 pub fn start(dir: Output<'static>, prescaler: u16) -> &'static StepSchedule {
-    let schedule = SCHEDULE.get_or_init(StepSchedule::new);
     let t = board::STEP_TIMER;
     let idle = StepShape::safe(board::STEP_TICK_HZ).idle_ticks;
     critical_section::with(|cs| {
@@ -99,7 +96,7 @@ pub fn start(dir: Output<'static>, prescaler: u16) -> &'static StepSchedule {
         t.dier().modify(|w| w.set_uie(true));
         t.cr1().modify(|w| w.set_cen(true));
     });
-    schedule
+    &SCHEDULE
 }
 
 /// New STEP width / DIR set-up (PA15/PA16); applies from the next step.
@@ -137,7 +134,7 @@ fn on_update(s: &mut Stepper) {
     }
     let Stepper { shaper, source, .. } = s;
     let Period { arr, ccr, dir } = shaper.next_period(|| {
-        source.advance(SCHEDULE.try_get()?).map(|n| Step {
+        source.advance(&SCHEDULE).map(|n| Step {
             forward: n.forward,
             interval_ticks: n.delay_ticks,
         })

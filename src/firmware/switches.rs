@@ -86,16 +86,15 @@ pub fn set_params(polarity: u16, limit_enable: u16) {
 fn read(i: &mut Inputs) -> Switches {
     let s = i.pins.read(POLARITY.load(Ordering::Relaxed));
     let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
-    if let Some(schedule) = steps::schedule() {
-        schedule.set_limits(
-            s.cw_limit && enabled & 1 != 0,
-            s.ccw_limit && enabled & 2 != 0,
-        );
-        let position = schedule.position();
-        i.cw.edge(s.cw_limit, position);
-        i.ccw.edge(s.ccw_limit, position);
-        i.home.edge(s.home, position);
-    }
+    let schedule = steps::schedule();
+    schedule.set_limits(
+        s.cw_limit && enabled & 1 != 0,
+        s.ccw_limit && enabled & 2 != 0,
+    );
+    let position = schedule.position();
+    i.cw.edge(s.cw_limit, position);
+    i.ccw.edge(s.ccw_limit, position);
+    i.home.edge(s.home, position);
     s
 }
 

@@ -2,20 +2,25 @@
 //!
 //! Follow one set-point: [`planner::Planner`] turns goals (move to a
 //! position, run at a velocity, stop) into [`profile::Profile`]s, times
-//! their steps exactly and compresses the times into [`schedule::Segment`]s
-//! in the shared [`schedule::StepSchedule`]; the step-timer interrupt's
-//! [`schedule::StepSource`] turns them into timer delays. [`sim::SimAxis`]
-//! plays the interrupt and the motor on a host.
+//! their steps exactly and compresses the times into [`schedule::Segment`]s;
+//! the shared [`schedule::StepSchedule`] expands them into per-step timer
+//! delays, which the step-timer interrupt's [`schedule::StepSource`] pops.
+//! `sim::SimAxis` (host builds) plays the interrupt and the motor.
 
 pub mod homing;
 pub mod planner;
 pub mod profile;
 pub mod schedule;
+// host only: it reports exact step times, which only host builds keep
+// (schedule.rs module docs)
+#[cfg(not(target_os = "none"))]
 pub mod sim;
 
 pub use homing::{Homing, HomingError, HomingMethod, HomingStep};
-pub use planner::{Fill, Goal, Planner, PlannerConfig, Ramp, MAX_ACCEL, MAX_STEP_RATE};
-pub use schedule::{LimitBrake, NextStep, Segment, StepSchedule, StepSource, SCHEDULE_SLOTS};
+pub use planner::{
+    Fill, Goal, Planner, PlannerConfig, Ramp, MAX_ACCEL, MAX_STEP_RATE, SCHEDULE_SLOTS,
+};
+pub use schedule::{LimitBrake, NextStep, Segment, StepSchedule, StepSource, SCHEDULE_STEPS};
 
 /// Logical switch states, after the polarity of PA13 (true = active).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

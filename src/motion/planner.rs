@@ -26,7 +26,7 @@
 //! single steps, at a step rate low enough not to matter).
 
 use super::profile::{isqrt, slope_of, stop_steps, w_of, Profile, SegmentBudget, V_FRAC};
-use super::schedule::{Segment, StepSchedule, SCHEDULE_SLOTS, TICK_FRAC_BITS};
+use super::schedule::{Segment, StepSchedule, TICK_FRAC_BITS};
 
 /// Highest step rate the drive generates, steps/s. Faster requests are
 /// clamped (like PA12): 5 µs between steps leaves a 170 MHz Cortex-M4 850
@@ -37,6 +37,12 @@ pub const MAX_STEP_RATE: u32 = 200_000;
 /// more single-step segments than [`SCHEDULE_SLOTS`] to cover a 2 ms
 /// control period; larger register values are clamped.
 pub const MAX_ACCEL: u64 = 2_000_000;
+
+/// Segments the planner keeps track of between the interrupt's step and
+/// the end of the queue (a power of two): while they are all queued, the
+/// schedule counts as full. At the maximum step rate and the shortest
+/// segments the planner emits this covers its horizon.
+pub const SCHEDULE_SLOTS: usize = 64;
 
 /// Velocity / acceleration limits of one motion, in 0.1 steps/s and
 /// 0.1 steps/s² (the registers' units times PA10).
@@ -116,7 +122,7 @@ impl Default for PlannerConfig {
         Self {
             tick_hz: 10_000_000,
             horizon_us: 3_000,
-            max_segment_us: 1_000_000,
+            max_segment_us: 2_000,
         }
     }
 }
@@ -124,9 +130,41 @@ impl Default for PlannerConfig {
 /// What the drive shows for the segment the interrupt is executing.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct SlotInfo {
-    /// Signed velocity at the segment's end, 0.1 steps/s.
-    velocity: i64,
+    /// Ring index of the segment's last step ([`StepSchedule::step_index`]).
+    last_index: u32,
+    /// Steps in it, and the signed velocities (0.1 steps/s) before its
+    /// first and at its last step: v² is linear in the steps within a
+    /// segment (one profile piece), so the velocity of any of its steps
+    /// follows without keeping v² per step.
+    count: u32,
+    v_start: i32,
+    v_end: i32,
     ramping: bool,
+}
+
+impl SlotInfo {
+    /// Signed velocity (0.1 steps/s) at the step with ring index `step`.
+    fn velocity_at(&self, step: u32) -> i64 {
+        let left = u64::from(self.last_index.wrapping_sub(step).min(self.count));
+        let (a, b) = (i64::from(self.v_start), i64::from(self.v_end));
+        if a == b || self.count == 0 {
+            return b;
+        }
+        // v² = b² − (b² − a²)·left/count, in u64 (|v| < 2^22)
+        let (a2, b2) = ((a * a) as u64, (b * b) as u64);
+        let n = u64::from(self.count);
+        let w = if b2 >= a2 {
+            b2 - (b2 - a2) * left / n
+        } else {
+            b2 + (a2 - b2) * left / n
+        };
+        let v = w.isqrt() as i64;
+        if b < 0 || (b == 0 && a < 0) {
+            -v
+        } else {
+            v
+        }
+    }
 }
 
 /// See the module docs.
@@ -149,7 +187,13 @@ pub struct Planner {
     /// Fall slope of the current profile (for a stop nobody asked for).
     last_decel: u64,
     flushing: bool,
+    /// Per pushed segment, by segment number modulo [`SCHEDULE_SLOTS`].
     slots: [SlotInfo; SCHEDULE_SLOTS],
+    /// Segments pushed (wrapping).
+    segments: u32,
+    /// The oldest segment the interrupt may not have finished (wrapping;
+    /// moved on in [`Planner::fill`]).
+    oldest: u32,
     /// The schedule ran dry while the motor was moving.
     pub underruns: u32,
     /// Segments whose first step was already due when they were queued
@@ -183,6 +227,8 @@ impl Planner {
             last_decel: 0,
             flushing: false,
             slots: [SlotInfo::default(); SCHEDULE_SLOTS],
+            segments: 0,
+            oldest: 0,
             underruns: 0,
             late_segments: 0,
             now: 0,
@@ -265,7 +311,8 @@ impl Planner {
 
     /// Signed velocity of the segment being executed, 0.1 steps/s.
     pub fn actual_velocity(&self, sched: &StepSchedule) -> i64 {
-        self.current_slot(sched).map_or(0, |s| s.velocity)
+        self.current_slot(sched)
+            .map_or(0, |s| s.velocity_at(sched.step_index()))
     }
 
     /// The segment being executed belongs to an acceleration or
@@ -274,12 +321,31 @@ impl Planner {
         self.current_slot(sched).is_some_and(|s| s.ramping)
     }
 
+    /// Segments pushed so far (wrapping).
+    pub fn segments_pushed(&self) -> u32 {
+        self.segments
+    }
+
     fn current_slot(&self, sched: &StepSchedule) -> Option<SlotInfo> {
         if !sched.is_running() {
             return None;
         }
-        let idx = sched.taken().wrapping_sub(1) as usize % SCHEDULE_SLOTS;
-        Some(self.slots[idx])
+        let k = self.first_unfinished(sched.step_index());
+        (k != self.segments).then(|| self.slots[k as usize % SCHEDULE_SLOTS])
+    }
+
+    /// The first segment from `oldest` on whose last step is at or after
+    /// ring index `step` (wrapping): its number, `segments` if none.
+    fn first_unfinished(&self, step: u32) -> u32 {
+        let mut k = self.oldest;
+        while k != self.segments {
+            let last = self.slots[k as usize % SCHEDULE_SLOTS].last_index;
+            if last.wrapping_sub(step) as i32 >= 0 {
+                break;
+            }
+            k = k.wrapping_add(1);
+        }
+        k
     }
 
     /// Sets the position (homing zeroing, SPEC §8.6). Only at rest.
@@ -376,6 +442,7 @@ impl Planner {
             self.t_isr = now;
             self.t_ideal = now;
         }
+        self.oldest = self.first_unfinished(sched.step_index());
         let horizon = self.horizon_q;
         loop {
             let Some(profile) = self.profile.as_mut() else {
@@ -399,7 +466,13 @@ impl Planner {
                 }
                 return Fill::Ended;
             }
-            if self.t_ideal.wrapping_sub(now) as i64 >= horizon as i64 || !self.emit(sched) {
+            // full when the segment bookkeeping is, or the ring has no
+            // room for the next segment (emit)
+            let tracked = self.segments.wrapping_sub(self.oldest) as usize;
+            if tracked >= SCHEDULE_SLOTS
+                || self.t_ideal.wrapping_sub(now) as i64 >= horizon as i64
+                || !self.emit(sched)
+            {
                 return Fill::Full;
             }
         }
@@ -516,7 +589,10 @@ impl Planner {
     }
 
     /// Times the next run of steps of the current profile and queues it.
-    /// False (nothing done) if the schedule has no room for it.
+    /// False (nothing done) if the schedule has no room for it. Out of
+    /// line: inlined into the firmware's control loop it cost the F103
+    /// flash.
+    #[inline(never)]
     fn emit(&mut self, sched: &StepSchedule) -> bool {
         let Some(profile) = self.profile.as_ref() else {
             return true;
@@ -524,12 +600,13 @@ impl Planner {
         let s0 = self.start_step_ticks(profile);
         let c0 = s0.map_or(0, |s0| profile.curvature(s0));
         let n = profile.segment_len(s0, c0, &self.budget);
-        if sched.free() == 0 {
+        if (sched.free() as u64) < n {
             return false;
         }
         let Some(profile) = self.profile.as_mut() else {
             return true;
         };
+        let v_start = profile.velocity();
         let t_last = profile.advance(n);
         let s1 = profile.step_ticks();
         // the span the interrupt must make, from where it will be
@@ -565,12 +642,14 @@ impl Planner {
         self.w = profile.w();
         self.forward = profile.forward;
         (self.s_end, self.s_end_w) = (s1.unwrap_or(0), self.w);
-        let speed = profile.velocity() as i64;
-        let info = SlotInfo {
-            velocity: if profile.forward { speed } else { -speed },
+        let signed = |v: u64| if profile.forward { v as i32 } else { -(v as i32) };
+        let mut info = SlotInfo {
+            last_index: 0,
+            count: n as u32,
+            v_start: signed(v_start),
+            v_end: signed(profile.velocity()),
             ramping: profile.ramping() || profile.remaining() == 0,
         };
-        let slot = sched.pushed() as usize % SCHEDULE_SLOTS;
         let seg = Segment {
             interval: first,
             add: add as i64,
@@ -581,7 +660,9 @@ impl Planner {
             forward: profile.forward,
         };
         if sched.push(seg).is_ok() {
-            self.slots[slot] = info;
+            info.last_index = sched.last_pushed_index();
+            self.slots[self.segments as usize % SCHEDULE_SLOTS] = info;
+            self.segments = self.segments.wrapping_add(1);
         }
         true
     }
@@ -662,5 +743,63 @@ mod tests {
             }
             assert_eq!(binomials(n), c, "{n}");
         }
+    }
+
+    /// 0x606C / statusword bit 13 follow the segment the interrupt is
+    /// executing (SPEC §8.2): over a move of many laps of the step ring,
+    /// the velocity shown at every step matches that step's own interval
+    /// within a segment's velocity change (≤ 1/32, `Profile::segment_len`),
+    /// also during the ramps, where a segment queued ahead (3 ms at
+    /// 2e6 steps/s²) would be off by up to 6000 steps/s.
+    #[test]
+    fn the_velocity_shown_is_the_executing_segments() {
+        use crate::motion::schedule::StepSource;
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        let cfg = PlannerConfig::default();
+        let hz = f64::from(cfg.tick_hz);
+        let mut p = Planner::new(cfg);
+        let ramp = Ramp {
+            velocity: 1_000_000, // 100 000 steps/s
+            accel: 20_000_000,   // 2e6 steps/s²
+            decel: 20_000_000,
+        };
+        assert!(p.set_goal(Goal::Move {
+            target: 30_000,
+            ramp,
+            end_velocity: 0
+        }));
+        let ticks_per_us = u64::from(cfg.tick_hz / 1_000_000);
+        let (mut now_us, mut at, mut steps, mut ramping) = (0u64, None::<u64>, 0u32, 0u32);
+        while now_us < 1_000_000 {
+            p.fill(now_us, &sched);
+            if at.is_none() && !sched.is_empty() {
+                at = Some(now_us * ticks_per_us);
+            }
+            let end = (now_us + 1000) * ticks_per_us;
+            while let Some(t) = at.filter(|&t| t < end) {
+                let Some(s) = src.advance(&sched) else {
+                    at = None;
+                    break;
+                };
+                at = Some(t + u64::from(s.delay_ticks));
+                steps += 1;
+                let shown = p.actual_velocity(&sched) as f64 / 10.0;
+                let own = hz / f64::from(s.delay_ticks);
+                if own > 5_000.0 {
+                    assert!(
+                        (shown / own - 1.0).abs() < 0.06,
+                        "step {steps}: shown {shown} steps/s, interval {own}"
+                    );
+                }
+                ramping += u32::from(p.ramping(&sched));
+            }
+            now_us += 1000;
+        }
+        assert_eq!((steps, sched.position()), (30_000, 30_000));
+        assert_eq!(p.actual_velocity(&sched), 0);
+        // both ramps (2500 steps each) shown as ramping, the cruise not
+        assert!((4_000..6_000).contains(&ramping), "{ramping}");
+        assert!(p.segments_pushed() > 100);
     }
 }

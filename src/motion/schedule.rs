@@ -7,50 +7,89 @@
 //! are thus a quadratic in the step number, which lets the planner match the
 //! exact first interval, last interval and total time of every segment, so
 //! that the intervals are continuous from one segment to the next (the
-//! acceleration the motor sees has no jumps). Times are timer ticks in Q32.32 fixed point,
-//! so the interrupt accumulates exact fractional times and only rounds when it
-//! hands a delay to the timer: rounding never accumulates.
+//! acceleration the motor sees has no jumps). Times are timer ticks in
+//! Q32.32 fixed point.
+//!
+//! # A ring of per-step delays
+//!
+//! [`StepSchedule::push`] (thread mode) expands each segment at once into
+//! its steps' integer delays, one `u32` per step, in a ring of
+//! [`SCHEDULE_STEPS`] entries: it accumulates the exact Q32.32 times (the
+//! three adds per step above) and carries the fraction of each time into
+//! the next (`frac`, whose origin is half a tick in when a run starts from
+//! rest), so every delay rounds its exact time to the nearest tick and
+//! rounding never accumulates. The interrupt only pops one delay per step.
+//! An entry is a delay (1 ..= `MAX_DELAY_TICKS`), the end sentinel `END`
+//! (0), or a direction marker (`MARK_FORWARD` / `MARK_BACKWARD`, the top two
+//! values): a push whose direction differs from the previous push's starts
+//! with a marker (directions change at rest only, so markers are rare).
+//! Delays from 2^31 ticks on are valid too but, like markers and the
+//! sentinel, go the slow way (below).
 //!
 //! # Sharing between thread mode and the interrupt
 //!
-//! [`StepSchedule`] is a lock-free single-producer / single-consumer ring of
-//! segments built from atomics only (no `unsafe`, no critical section): the
-//! planner pushes with `&StepSchedule`, the interrupt pops with the same
-//! shared reference. The firmware keeps it in a `static`
-//! (`static SCHEDULE: StepSchedule = StepSchedule::new();`), hands
-//! `&SCHEDULE` to [`crate::Device::control`] in the control loop and owns a
-//! [`StepSource`] inside the step-timer interrupt. Exactly one context may
-//! push and exactly one may pop. Relaxed atomic loads and stores compile to
-//! plain `ldr`/`str` on Cortex-M (also on M0, which has no atomic
-//! read-modify-write; none is used); `Release`/`Acquire` (a `dmb`) appear
-//! only where a segment is published or taken, never per step.
+//! [`StepSchedule`] is a lock-free single-producer / single-consumer ring
+//! built from atomics only (no `unsafe`, no critical section): the planner
+//! pushes with `&StepSchedule`, the interrupt pops with the same shared
+//! reference. The firmware keeps it in a `static` (all zeros: .bss,
+//! src/firmware/steps.rs), hands it to [`crate::Device::control`] in the
+//! control loop and owns a [`StepSource`] inside the step-timer interrupt.
+//! Exactly one context may push and exactly one may pop.
 //!
-//! Per step the interrupt stores one word, `left` (steps of the running
-//! segment not yet made), with a Relaxed store: on a single core the
-//! interrupt is never preempted by thread mode, so thread mode sees each
-//! value whole and in order, and no barrier is needed for a single writer.
-//! The position is not stored per step: [`StepSchedule::position`] derives
-//! it from the running segment's end position and direction (written at a
-//! segment start under a sequence count) and `left`. Thread mode and the
-//! limit-switch interrupt never make the interrupt read their flags per
-//! step either: they store the flag (flush, limits, brake rate), then raise
-//! `attention`, the one byte the interrupt reads per step; it clears the
-//! byte before it reads the flags, so no change is lost.
+//! The drive has one core, and the step interrupt is never preempted by
+//! thread mode or by the limit-switch interrupt (it has the highest
+//! priority): each context sees the other's stores whole and in program
+//! order, so only the compiler must keep them in order. Every access is
+//! therefore Relaxed (a plain `ldr`/`str` on Cortex-M, also on M0, which
+//! has no atomic read-modify-write; none is used), with a `compiler_fence`
+//! where the order matters; no `dmb` anywhere (it would matter only
+//! between cores). Host builds run producer and consumer on one thread.
+//!
+//! - `head` (producer): the index the next push writes; `ring[head]` always
+//!   holds `END`. A push writes its entries after `head`, then the new
+//!   sentinel behind them, and only then overwrites the old sentinel with
+//!   its first entry: the interrupt, which reads `ring[next]`, never sees a
+//!   half-written push, and needs no look at `head` per step. One slot
+//!   stays spare for the sentinel.
+//! - `next` (consumer, one store per step): the index of the entry after
+//!   the step announced and not yet made (the pending one, at `next − 1`),
+//!   or, when idle, after the last entry taken. The producer never writes
+//!   the slot at `next − 1`.
+//! - The position is not stored per step: [`StepSchedule::position`]
+//!   derives it as `base_pos + dir · (next − base_idx)`, where the base
+//!   (position, index, direction) is rewritten only in the slow path under
+//!   a sequence count.
+//! - Thread mode and the limit-switch interrupt never make the interrupt
+//!   read their flags per step either: they store the flag (flush, limits,
+//!   brake rate), then raise attention (clear `quiet`, the one byte the
+//!   interrupt reads per step besides the ring); the interrupt sets `quiet`
+//!   before it reads the flags, so no change is lost. It clears `quiet`
+//!   itself while it is idle or braking, so that a start from rest and
+//!   every braking step go the slow way.
+//! - A drop of the queue (flush, the limit brake's end, [`StepSource::cancel`])
+//!   moves `next` to `head` and takes the direction of the last push
+//!   (`head_backward`, stored before `head`), so that the markers it
+//!   skipped cannot leave the interrupt in the wrong direction.
+//!
+//! Host builds (the simulated axis of the tests, the virtual drive, the
+//! fuzz targets) also keep each step's carried fraction beside its delay
+//! (`exact_frac`), so that the simulation can report the exact time every
+//! step was scheduled for ([`StepSource::rounding_q32`]); the target has no
+//! such ring.
 //!
 //! # Worst-case interrupt cost
 //!
-//! [`StepSource::advance`] per step inside a segment (the fast path): load
-//! `left` and `attention`, two compares, store `left - 1`; the delay is the
-//! interval's integer part plus the carry of its fraction into the
-//! pending time's fraction (`frac`), then `interval += add`,
-//! `add += add2` — three 64-bit adds on one block of seven words. About 25
-//! Cortex-M4 instructions (README "Drive behaviour" has the measured
-//! figure). No division, no multiplication, no loop. The slow path (a
-//! segment ends, a start from rest, a flag raised) loads head/tail and the
-//! seven words of the next slot and publishes the new segment (about 60
-//! more); segments hold at least one step, so it runs at most once per
-//! step. A braking step (below) costs six 64×64 → 128-bit multiplies and a
-//! variable shift, still no division and no loop.
+//! [`StepSource::advance`] per step (the fast path): load `next`, store
+//! `next + 1`, load the entry there and `quiet`, two compares. No
+//! multiplication, no division, no loop, no `dmb`: 11 Cortex-M4
+//! instructions besides the call (README "Drive behaviour" has the
+//! measured figure). The slow path (a start from rest, the end of the
+//! queue, a marker, a delay from 2^31 ticks, a flag raised) rewrites the
+//! position base under the sequence count (about 70 instructions); it
+//! takes at most one marker and one step, so it is constant time too. A
+//! braking step (below) costs six 64×64 → 128-bit multiplies and a
+//! variable shift, still no division and no loop. The expansion is thread
+//! mode's: about 16 instructions per step inside [`StepSchedule::push`].
 //!
 //! # Limit brake (SPEC §8.7, issue 6)
 //!
@@ -58,13 +97,14 @@
 //! deceleration 0x6085 *at once*: the planner only appends behind its
 //! queued horizon, and the control loop runs every millisecond. So the
 //! limit-switch interrupt (a third context) writes the logical limit states
-//! with [`StepSchedule::set_limits`] (raising `attention`), and
+//! with [`StepSchedule::set_limits`] (raising attention), and
 //! [`StepSource::advance`], when its next step goes towards an active limit
-//! while the brake is armed (checked when `attention` is raised and at every
-//! segment start, the only places where either can change)
-//! ([`StepSchedule::set_brake_rate`], written by the drive: 0x6085 outside
-//! homing, disarmed in homing where the sequencer decides at the limits),
-//! stops taking segments and decelerates on its own: each interval grows by
+//! while the brake is armed (checked when attention is raised and at every
+//! start from rest or direction marker, the only places where either can
+//! change) ([`StepSchedule::set_brake_rate`], written by the drive: 0x6085
+//! outside homing, disarmed in homing where the sequencer decides at the
+//! limits), stops taking entries and decelerates on its own from the
+//! interval of the step it would have made: each interval grows by
 //! the factor `(1 - 2q)^-1/2 ≈ 1 + q + 3/2 q² + 5/2 q³ + 35/8 q⁴` with `q = a·p²`
 //! (`p` the interval, `a` the deceleration in steps/tick²), which is
 //! `v² ← v² - 2a` per step, the constant deceleration, in a few multiplies.
@@ -75,21 +115,31 @@
 //! position back: [`crate::motion::Planner::stop_at_once`]). A flush
 //! requested while braking is carried out when the brake ends.
 
-use core::sync::atomic::{fence, AtomicBool, AtomicI32, AtomicU32, AtomicU8, Ordering};
+use core::sync::atomic::{compiler_fence, AtomicBool, AtomicI32, AtomicU32, AtomicU8, Ordering};
 
 use super::profile::div;
 
-/// Segments the ring holds (a power of two). At the maximum step rate and
-/// the shortest segments the planner emits this covers its horizon.
-pub const SCHEDULE_SLOTS: usize = 64;
+/// Entries of the per-step ring (a power of two): delays plus the rare
+/// direction markers, one slot for the end sentinel and the pending step.
+/// At the highest step rate (200 000 steps/s) a full ring lasts 2.5 ms,
+/// more than two 1 ms control periods.
+pub const SCHEDULE_STEPS: usize = 512;
 
 /// Fractional bits of schedule times: Q32.32 ticks.
 pub const TICK_FRAC_BITS: u32 = 32;
 
-/// Largest `count` of one segment.
-pub const MAX_SEGMENT_STEPS: u32 = 0x7FFF_FFFF;
+/// Ring entry: end of the queue (the sentinel at `head`).
+const END: u32 = 0;
+/// Ring entries: the steps after it go in the positive / negative direction.
+const MARK_FORWARD: u32 = u32::MAX;
+const MARK_BACKWARD: u32 = u32::MAX - 1;
+/// Longest delay an entry holds, ticks (the top two values are markers).
+/// Longer ones are clamped; the planner's slowest interval (0.1 steps/s) is
+/// 10 s, 2^32 ticks would be 429 s at 10 MHz.
+const MAX_DELAY_TICKS: u32 = u32::MAX - 2;
 
-const FORWARD_BIT: u32 = 0x8000_0000;
+/// Half a tick in Q0.32: the time origin of a run from rest.
+const HALF_TICK: u32 = 1 << (TICK_FRAC_BITS - 1);
 
 /// [`StepSchedule::limits`] bits: the direction an active limit blocks.
 const BLOCK_BACKWARD: u8 = 1; // CW limit: the negative end (SPEC §8.6)
@@ -194,48 +244,49 @@ pub struct Segment {
     /// Ticks (Q32.32) added to `add` after every step.
     pub add2: i64,
     /// Added to `add2` after every step, and `add4` to it: the intervals
-    /// are a quartic in the step number.
+    /// are a quartic in the step number (the planner's quintic fit of the
+    /// step times, planner.rs `fit_segment`).
     pub add3: i64,
     pub add4: i64,
-    /// Steps, 1..=[`MAX_SEGMENT_STEPS`].
+    /// Steps, at least 1 and at most what [`StepSchedule::free`] allows.
     pub count: u32,
     /// Positive direction (position counts up).
     pub forward: bool,
 }
 
-struct Slot {
-    words: [AtomicU32; 11],
-}
-
-impl Slot {
-    const fn new() -> Self {
-        Self {
-            words: [const { AtomicU32::new(0) }; 11],
-        }
-    }
-}
-
-/// The shared queue of segments plus what the interrupt reports back
-/// (see the module docs for who may call what).
+/// The shared ring of per-step delays plus what the interrupt reports back
+/// (see the module docs for who may call what). `repr(C)`: the ring at the
+/// start and `next`/`quiet` right behind it, so that the interrupt's
+/// fast path addresses all three from the schedule's own address.
+#[repr(C)]
 pub struct StepSchedule {
-    slots: [Slot; SCHEDULE_SLOTS],
-    /// Segments pushed (written by the producer only, wrapping).
+    ring: [AtomicU32; SCHEDULE_STEPS],
+    /// Index (wrapping) of the entry after the pending one, or after the
+    /// last one taken while idle (the consumer's one store per step).
+    next: AtomicU32,
+    /// Cleared ("attention raised") by whoever changes `flush`, `limits` or
+    /// `brake_rate`, and by the consumer while it is idle or braking; set
+    /// by the consumer when it has looked: its only per-step look at
+    /// anything but the ring (module docs).
+    quiet: AtomicBool,
+    /// Index (wrapping) of the sentinel, where the next push starts
+    /// (producer only).
     head: AtomicU32,
-    /// Segments taken (written by the consumer only, wrapping).
-    tail: AtomicU32,
-    /// Steps of the running segment not yet made, the pending one
-    /// included (the consumer's per-step counter, module docs).
-    left: AtomicU32,
-    /// Raw position once the running segment is made (consumer only).
-    seg_end: AtomicI32,
-    /// Direction of the running segment: +1 or -1 (consumer only).
-    seg_dir: AtomicI32,
-    /// Sequence count around changes of `seg_end` / `seg_dir` / `left`
-    /// outside the per-step path (odd while they change).
+    /// Direction of the last push is negative (producer only; stored
+    /// before `head`).
+    head_backward: AtomicBool,
+    /// Fraction of the last pushed step's exact time plus half a tick,
+    /// Q0.32, which the next push carries on (producer only).
+    frac: AtomicU32,
+    /// Position base (consumer only, under `seq`): the position is
+    /// `base_pos + base_dir · (next − base_idx)` (`base_dir` ±1, 0 before
+    /// the first step).
+    base_pos: AtomicI32,
+    base_idx: AtomicU32,
+    base_dir: AtomicI32,
+    /// Sequence count around changes of the base and of `next` outside the
+    /// per-step path (odd while they change).
     seq: AtomicU32,
-    /// Set by whoever changes `flush`, `limits` or `brake_rate`; the
-    /// consumer's only per-step look at them (module docs).
-    attention: AtomicBool,
     /// Set by thread mode: drop everything at the next step.
     flush: AtomicBool,
     /// The consumer has a step pending (steps are being generated).
@@ -246,6 +297,10 @@ pub struct StepSchedule {
     brake_rate: AtomicU32,
     /// The limit brake's state (`BRAKE_*`).
     brake: AtomicU8,
+    /// Host builds: each entry's carried fraction, as `frac` after that
+    /// step (module docs).
+    #[cfg(not(target_os = "none"))]
+    exact_frac: [AtomicU32; SCHEDULE_STEPS],
 }
 
 impl Default for StepSchedule {
@@ -254,72 +309,196 @@ impl Default for StepSchedule {
     }
 }
 
+/// The producer's exact-time accumulator over one segment (module docs).
+#[derive(Clone, Copy)]
+struct Expansion {
+    interval: u64,
+    add: u64,
+    add2: u64,
+    add3: u64,
+    add4: u64,
+    frac: u32,
+}
+
+impl Expansion {
+    /// The next step's delay: the interval's integer part plus the carry
+    /// of its fraction into the pending time's; then the interval one step
+    /// on.
+    #[inline(always)]
+    fn step(&mut self) -> u32 {
+        let (frac, carry) = self.frac.overflowing_add(self.interval as u32);
+        self.frac = frac;
+        let whole = (self.interval >> TICK_FRAC_BITS) as u32;
+        let mut delay = whole.wrapping_add(u32::from(carry));
+        if delay.wrapping_sub(1) >= MAX_DELAY_TICKS {
+            // 0 (an interval below half a tick, never planned: the
+            // sentinel's value) or past the longest delay
+            delay = if whole >= 1 << 31 { MAX_DELAY_TICKS } else { 1 };
+        }
+        self.interval = self.interval.wrapping_add(self.add);
+        self.add = self.add.wrapping_add(self.add2);
+        self.add2 = self.add2.wrapping_add(self.add3);
+        self.add3 = self.add3.wrapping_add(self.add4);
+        delay
+    }
+
+    /// Writes the next steps' delays to `entries`, in order.
+    #[inline(never)]
+    fn fill(&mut self, entries: &[AtomicU32]) {
+        let mut x = *self;
+        for entry in entries {
+            entry.store(x.step(), Ordering::Relaxed);
+        }
+        *self = x;
+    }
+}
+
 impl StepSchedule {
+    /// All zeros (the sentinel is 0, the flags are chosen so), so that a
+    /// `static` of it is zero-initialised memory (.bss), no flash image.
     pub const fn new() -> Self {
         Self {
-            slots: [const { Slot::new() }; SCHEDULE_SLOTS],
+            ring: [const { AtomicU32::new(END) }; SCHEDULE_STEPS],
+            next: AtomicU32::new(0),
+            quiet: AtomicBool::new(false),
             head: AtomicU32::new(0),
-            tail: AtomicU32::new(0),
-            left: AtomicU32::new(0),
-            seg_end: AtomicI32::new(0),
-            seg_dir: AtomicI32::new(1),
+            head_backward: AtomicBool::new(false),
+            frac: AtomicU32::new(0),
+            base_pos: AtomicI32::new(0),
+            base_idx: AtomicU32::new(0),
+            base_dir: AtomicI32::new(0),
             seq: AtomicU32::new(0),
-            attention: AtomicBool::new(false),
             flush: AtomicBool::new(false),
             running: AtomicBool::new(false),
             limits: AtomicU8::new(0),
             brake_rate: AtomicU32::new(0),
             brake: AtomicU8::new(BRAKE_NONE),
+            #[cfg(not(target_os = "none"))]
+            exact_frac: [const { AtomicU32::new(0) }; SCHEDULE_STEPS],
         }
+    }
+
+    fn entry(&self, index: u32) -> &AtomicU32 {
+        &self.ring[index as usize % SCHEDULE_STEPS]
     }
 
     // ---- producer side (thread mode) ----
 
-    /// Free slots.
-    pub fn free(&self) -> usize {
-        let used = self
-            .head
-            .load(Ordering::Relaxed)
-            .wrapping_sub(self.tail.load(Ordering::Acquire));
-        SCHEDULE_SLOTS - used as usize
+    /// Entries a push may write now: every slot from the sentinel's up to
+    /// the one before the pending entry's (`next − 1`), less one for the
+    /// new sentinel.
+    fn room(&self) -> u32 {
+        let pending = self.next.load(Ordering::Relaxed).wrapping_sub(1);
+        let used = self.head.load(Ordering::Relaxed).wrapping_sub(pending);
+        (SCHEDULE_STEPS as u32 - 1).saturating_sub(used)
     }
 
-    /// Appends a segment; gives it back when the ring is full.
+    /// Steps a push can take now, whatever its direction (one entry is
+    /// kept for a direction marker). `SCHEDULE_STEPS - 3` when empty.
+    pub fn free(&self) -> usize {
+        self.room().saturating_sub(1) as usize
+    }
+
+    /// Appends a segment, expanded into its steps' delays (module docs);
+    /// gives it back when it has no step or the ring lacks room for all of
+    /// them (plus a direction marker if the direction changes).
+    #[inline(never)]
     pub fn push(&self, seg: Segment) -> Result<(), Segment> {
-        if self.free() == 0 || seg.count == 0 || seg.count > MAX_SEGMENT_STEPS {
+        let head = self.head.load(Ordering::Relaxed);
+        let turn = seg.forward == self.head_backward.load(Ordering::Relaxed);
+        let entries = seg.count.saturating_add(u32::from(turn));
+        if seg.count == 0 || entries > self.room() {
             return Err(seg);
         }
-        let head = self.head.load(Ordering::Relaxed);
-        let w = &self.slots[head as usize % SCHEDULE_SLOTS].words;
-        w[0].store(seg.interval as u32, Ordering::Relaxed);
-        w[1].store((seg.interval >> 32) as u32, Ordering::Relaxed);
-        w[2].store(seg.add as u32, Ordering::Relaxed);
-        w[3].store((seg.add >> 32) as u32, Ordering::Relaxed);
-        w[4].store(seg.add2 as u32, Ordering::Relaxed);
-        w[5].store((seg.add2 >> 32) as u32, Ordering::Relaxed);
-        w[7].store(seg.add3 as u32, Ordering::Relaxed);
-        w[8].store((seg.add3 >> 32) as u32, Ordering::Relaxed);
-        w[9].store(seg.add4 as u32, Ordering::Relaxed);
-        w[10].store((seg.add4 >> 32) as u32, Ordering::Relaxed);
-        let dir = if seg.forward { FORWARD_BIT } else { 0 };
-        w[6].store(seg.count | dir, Ordering::Relaxed);
-        self.head.store(head.wrapping_add(1), Ordering::Release);
+        // A run from rest (the interrupt idle, nothing queued: only this
+        // context can change that) puts its time origin half a tick in, so
+        // that the delays round every exact time to the nearest tick.
+        let frac = if !self.is_running() && self.is_empty() {
+            HALF_TICK
+        } else {
+            self.frac.load(Ordering::Relaxed)
+        };
+        let mut x = Expansion {
+            interval: seg.interval,
+            add: seg.add as u64,
+            add2: seg.add2 as u64,
+            add3: seg.add3 as u64,
+            add4: seg.add4 as u64,
+            frac,
+        };
+        // ring[head], the old sentinel, is written last (module docs)
+        let end = head.wrapping_add(entries);
+        let first_step = self.expand(&mut x, head.wrapping_add(u32::from(turn)), end);
+        let first = match (turn, seg.forward) {
+            (false, _) => first_step,
+            (true, forward) => {
+                self.entry(head.wrapping_add(1))
+                    .store(first_step, Ordering::Relaxed);
+                if forward {
+                    MARK_FORWARD
+                } else {
+                    MARK_BACKWARD
+                }
+            }
+        };
+        self.entry(end).store(END, Ordering::Relaxed);
+        // one core: program order is all the interrupt needs (module docs)
+        compiler_fence(Ordering::SeqCst);
+        self.entry(head).store(first, Ordering::Relaxed);
+        self.frac.store(x.frac, Ordering::Relaxed);
+        compiler_fence(Ordering::SeqCst);
+        self.head_backward.store(!seg.forward, Ordering::Relaxed);
+        compiler_fence(Ordering::SeqCst);
+        self.head.store(end, Ordering::Relaxed);
         Ok(())
     }
 
-    /// Segments pushed so far (wrapping); the slot of segment `n` is
-    /// `n % SCHEDULE_SLOTS`.
-    pub fn pushed(&self) -> u32 {
-        self.head.load(Ordering::Relaxed)
+    /// Expands the next steps of `x` for the entries `from` up to `to`
+    /// (excluded, at least one): writes all but the first, which it
+    /// returns, so that the caller can write it last.
+    fn expand(&self, x: &mut Expansion, from: u32, to: u32) -> u32 {
+        #[cfg(not(target_os = "none"))]
+        {
+            let mut shadow = *x;
+            let mut i = from;
+            while i != to {
+                shadow.step();
+                let slot = i as usize % SCHEDULE_STEPS;
+                self.exact_frac[slot].store(shadow.frac, Ordering::Relaxed);
+                i = i.wrapping_add(1);
+            }
+        }
+        // the first through the same loop (one copy of it), into a local
+        let first = AtomicU32::new(END);
+        x.fill(core::slice::from_ref(&first));
+        // the rest: the ring in at most two contiguous pieces (the `min`s
+        // never cut: fewer than SCHEDULE_STEPS entries)
+        let start = from.wrapping_add(1) as usize % SCHEDULE_STEPS;
+        let n = to.wrapping_sub(from).wrapping_sub(1) as usize;
+        let (before, after) = self.ring.split_at(start);
+        let k = n.min(after.len());
+        x.fill(&after[..k]);
+        if k < n {
+            x.fill(&before[..(n - k).min(before.len())]);
+        }
+        first.into_inner()
     }
 
-    /// Segments the interrupt has started (wrapping). The one it is
-    /// executing is `taken() - 1` while [`StepSchedule::is_running`].
-    pub fn taken(&self) -> u32 {
-        self.tail.load(Ordering::Acquire)
+    /// Ring index (wrapping) of the last entry pushed: after a push, its
+    /// last step's. The planner keeps it per segment to tell which one
+    /// the interrupt is executing ([`StepSchedule::step_index`]).
+    pub fn last_pushed_index(&self) -> u32 {
+        self.head.load(Ordering::Relaxed).wrapping_sub(1)
     }
 
-    /// Asks the consumer to drop the pending step and every queued segment
+    /// Ring index (wrapping) of the step the interrupt has announced and
+    /// not yet made, while [`StepSchedule::is_running`] (during a limit
+    /// brake: of the last step it took from the ring).
+    pub fn step_index(&self) -> u32 {
+        self.next.load(Ordering::Relaxed).wrapping_sub(1)
+    }
+
+    /// Asks the consumer to drop the pending step and every queued entry
     /// ("stop step output at once", SPEC §8.1/§8.3).
     pub fn request_flush(&self) {
         self.flush.store(true, Ordering::Relaxed);
@@ -329,12 +508,12 @@ impl StepSchedule {
     /// Tells the consumer to look at `flush`, `limits` and `brake_rate`
     /// at its next step: the flag after the value (module docs).
     fn raise_attention(&self) {
-        self.attention.store(true, Ordering::Release);
+        self.quiet.store(false, Ordering::Relaxed);
     }
 
     /// A flush was requested and the consumer has not yet carried it out.
     pub fn flush_pending(&self) -> bool {
-        self.flush.load(Ordering::Acquire)
+        self.flush.load(Ordering::Relaxed)
     }
 
     /// Clears a flush request nobody will carry out because the interrupt
@@ -342,7 +521,7 @@ impl StepSchedule {
     /// ring, and only the producer fills it, so this cannot race).
     pub fn clear_flush_if_idle(&self) {
         if !self.is_running() && self.is_empty() {
-            self.flush.store(false, Ordering::Release);
+            self.flush.store(false, Ordering::Relaxed);
         }
     }
 
@@ -361,19 +540,19 @@ impl StepSchedule {
     /// The interrupt's limit brake, if it has engaged and not been
     /// released.
     pub fn limit_brake(&self) -> Option<LimitBrake> {
-        let b = self.brake.load(Ordering::Acquire);
+        let b = self.brake.load(Ordering::Relaxed);
         (b != BRAKE_NONE).then_some(LimitBrake {
             forward: b & BRAKE_FORWARD != 0,
             done: b & BRAKE_DONE != 0,
         })
     }
 
-    /// Lets the interrupt take segments again after a finished brake (the
+    /// Lets the interrupt take entries again after a finished brake (the
     /// planner calls it once it has the position back). No effect while
     /// the brake is still running.
     pub fn release_brake(&self) {
-        if self.brake.load(Ordering::Acquire) & BRAKE_DONE != 0 {
-            self.brake.store(BRAKE_NONE, Ordering::Release);
+        if self.brake.load(Ordering::Relaxed) & BRAKE_DONE != 0 {
+            self.brake.store(BRAKE_NONE, Ordering::Relaxed);
         }
     }
 
@@ -393,31 +572,63 @@ impl StepSchedule {
     // ---- either side ----
 
     /// Raw step count: steps made forward minus steps made backward.
-    /// Derived from the running segment's end position and the steps of
-    /// it not yet made (module docs: the interrupt stores no position per
-    /// step). Call it from a context the interrupt may preempt, not from
-    /// one that may preempt the interrupt.
+    /// Derived from the position base and the index of the pending step
+    /// (module docs: the interrupt stores no position per step). Call it
+    /// from a context the interrupt may preempt, not from one that may
+    /// preempt the interrupt.
     pub fn position(&self) -> i32 {
         loop {
-            let seq = self.seq.load(Ordering::Acquire);
-            let end = self.seg_end.load(Ordering::Relaxed);
-            let dir = self.seg_dir.load(Ordering::Relaxed);
-            let left = self.left.load(Ordering::Relaxed);
-            fence(Ordering::Acquire);
+            let seq = self.seq.load(Ordering::Relaxed);
+            compiler_fence(Ordering::SeqCst);
+            let pos = self.base_position(self.next.load(Ordering::Relaxed));
+            compiler_fence(Ordering::SeqCst);
             if seq & 1 == 0 && self.seq.load(Ordering::Relaxed) == seq {
-                return end.wrapping_sub(dir.wrapping_mul(left as i32));
+                return pos;
             }
         }
     }
 
-    /// Steps are being generated (a step is scheduled on the timer).
-    pub fn is_running(&self) -> bool {
-        self.running.load(Ordering::Acquire)
+    /// The position formula on the current base at `next` (the consumer,
+    /// which writes the base, reads it without the sequence count).
+    fn base_position(&self, next: u32) -> i32 {
+        let pos = self.base_pos.load(Ordering::Relaxed);
+        let idx = self.base_idx.load(Ordering::Relaxed);
+        let dir = self.base_dir.load(Ordering::Relaxed);
+        pos.wrapping_add(dir.wrapping_mul(next.wrapping_sub(idx) as i32))
     }
 
-    /// No segment is queued (the running one, if any, has been taken).
+    /// Consumer only: `next` and a new base at it (position `pos`,
+    /// direction `forward`), under the sequence count that
+    /// [`StepSchedule::position`] reads them with.
+    fn set_base(&self, pos: i32, next: u32, forward: bool) {
+        let seq = self.seq.load(Ordering::Relaxed);
+        self.seq.store(seq.wrapping_add(1), Ordering::Relaxed);
+        compiler_fence(Ordering::SeqCst);
+        self.base_pos.store(pos, Ordering::Relaxed);
+        self.base_idx.store(next, Ordering::Relaxed);
+        self.base_dir.store(dir(forward), Ordering::Relaxed);
+        self.next.store(next, Ordering::Relaxed);
+        compiler_fence(Ordering::SeqCst);
+        self.seq.store(seq.wrapping_add(2), Ordering::Relaxed);
+    }
+
+    /// Steps are being generated (a step is scheduled on the timer).
+    pub fn is_running(&self) -> bool {
+        self.running.load(Ordering::Relaxed)
+    }
+
+    /// Nothing is queued behind the pending step (or behind the last step
+    /// made, when idle).
     pub fn is_empty(&self) -> bool {
-        self.head.load(Ordering::Acquire) == self.tail.load(Ordering::Acquire)
+        self.head.load(Ordering::Relaxed) == self.next.load(Ordering::Relaxed)
+    }
+}
+
+fn dir(forward: bool) -> i32 {
+    if forward {
+        1
+    } else {
+        -1
     }
 }
 
@@ -439,175 +650,159 @@ pub struct NextStep {
 /// the next delay, or `None` (stop the timer) when the schedule ran dry or a
 /// flush was requested. DIR may be written as soon as `advance` returns: the
 /// whole interval is DIR set-up time.
-// repr(C): the per-step words in one block, so that the compiler can load
-// and store them with few instructions (module docs: worst-case cost).
-#[repr(C)]
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct StepSource {
-    /// Fraction of the pending step's exact time plus half a tick, Q0.32:
-    /// the delays round every exact time to the nearest tick and carry the
-    /// rest, so rounding never accumulates.
-    frac: u32,
-    /// Interval to the step after the pending one, Q32.32 ticks, as
-    /// (low, high) words; then `add` and `add2` the same way. Words, not
-    /// u64: the seven are loaded and stored as one block.
-    interval: [u32; 2],
-    add: [u32; 2],
-    add2: [u32; 2],
-    add3: [u32; 2],
-    add4: [u32; 2],
+    /// Direction of the pending step, and of the entries after it up to
+    /// the next marker.
     forward: bool,
     /// A step has been announced and not yet made.
     pending: bool,
     /// The limit brake is running at this rate (0 = not braking).
     braking: u32,
+    /// The limit brake's last interval (Q32.32 ticks) and the fraction it
+    /// carries, as the producer's (module docs), from the braking start.
+    interval: u64,
+    frac: u32,
 }
 
-fn join(w: [u32; 2]) -> u64 {
-    u64::from(w[0]) | (u64::from(w[1]) << 32)
-}
-
-fn split(x: u64) -> [u32; 2] {
-    [x as u32, (x >> 32) as u32]
+impl Default for StepSource {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
 impl StepSource {
+    /// Matches [`StepSchedule::new`]: idle, forward.
     pub const fn new() -> Self {
         Self {
-            frac: 0,
-            interval: [0; 2],
-            add: [0; 2],
-            add2: [0; 2],
-            add3: [0; 2],
-            add4: [0; 2],
             forward: true,
             pending: false,
             braking: 0,
+            interval: 0,
+            frac: 0,
         }
     }
 
     /// See the type docs. Constant time; the cost is in the module docs.
     #[inline]
     pub fn advance(&mut self, sched: &StepSchedule) -> Option<NextStep> {
-        // The pending step has been made: one fewer left in the segment.
-        // Relaxed: one core, one writer; thread mode only reads it
-        // (StepSchedule::position), so no barrier is needed per step.
-        let (left, idle) = sched.left.load(Ordering::Relaxed).overflowing_sub(1);
-        if sched.attention.load(Ordering::Relaxed) || idle || left == 0 {
-            // the segment is done, the interrupt was idle, or a flag changed
+        // The pending step has been made; the next entry is a plain delay
+        // unless it is the sentinel, a marker or a long delay (≤ 0 as
+        // i32), and nothing needs a look unless `quiet` is clear. `next`
+        // moves on before its entry is looked at (one instruction fewer:
+        // the old value need not be kept), the slow path puts it back;
+        // nobody sees the value in between (module docs: one core, nothing
+        // preempts this interrupt).
+        let next = sched.next.load(Ordering::Relaxed);
+        sched.next.store(next.wrapping_add(1), Ordering::Relaxed);
+        let delay = sched.entry(next).load(Ordering::Relaxed);
+        if delay as i32 <= 0 || !sched.quiet.load(Ordering::Relaxed) {
             return self.advance_slow(sched);
         }
-        sched.left.store(left, Ordering::Relaxed);
-        Some(self.announce())
-    }
-
-    /// The next step of the current run: interval from the state, then the
-    /// state one step on.
-    #[inline(always)]
-    fn announce(&mut self) -> NextStep {
-        let [ilo, ihi] = self.interval;
-        let (frac, carry) = self.frac.overflowing_add(ilo);
-        let add = join(self.add);
-        self.frac = frac;
-        self.interval = split(join(self.interval).wrapping_add(add));
-        self.add = split(add.wrapping_add(join(self.add2)));
-        self.add2 = split(join(self.add2).wrapping_add(join(self.add3)));
-        self.add3 = split(join(self.add3).wrapping_add(join(self.add4)));
-        NextStep {
-            delay_ticks: ihi.wrapping_add(u32::from(carry)),
+        Some(NextStep {
+            delay_ticks: delay,
             forward: self.forward,
-        }
+        })
     }
 
-    /// Everything but the next step of a running segment: segment ends,
-    /// starts from rest, flush, limits, the brake. Constant time too.
+    /// Everything but the next plain delay: starts from rest, the end of
+    /// the queue, markers, long delays, flush, limits, the brake. Constant
+    /// time too (at most one marker before a step, module docs).
+    /// The fast path has moved `next` on by one; every way out of here
+    /// stores it again ([`StepSchedule::set_base`]).
     #[inline(never)]
     fn advance_slow(&mut self, sched: &StepSchedule) -> Option<NextStep> {
-        let mut left = sched.left.load(Ordering::Relaxed);
+        let next = sched.next.load(Ordering::Relaxed).wrapping_sub(1);
+        let mut made = sched.base_position(next);
         if self.pending {
-            if self.braking != 0 {
-                // brake steps belong to no segment: count them in seg_end
-                let dir = sched.seg_dir.load(Ordering::Relaxed);
-                let end = sched.seg_end.load(Ordering::Relaxed).wrapping_add(dir);
-                sched.set_segment_state(end, dir, 0);
-            } else {
-                left = left.wrapping_sub(1);
-                sched.left.store(left, Ordering::Relaxed);
-            }
-        } else {
-            // Starting from rest: put the time origin half a tick in so
-            // that the integer delays round every exact time to the nearest
-            // tick.
-            self.frac = 1 << (TICK_FRAC_BITS - 1);
+            made = made.wrapping_add(dir(self.forward));
         }
-        if sched.attention.load(Ordering::Relaxed) {
+        if !sched.quiet.load(Ordering::Relaxed) {
             // Clear first, then read the flags: a change made after this
             // raises it again (the writers store the value, then the flag).
-            sched.attention.store(false, Ordering::Relaxed);
-            fence(Ordering::SeqCst);
+            sched.quiet.store(true, Ordering::Relaxed);
+            compiler_fence(Ordering::SeqCst);
         }
         if self.braking != 0 {
-            return self.brake_step(sched, self.braking);
+            // brake steps are no ring entries: count them in the base
+            sched.set_base(made, next, self.forward);
+            return self.brake_step(sched, made);
         }
-        if sched.flush.load(Ordering::Acquire)
+        if sched.flush.load(Ordering::Relaxed)
             || sched.brake.load(Ordering::Relaxed) & BRAKE_DONE != 0
         {
-            self.drop_all(sched);
+            self.drop_all(sched, made);
             return None;
         }
-        if left == 0 && !self.load_segment(sched) {
-            self.pending = false;
-            sched.running.store(false, Ordering::Release);
-            return None;
-        }
+        // The next step, after a direction marker if there is one (a push
+        // never ends on a marker: at most one before a step).
+        let mut at = next;
+        let delay = loop {
+            match sched.entry(at).load(Ordering::Relaxed) {
+                END => {
+                    // the queue ran dry (or was empty): idle until pushed
+                    self.pending = false;
+                    sched.set_base(made, at, self.forward);
+                    sched.running.store(false, Ordering::Relaxed);
+                    sched.quiet.store(false, Ordering::Relaxed);
+                    return None;
+                }
+                MARK_FORWARD => self.forward = true,
+                MARK_BACKWARD => self.forward = false,
+                delay => break delay,
+            }
+            at = at.wrapping_add(1);
+        };
         let block = if self.forward {
             BLOCK_FORWARD
         } else {
             BLOCK_BACKWARD
         };
-        if sched.limits.load(Ordering::Acquire) & block != 0 {
+        if sched.limits.load(Ordering::Relaxed) & block != 0 {
             let rate = sched.brake_rate.load(Ordering::Relaxed);
             if rate != 0 {
                 let dir = if self.forward { BRAKE_FORWARD } else { 0 };
-                sched.brake.store(BRAKE_ACTIVE | dir, Ordering::Release);
+                sched.brake.store(BRAKE_ACTIVE | dir, Ordering::Relaxed);
                 self.braking = rate;
-                // the rest of the segment is not made: position = made
-                sched.set_segment_state(sched.position(), Self::dir(self.forward), 0);
-                return self.brake_step(sched, rate);
+                // from the interval of the step it would have made, timed
+                // from the tick of the one just made
+                self.interval = u64::from(delay) << TICK_FRAC_BITS;
+                self.frac = HALF_TICK;
+                sched.set_base(made, at, self.forward);
+                return self.brake_step(sched, made);
             }
         }
         self.pending = true;
-        Some(self.announce())
+        sched.set_base(made, at.wrapping_add(1), self.forward);
+        sched.running.store(true, Ordering::Relaxed);
+        Some(NextStep {
+            delay_ticks: delay,
+            forward: self.forward,
+        })
     }
 
-    fn dir(forward: bool) -> i32 {
-        if forward {
-            1
-        } else {
-            -1
-        }
-    }
-
-    /// The step after the pending one `interval` (Q32.32) after it.
-    fn announce_interval(&mut self, interval: u64) -> NextStep {
-        self.interval = split(interval);
-        self.add = [0; 2];
-        self.add2 = [0; 2];
-        self.add3 = [0; 2];
-        self.add4 = [0; 2];
-        self.pending = true;
-        self.announce()
-    }
-
-    /// One step of the limit brake (module docs), or its end.
-    fn brake_step(&mut self, sched: &StepSchedule, rate: u32) -> Option<NextStep> {
-        match brake_interval(join(self.interval), rate) {
-            Some(p) => Some(self.announce_interval(p)),
+    /// One step of the limit brake (module docs), or its end; `made` is
+    /// the position reached.
+    fn brake_step(&mut self, sched: &StepSchedule, made: i32) -> Option<NextStep> {
+        match brake_interval(self.interval, self.braking) {
+            Some(p) => {
+                let (frac, carry) = self.frac.overflowing_add(p as u32);
+                self.frac = frac;
+                self.interval = p;
+                self.pending = true;
+                sched.running.store(true, Ordering::Relaxed);
+                // every braking step goes the slow way
+                sched.quiet.store(false, Ordering::Relaxed);
+                Some(NextStep {
+                    delay_ticks: ((p >> TICK_FRAC_BITS) as u32 + u32::from(carry)).max(1),
+                    forward: self.forward,
+                })
+            }
             None => {
                 self.braking = 0;
-                self.drop_all(sched);
+                self.drop_all(sched, made);
                 let dir = if self.forward { BRAKE_FORWARD } else { 0 };
-                sched.brake.store(BRAKE_DONE | dir, Ordering::Release);
+                sched.brake.store(BRAKE_DONE | dir, Ordering::Relaxed);
                 None
             }
         }
@@ -620,70 +815,41 @@ impl StepSource {
         if self.braking != 0 {
             // a brake cut short is still a brake: latch it for the planner
             let dir = if self.forward { BRAKE_FORWARD } else { 0 };
-            sched.brake.store(BRAKE_DONE | dir, Ordering::Release);
+            sched.brake.store(BRAKE_DONE | dir, Ordering::Relaxed);
             self.braking = 0;
         }
-        self.drop_all(sched);
+        // the base counts every step made (the pending one is not)
+        self.drop_all(
+            sched,
+            sched.base_position(sched.next.load(Ordering::Relaxed)),
+        );
     }
 
-    /// Exact time of the announced step minus the tick it is announced at
-    /// (Q32.32, signed, within ±½ tick): the rounding the delays carry.
-    /// For tests and traces; the interrupt does not need it.
-    pub fn rounding_q32(&self) -> i64 {
-        i64::from(self.frac) - (1 << (TICK_FRAC_BITS - 1))
+    /// Exact time of the pending step minus the tick it is announced at
+    /// (Q32.32, signed, within ±½ tick): the rounding its delay carries.
+    /// Host builds only (module docs), for the simulation's step records.
+    #[cfg(not(target_os = "none"))]
+    pub fn rounding_q32(&self, sched: &StepSchedule) -> i64 {
+        let frac = if self.braking != 0 {
+            self.frac
+        } else {
+            let pending = sched.next.load(Ordering::Relaxed).wrapping_sub(1);
+            sched.exact_frac[pending as usize % SCHEDULE_STEPS].load(Ordering::Relaxed)
+        };
+        i64::from(frac) - i64::from(HALF_TICK)
     }
 
-    fn load_segment(&mut self, sched: &StepSchedule) -> bool {
-        let tail = sched.tail.load(Ordering::Relaxed);
-        if sched.head.load(Ordering::Acquire) == tail {
-            return false;
-        }
-        let w = &sched.slots[tail as usize % SCHEDULE_SLOTS].words;
-        let word = |i: usize| w[i].load(Ordering::Relaxed);
-        self.interval = [word(0), word(1)];
-        self.add = [word(2), word(3)];
-        self.add2 = [word(4), word(5)];
-        self.add3 = [word(7), word(8)];
-        self.add4 = [word(9), word(10)];
-        let count = w[6].load(Ordering::Relaxed);
-        self.forward = count & FORWARD_BIT != 0;
-        let count = count & !FORWARD_BIT;
-        let dir = Self::dir(self.forward);
-        // the made position is the old segment's end (left == 0)
-        let end = sched
-            .seg_end
-            .load(Ordering::Relaxed)
-            .wrapping_add(dir.wrapping_mul(count as i32));
-        sched.set_segment_state(end, dir, count);
-        sched.tail.store(tail.wrapping_add(1), Ordering::Release);
-        sched.running.store(true, Ordering::Release);
-        true
-    }
-
-    fn drop_all(&mut self, sched: &StepSchedule) {
+    /// Drops the pending step and every queued entry; `made` is the
+    /// position reached. The next push's entries follow the last pushed
+    /// one, in the last push's direction (module docs).
+    fn drop_all(&mut self, sched: &StepSchedule, made: i32) {
         self.pending = false;
-        let made = sched.position();
-        sched.set_segment_state(made, sched.seg_dir.load(Ordering::Relaxed), 0);
-        sched
-            .tail
-            .store(sched.head.load(Ordering::Acquire), Ordering::Release);
-        sched.running.store(false, Ordering::Release);
-        sched.flush.store(false, Ordering::Release);
-    }
-}
-
-impl StepSchedule {
-    /// Consumer only: the running segment's end position, direction and
-    /// steps left, under the sequence count that [`StepSchedule::position`]
-    /// reads them with.
-    fn set_segment_state(&self, end: i32, dir: i32, left: u32) {
-        let seq = self.seq.load(Ordering::Relaxed);
-        self.seq.store(seq.wrapping_add(1), Ordering::Relaxed);
-        fence(Ordering::Release);
-        self.seg_end.store(end, Ordering::Relaxed);
-        self.seg_dir.store(dir, Ordering::Relaxed);
-        self.left.store(left, Ordering::Relaxed);
-        self.seq.store(seq.wrapping_add(2), Ordering::Release);
+        let head = sched.head.load(Ordering::Relaxed);
+        self.forward = !sched.head_backward.load(Ordering::Relaxed);
+        sched.set_base(made, head, self.forward);
+        sched.running.store(false, Ordering::Relaxed);
+        sched.flush.store(false, Ordering::Relaxed);
+        sched.quiet.store(false, Ordering::Relaxed);
     }
 }
 
@@ -792,24 +958,117 @@ mod tests {
         assert!(sched.is_empty());
     }
 
+    /// Steps until the source stops, each checked for its delay and
+    /// direction.
+    fn run_out(src: &mut StepSource, sched: &StepSchedule, delay: u32, forward: bool) -> i32 {
+        let mut n = 0;
+        while let Some(s) = src.advance(sched) {
+            assert_eq!((s.delay_ticks, s.forward), (delay, forward), "step {n}");
+            n += 1;
+        }
+        n
+    }
+
     #[test]
     fn ring_full_refuses_and_wraps() {
         let sched = StepSchedule::new();
         let mut src = StepSource::new();
-        let seg = seg(ONE, 0, 0, 1, true);
-        for _ in 0..SCHEDULE_SLOTS {
-            sched.push(seg).unwrap();
+        let steps = |count: usize, forward: bool| seg(ONE, 0, 0, count as u32, forward);
+        let one = steps(1, true);
+        assert_eq!(sched.free(), SCHEDULE_STEPS - 3);
+        assert!(sched.push(steps(0, true)).is_err());
+        // all or nothing: one step more than the room is refused whole
+        let big = steps(SCHEDULE_STEPS - 1, true);
+        assert_eq!(sched.push(big), Err(big));
+        assert!(sched.is_empty());
+        // the same direction needs no marker: the whole room, then full
+        sched.push(steps(SCHEDULE_STEPS - 2, true)).unwrap();
+        assert_eq!((sched.free(), sched.push(one)), (0, Err(one)));
+        // the start frees the slot kept while idle, each step made one
+        // more; the pending step's slot is never written
+        for made in 0..2 {
+            assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(1));
+            assert_eq!(sched.position(), made);
+            sched.push(one).unwrap();
+            assert_eq!((sched.free(), sched.push(one)), (0, Err(one)));
         }
-        assert_eq!(sched.push(seg), Err(seg));
-        assert!(sched.push(Segment { count: 0, ..seg }).is_err());
-        for round in 0..3 {
-            let (_, n) = drain(&mut src, &sched);
-            assert_eq!(n, if round == 0 { SCHEDULE_SLOTS } else { 10 });
-            for _ in 0..10 {
-                sched.push(seg).unwrap();
-            }
+        assert_eq!(
+            run_out(&mut src, &sched, 1, true),
+            SCHEDULE_STEPS as i32 - 2
+        );
+        assert_eq!(sched.position(), SCHEDULE_STEPS as i32);
+        // round and round the ring (40 × 200..435 entries), each round turning
+        // round (one marker), refilled while running
+        let mut expect = sched.position();
+        let mut forward = true;
+        for round in 0..40 {
+            forward = !forward;
+            let count = 100 + 3 * round;
+            sched.push(steps(count, forward)).unwrap();
+            assert_eq!(src.advance(&sched).map(|s| s.forward), Some(forward));
+            sched.push(steps(count, forward)).unwrap();
+            let made = 1 + run_out(&mut src, &sched, 1, forward);
+            assert_eq!(made, 2 * count as i32);
+            expect += if forward { made } else { -made };
+            assert_eq!(sched.position(), expect);
+            assert!(sched.is_empty() && !sched.is_running());
         }
-        assert_eq!(sched.position(), SCHEDULE_SLOTS as i32 + 20);
+    }
+
+    /// A flush that drops a queued direction marker leaves the interrupt
+    /// in the last push's direction: the next push (which needs no marker)
+    /// goes the right way.
+    #[test]
+    fn a_dropped_marker_does_not_lose_the_direction() {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.push(seg(10 * ONE, 0, 0, 3, true)).unwrap();
+        sched.push(seg(10 * ONE, 0, 0, 3, false)).unwrap();
+        assert!(src.advance(&sched).unwrap().forward);
+        sched.request_flush();
+        assert_eq!(src.advance(&sched), None);
+        assert_eq!(sched.position(), 1);
+        sched.push(seg(10 * ONE, 0, 0, 2, false)).unwrap();
+        assert_eq!(run_out(&mut src, &sched, 10, false), 2);
+        assert_eq!(sched.position(), -1);
+    }
+
+    /// Delays from 2^31 ticks on share their top bit with the markers: they
+    /// go the slow way and still come out whole; an interval below half a
+    /// tick is a delay of 1, never the sentinel (0).
+    #[test]
+    fn long_and_zero_delays() {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.push(seg(3_000_000_000 * ONE, 0, 0, 3, true)).unwrap();
+        sched.push(seg(ONE / 4, 0, 0, 2, true)).unwrap();
+        sched.push(seg(7 * ONE, 0, 0, 1, true)).unwrap();
+        let (d, n) = drain(&mut src, &sched);
+        let long = 3_000_000_000;
+        assert_eq!(&d[..n], &[long, long, long, 1, 1, 7]);
+        assert_eq!(sched.position(), 6);
+    }
+
+    /// Host builds: the exact time of each step is its tick plus the
+    /// rounding its delay carried, within ±½ tick.
+    #[test]
+    fn rounding_gives_the_exact_times() {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        // 5.5, then 5.5 + 1/3 per step, ticks
+        let third = (ONE / 3) as i64;
+        sched.push(seg(ONE * 11 / 2, third, 0, 6, true)).unwrap();
+        let (mut tick, mut exact) = (0u64, 0u64);
+        let mut interval = ONE * 11 / 2;
+        while let Some(s) = src.advance(&sched) {
+            tick += u64::from(s.delay_ticks);
+            exact += interval;
+            interval += third as u64;
+            let r = src.rounding_q32(&sched);
+            assert!(r.abs() <= 1 << 31, "{r}");
+            assert_eq!((tick << 32).wrapping_add(r as u64), exact);
+        }
+        assert_eq!(tick, 6 * 11 / 2 + 5); // 33 + 15 × ⅓ = 38
     }
 
     #[test]
@@ -831,8 +1090,9 @@ mod tests {
 
     /// A long run at `interval` ticks per step in one direction.
     fn cruise(sched: &StepSchedule, interval: u64, forward: bool) {
+        let count = sched.free() as u32;
         sched
-            .push(seg(interval * ONE, 0, 0, 100_000, forward))
+            .push(seg(interval * ONE, 0, 0, count, forward))
             .unwrap();
     }
 

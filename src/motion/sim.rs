@@ -172,7 +172,7 @@ impl SimAxis {
             self.steps += 1;
             on_step(StepRecord {
                 tick,
-                exact: (tick << 32).wrapping_add(self.source.rounding_q32() as u64),
+                exact: (tick << 32).wrapping_add(self.source.rounding_q32(sched) as u64),
                 position: self.position,
                 forward,
             });
