@@ -85,11 +85,12 @@
 //! instructions besides the call (README "Drive behaviour" has the
 //! measured figure). The slow path (a start from rest, the end of the
 //! queue, a marker, a delay from 2^31 ticks, a flag raised) rewrites the
-//! position base under the sequence count (about 70 instructions); it
+//! position base under the sequence count (about 65 instructions); it
 //! takes at most one marker and one step, so it is constant time too. A
 //! braking step (below) costs six 64×64 → 128-bit multiplies and a
 //! variable shift, still no division and no loop. The expansion is thread
-//! mode's: about 16 instructions per step inside [`StepSchedule::push`].
+//! mode's, in [`StepSchedule::push`]: about 16 instructions per step and
+//! 140 per push.
 //!
 //! # Limit brake (SPEC §8.7, issue 6)
 //!
