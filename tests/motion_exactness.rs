@@ -121,12 +121,15 @@ proptest! {
         let mut last = 0;
         let mut changes = Vec::new();
         for (target, after_ms) in &targets {
+            assert!(run.planner.set_goal(Goal::Move { target: *target, ramp: r, end_velocity: 0 }));
+            // the steps that keep the old profile: those queued when the
+            // goal arrived (set_goal drops what was fitted but not yet
+            // handed to the interrupt)
             changes.push(GoalChange {
                 queued: run.planner.planned_steps,
                 idle_fill_us: run.idle_fill_us,
                 target: *target,
             });
-            assert!(run.planner.set_goal(Goal::Move { target: *target, ramp: r, end_velocity: 0 }));
             last = *target;
             for _ in 0..*after_ms {
                 run.tick();
@@ -176,9 +179,11 @@ proptest! {
 
 /// The margins behind the README's precision figures, on the seed's move
 /// (200000 steps, 5 r/s, 10 r/s² at PA10 = 10000, 10 MHz timer): step
-/// times within ½ tick of the continuous trapezoid, velocity never above
-/// the commanded one (1e-9), acceleration ≤ +0.1 % after the first 10
-/// steps.
+/// times within 0.25 µs of the continuous trapezoid (measured 0.107 µs:
+/// the segment fit may use up to half of issue 3's 1 µs, `segment_len`),
+/// velocity never above the commanded one (1e-9), acceleration ≤ +0.1 %
+/// after the first 10 steps (measured +0.06 %), fewer than 5000 fitted
+/// segments (measured 1565).
 #[test]
 fn seed_move_precision_margins() {
     let tick_hz = 10_000_000;
@@ -214,12 +219,12 @@ fn seed_move_precision_margins() {
         t_err = t_err.max(((st.tick - t0) as f64 / f - want).abs());
     }
     assert_eq!(run.axis.position(), 200_000);
-    assert!(t_err <= 0.5 / f + 1e-9, "time error {t_err}");
+    assert!(t_err <= 0.25e-6, "time error {t_err}");
     assert!(v_max <= 50_000.0 * (1.0 + 1e-9), "velocity {v_max}");
     assert!(a_max <= 100_000.0 * 1.001, "acceleration {a_max}");
     assert!(
-        run.planner.segments_pushed() < 5_000,
+        run.planner.segments_fitted < 5_000,
         "segments {}",
-        run.planner.segments_pushed()
+        run.planner.segments_fitted
     );
 }

@@ -25,7 +25,7 @@
 //! steps once the speed is above `sqrt(64·a)` steps/s (below that they are
 //! single steps, at a step rate low enough not to matter).
 
-use super::profile::{isqrt, slope_of, stop_steps, w_of, Profile, SegmentBudget, V_FRAC};
+use super::profile::{div, isqrt, slope_of, stop_steps, w_of, Profile, SegmentBudget, V_FRAC};
 use super::schedule::{Segment, StepSchedule, TICK_FRAC_BITS};
 
 /// Highest step rate the drive generates, steps/s. Faster requests are
@@ -107,13 +107,19 @@ pub enum Fill {
 /// Timing of the planner; the glue chooses the tick frequency.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PlannerConfig {
-    /// Step timer frequency, Hz (≥ 1 MHz so that steps at the maximum rate
-    /// are ≥ 5 ticks apart; sub-µs resolution keeps step times exact).
+    /// Step timer frequency, Hz: a whole number of MHz (the control clock
+    /// in µs converts with one multiplication; the boards use 10 and
+    /// 8 MHz), ≥ 1 MHz so that steps at the maximum rate are ≥ 5 ticks
+    /// apart; sub-µs resolution keeps step times exact.
     pub tick_hz: u32,
     /// How far ahead of `now` the schedule is filled. Must exceed the
-    /// control period; it is also the latency of a change of goal.
+    /// control period; it is also the latency of a change of goal (what
+    /// is pushed to the interrupt stays; a segment is fitted whole but
+    /// pushed in parts up to the horizon, and a new goal drops the rest).
     pub horizon_us: u32,
-    /// Longest segment, µs (bounds the horizon overshoot).
+    /// Longest segment, µs (at most 2^22 ticks: the fit's numbers stay in
+    /// 64 bits). Long segments cost the planner less per step; they do not
+    /// delay a change of goal.
     pub max_segment_us: u32,
 }
 
@@ -122,7 +128,7 @@ impl Default for PlannerConfig {
         Self {
             tick_hz: 10_000_000,
             horizon_us: 3_000,
-            max_segment_us: 2_000,
+            max_segment_us: 100_000,
         }
     }
 }
@@ -132,10 +138,13 @@ impl Default for PlannerConfig {
 struct SlotInfo {
     /// Ring index of the segment's last step ([`StepSchedule::step_index`]).
     last_index: u32,
-    /// Steps in it, and the signed velocities (0.1 steps/s) before its
-    /// first and at its last step: v² is linear in the steps within a
-    /// segment (one profile piece), so the velocity of any of its steps
-    /// follows without keeping v² per step.
+    /// Steps of its segment after its last step (a segment is pushed in
+    /// parts, up to the horizon), the segment's steps, and the signed
+    /// velocities (0.1 steps/s) before the segment's first and at its last
+    /// step: v² is linear in the steps within a segment (one profile
+    /// piece), so the velocity of any of its steps follows without keeping
+    /// v² per step.
+    to_end: u32,
     count: u32,
     v_start: i32,
     v_end: i32,
@@ -145,7 +154,8 @@ struct SlotInfo {
 impl SlotInfo {
     /// Signed velocity (0.1 steps/s) at the step with ring index `step`.
     fn velocity_at(&self, step: u32) -> i64 {
-        let left = u64::from(self.last_index.wrapping_sub(step).min(self.count));
+        let left =
+            u64::from(self.last_index.wrapping_sub(step).min(self.count)) + u64::from(self.to_end);
         let (a, b) = (i64::from(self.v_start), i64::from(self.v_end));
         if a == b || self.count == 0 {
             return b;
@@ -153,10 +163,12 @@ impl SlotInfo {
         // v² = b² − (b² − a²)·left/count, in u64 (|v| < 2^22)
         let (a2, b2) = ((a * a) as u64, (b * b) as u64);
         let n = u64::from(self.count);
+        // segments hold a power of two of steps: the division is a shift
+        let (left, k) = (left.min(n), n.trailing_zeros());
         let w = if b2 >= a2 {
-            b2 - (b2 - a2) * left / n
+            b2 - (((b2 - a2) * left) >> k)
         } else {
-            b2 + (a2 - b2) * left / n
+            b2 + (((a2 - b2) * left) >> k)
         };
         let v = w.isqrt() as i64;
         if b < 0 || (b == 0 && a < 0) {
@@ -165,6 +177,26 @@ impl SlotInfo {
             v
         }
     }
+}
+
+/// The segment being handed to the interrupt: fitted whole, pushed in
+/// parts up to the horizon, so that its length (the fit's cost is per
+/// segment) does not delay a change of goal (module docs).
+#[derive(Clone, Copy, Debug)]
+struct Pending {
+    /// Its steps not yet pushed, and their terms (`count` = 0: none).
+    rest: Segment,
+    /// Steps it holds.
+    n: u64,
+    /// The planner's state before it (position, v², exact time), and the
+    /// v² slope of its piece: enough to find the state after any of its
+    /// steps when a new goal drops the steps not yet pushed.
+    pos: i64,
+    w: u128,
+    t_ideal: u64,
+    slope: i128,
+    /// For the drive's 0x606C: the velocities at its ends.
+    info: SlotInfo,
 }
 
 /// See the module docs.
@@ -204,7 +236,11 @@ pub struct Planner {
     /// Steps queued since start (wrapping; a stop at once drops some of
     /// them unmade): lets a test tell which profile timed a step.
     pub planned_steps: u64,
+    /// Segments fitted since start (wrapping; each is pushed in one or
+    /// more parts, [`Planner::segments_pushed`]).
+    pub segments_fitted: u32,
     budget: SegmentBudget,
+    pending: Pending,
     /// `horizon_us` in Q32.32 ticks.
     horizon_q: u64,
     /// Time per step at the end of the last segment (Q32.32 ticks, 0 =
@@ -233,7 +269,25 @@ impl Planner {
             late_segments: 0,
             now: 0,
             planned_steps: 0,
+            segments_fitted: 0,
             budget: SegmentBudget::new(cfg.tick_hz, cfg.max_segment_us),
+            pending: Pending {
+                rest: Segment {
+                    interval: 0,
+                    add: 0,
+                    add2: 0,
+                    add3: 0,
+                    add4: 0,
+                    count: 0,
+                    forward: true,
+                },
+                n: 0,
+                pos: 0,
+                w: 0,
+                t_ideal: 0,
+                slope: 0,
+                info: SlotInfo::default(),
+            },
             horizon_q: 0,
             s_end: 0,
             s_end_w: 0,
@@ -294,7 +348,10 @@ impl Planner {
 
     /// A profile or a follow-up goal is being planned.
     pub fn busy(&self) -> bool {
-        self.profile.is_some() || self.then.is_some() || self.flushing
+        self.profile.is_some()
+            || self.then.is_some()
+            || self.flushing
+            || self.pending.rest.count > 0
     }
 
     /// The motor is at rest and nothing is planned: every queued step has
@@ -369,6 +426,7 @@ impl Planner {
         }
         self.then = None;
         self.profile = None;
+        self.drop_pending();
         let ok = self.start(goal);
         if !ok && self.w > 0 {
             // keep the motor under control: stop with the last deceleration
@@ -386,6 +444,7 @@ impl Planner {
         self.profile = None;
         self.then = None;
         self.w = 0;
+        self.pending.rest.count = 0;
         if sched.is_running() || !sched.is_empty() || sched.limit_brake().is_some() {
             // also after the interrupt's limit brake (schedule.rs): wait
             // for its end, then take the position back and release it
@@ -394,16 +453,11 @@ impl Planner {
         }
     }
 
-    /// Converts µs of the control clock to Q32.32 ticks (wrapping).
+    /// Converts µs of the control clock to Q32.32 ticks (wrapping): one
+    /// multiplication, the tick being a whole number of MHz
+    /// ([`PlannerConfig::tick_hz`]).
     fn ticks_q(&self, us: u64) -> u64 {
-        let hz = self.cfg.tick_hz;
-        // whole MHz (every timer the drive uses): one multiplication
-        let ticks = if hz.is_multiple_of(1_000_000) {
-            us.wrapping_mul(u64::from(hz / 1_000_000))
-        } else {
-            (u128::from(us) * u128::from(hz) / 1_000_000) as u64
-        };
-        ticks << TICK_FRAC_BITS
+        us.wrapping_mul(u64::from(self.cfg.tick_hz / 1_000_000)) << TICK_FRAC_BITS
     }
 
     /// Appends segments until `now_us + horizon` is covered, the ring is
@@ -411,10 +465,11 @@ impl Planner {
     pub fn fill(&mut self, now_us: u64, sched: &StepSchedule) -> Fill {
         let now = self.ticks_q(now_us);
         self.now = now;
-        let covered = self.t_ideal.wrapping_sub(now) as i64 >= self.horizon_q as i64;
+        let covered = self.t_isr.wrapping_sub(now) as i64 >= self.horizon_q as i64;
         if covered
             && !self.flushing
-            && self.profile.as_ref().is_some_and(|p| p.remaining() != 0)
+            && (self.pending.rest.count > 0
+                || self.profile.as_ref().is_some_and(|p| p.remaining() != 0))
             && (sched.is_running() || !sched.is_empty())
         {
             // the common call: the horizon is covered (what the loop
@@ -436,15 +491,32 @@ impl Planner {
         }
         if !sched.is_running() && sched.is_empty() {
             // Everything queued has been stepped: start afresh from now.
-            if self.w > 0 && self.profile.is_some() {
+            if self.w > 0 && (self.profile.is_some() || self.pending.rest.count > 0) {
                 self.underruns = self.underruns.wrapping_add(1);
             }
+            if self.pending.rest.count > 0 {
+                // ran dry inside a segment (never expected): its rest
+                // and what follows move later, to now
+                let dt = now.wrapping_sub(self.t_isr);
+                self.t_ideal = self.t_ideal.wrapping_add(dt);
+                self.pending.t_ideal = self.pending.t_ideal.wrapping_add(dt);
+                if let Some(p) = self.profile.as_mut() {
+                    p.delay(dt);
+                }
+            } else {
+                self.t_ideal = now;
+            }
             self.t_isr = now;
-            self.t_ideal = now;
         }
         self.oldest = self.first_unfinished(sched.step_index());
         let horizon = self.horizon_q;
         loop {
+            if self.pending.rest.count > 0 {
+                if !self.push_pending(sched, now.wrapping_add(horizon)) {
+                    return Fill::Full;
+                }
+                continue;
+            }
             let Some(profile) = self.profile.as_mut() else {
                 if let Some(goal) = self.then.take() {
                     self.start(goal);
@@ -466,15 +538,10 @@ impl Planner {
                 }
                 return Fill::Ended;
             }
-            // full when the segment bookkeeping is, or the ring has no
-            // room for the next segment (emit)
-            let tracked = self.segments.wrapping_sub(self.oldest) as usize;
-            if tracked >= SCHEDULE_SLOTS
-                || self.t_ideal.wrapping_sub(now) as i64 >= horizon as i64
-                || !self.emit(sched)
-            {
+            if self.t_isr.wrapping_sub(now) as i64 >= horizon as i64 {
                 return Fill::Full;
             }
+            self.emit();
         }
     }
 
@@ -578,40 +645,31 @@ impl Planner {
         self.then = Some(goal);
     }
 
-    /// Time per step (Q32.32 ticks) after the last queued step: the end
-    /// slope of the previous segment when it is still the state's (one
-    /// division saved per segment), else from the profile.
-    fn start_step_ticks(&self, profile: &Profile) -> Option<u64> {
-        if self.s_end_w == self.w && self.s_end != 0 {
-            return Some(self.s_end);
-        }
-        profile.step_ticks()
-    }
-
-    /// Times the next run of steps of the current profile and queues it.
-    /// False (nothing done) if the schedule has no room for it. Out of
-    /// line: inlined into the firmware's control loop it cost the F103
-    /// flash.
+    /// Times the next run of steps of the current profile and fits it
+    /// ([`fit_segment`]) into the pending segment, which
+    /// [`Planner::push_pending`] hands to the interrupt. Out of line:
+    /// inlined into the firmware's control loop it cost the F103 flash.
     #[inline(never)]
-    fn emit(&mut self, sched: &StepSchedule) -> bool {
-        let Some(profile) = self.profile.as_ref() else {
-            return true;
+    fn emit(&mut self) {
+        let Some(profile) = self.profile.as_mut() else {
+            return;
         };
-        let s0 = self.start_step_ticks(profile);
+        let s0 = if self.s_end_w == self.w && self.s_end != 0 {
+            // the end slope of the previous segment: one division saved
+            Some(self.s_end)
+        } else {
+            profile.step_ticks()
+        };
         let c0 = s0.map_or(0, |s0| profile.curvature(s0));
         let n = profile.segment_len(s0, c0, &self.budget);
-        if (sched.free() as u64) < n {
-            return false;
-        }
-        let Some(profile) = self.profile.as_mut() else {
-            return true;
-        };
+        let (pos, w, t_ideal) = (self.pos, self.w, self.t_ideal);
+        let slope = profile.piece_slope();
         let v_start = profile.velocity();
         let t_last = profile.advance(n);
         let s1 = profile.step_ticks();
         // the span the interrupt must make, from where it will be
         let span = t_last.wrapping_sub(self.t_isr);
-        let seg = match (n, s0, s1) {
+        let [interval, add, add2, add3, add4] = match (n, s0, s1) {
             (2.., Some(s0), Some(s1)) => {
                 let ends = [(s0, c0), (s1, profile.curvature(s1))];
                 fit_segment(n, ends, span)
@@ -620,20 +678,9 @@ impl Planner {
             // the span is carried to the next segment through t_isr)
             _ => [span >> n.trailing_zeros(), 0, 0, 0, 0],
         };
-        let [first, add, add2, add3, add4] = seg;
-        let t_first = self.t_isr.wrapping_add(first);
-        if (t_first.wrapping_sub(self.now) as i64) < 0 {
-            self.late_segments = self.late_segments.wrapping_add(1);
-        }
-        // Σ intervals = Σ_k C(n, k+1)·(k-th term): wrapping, like the
-        // interrupt's sums
-        let made = binomials(n)
-            .iter()
-            .zip(seg)
-            .fold(0u64, |t, (c, term)| t.wrapping_add(c.wrapping_mul(term)));
-        self.t_isr = self.t_isr.wrapping_add(made);
         self.t_ideal = t_last;
         self.planned_steps = self.planned_steps.wrapping_add(n);
+        self.segments_fitted = self.segments_fitted.wrapping_add(1);
         self.pos += if profile.forward {
             n as i64
         } else {
@@ -642,29 +689,122 @@ impl Planner {
         self.w = profile.w();
         self.forward = profile.forward;
         (self.s_end, self.s_end_w) = (s1.unwrap_or(0), self.w);
-        let signed = |v: u64| if profile.forward { v as i32 } else { -(v as i32) };
-        let mut info = SlotInfo {
-            last_index: 0,
-            count: n as u32,
-            v_start: signed(v_start),
-            v_end: signed(profile.velocity()),
-            ramping: profile.ramping() || profile.remaining() == 0,
+        let signed = |v: u64| {
+            if profile.forward {
+                v as i32
+            } else {
+                -(v as i32)
+            }
         };
-        let seg = Segment {
-            interval: first,
-            add: add as i64,
-            add2: add2 as i64,
-            add3: add3 as i64,
-            add4: add4 as i64,
-            count: n as u32,
-            forward: profile.forward,
+        self.pending = Pending {
+            rest: Segment {
+                interval,
+                add: add as i64,
+                add2: add2 as i64,
+                add3: add3 as i64,
+                add4: add4 as i64,
+                count: n as u32,
+                forward: profile.forward,
+            },
+            n,
+            pos,
+            w,
+            t_ideal,
+            slope,
+            info: SlotInfo {
+                last_index: 0,
+                to_end: 0,
+                count: n as u32,
+                v_start: signed(v_start),
+                v_end: signed(profile.velocity()),
+                ramping: profile.ramping() || profile.remaining() == 0,
+            },
         };
-        if sched.push(seg).is_ok() {
-            info.last_index = sched.last_pushed_index();
-            self.slots[self.segments as usize % SCHEDULE_SLOTS] = info;
-            self.segments = self.segments.wrapping_add(1);
+    }
+
+    /// Pushes the pending segment's steps due before `until` (Q32.32
+    /// ticks), at least one. True when none is left; false when the
+    /// horizon, the ring or the segment bookkeeping stopped it.
+    fn push_pending(&mut self, sched: &StepSchedule, until: u64) -> bool {
+        let tracked = self.segments.wrapping_sub(self.oldest) as usize;
+        let ahead = until.wrapping_sub(self.t_isr) as i64;
+        if tracked >= SCHEDULE_SLOTS || ahead <= 0 {
+            return false;
         }
-        true
+        let seg = &mut self.pending.rest;
+        // steps that fit at the current interval (a deceleration's grow:
+        // up to 15 % past the horizon; 2^20 units: 32-bit division)
+        let interval = seg.interval.max(1);
+        let k = if interval >= ahead as u64 {
+            1
+        } else {
+            ((ahead as u64 >> 20) as u32 / ((interval >> 20) as u32).max(1)).max(1)
+        };
+        let k = k.min(seg.count).min(sched.free() as u32);
+        if (self.t_isr.wrapping_add(seg.interval).wrapping_sub(self.now) as i64) < 0 {
+            self.late_segments = self.late_segments.wrapping_add(1);
+        }
+        // Σ of the k intervals = Σ_i C(k, i+1)·(i-th term), wrapping like
+        // the expansion's sums
+        let terms = [
+            seg.interval,
+            seg.add as u64,
+            seg.add2 as u64,
+            seg.add3 as u64,
+            seg.add4 as u64,
+        ];
+        if !sched.push_steps(seg, k) {
+            return false;
+        }
+        let made = binomials(u64::from(k))
+            .iter()
+            .zip(terms)
+            .fold(0u64, |t, (c, term)| t.wrapping_add(c.wrapping_mul(term)));
+        self.t_isr = self.t_isr.wrapping_add(made);
+        let mut info = self.pending.info;
+        info.last_index = sched.last_pushed_index();
+        info.to_end = self.pending.rest.count;
+        self.slots[self.segments as usize % SCHEDULE_SLOTS] = info;
+        self.segments = self.segments.wrapping_add(1);
+        self.pending.rest.count == 0
+    }
+
+    /// A new goal: the pending segment's steps not yet pushed are dropped,
+    /// and the state goes back to its last pushed step — position, v² on
+    /// its piece, and the exact time there (`Δt = 2Δx/(v1+v2)` from the
+    /// segment's start, as the profile times it), so that the new goal
+    /// continues from that step and takes effect within the horizon.
+    fn drop_pending(&mut self) {
+        let p = self.pending;
+        let left = u64::from(p.rest.count);
+        if left == 0 {
+            return;
+        }
+        let j = p.n - left;
+        self.pending.rest.count = 0;
+        self.planned_steps = self.planned_steps.wrapping_sub(left);
+        self.pos = p.pos
+            + if p.rest.forward {
+                j as i64
+            } else {
+                -(j as i64)
+            };
+        let dx = u128::from(j) << 32;
+        let w = match p.slope {
+            0 => p.w,
+            s if s > 0 => p.w + s as u128 * dx,
+            s => p.w.saturating_sub(s.unsigned_abs() * dx),
+        };
+        let den = isqrt(p.w) + isqrt(w);
+        self.t_ideal = if j == 0 || den == 0 {
+            p.t_ideal
+        } else {
+            let k_time = 20 * u128::from(self.cfg.tick_hz);
+            p.t_ideal
+                .wrapping_add(div(k_time * dx * (1 << V_FRAC), den) as u64)
+        };
+        self.w = w;
+        self.s_end = 0;
     }
 }
 

@@ -399,6 +399,18 @@ impl Profile {
         1 << k.clamp(0, MAX_SEGMENT_LOG2 as i32)
     }
 
+    /// The v² slope (per Q32 position unit) of the current piece: 0 on a
+    /// cruise, negative on a deceleration.
+    pub(crate) fn piece_slope(&self) -> i128 {
+        self.pieces[self.idx].slope
+    }
+
+    /// Moves the whole profile `dt` (Q32.32 ticks) later (the planner,
+    /// when the interrupt ran dry and starts again).
+    pub(crate) fn delay(&mut self, dt: u64) {
+        self.at = self.at.wrapping_add(dt);
+    }
+
     /// Time (Q32.32 ticks) of step `done + n`, which becomes the new anchor.
     pub fn advance(&mut self, n: u64) -> u64 {
         self.done += n;

@@ -403,13 +403,28 @@ impl StepSchedule {
     /// Appends a segment, expanded into its steps' delays (module docs);
     /// gives it back when it has no step or the ring lacks room for all of
     /// them (plus a direction marker if the direction changes).
-    #[inline(never)]
     pub fn push(&self, seg: Segment) -> Result<(), Segment> {
+        let mut rest = seg;
+        if self.push_steps(&mut rest, seg.count) {
+            Ok(())
+        } else {
+            Err(seg)
+        }
+    }
+
+    /// Appends the first `count` steps of `seg` (all of them at most) and
+    /// leaves in `seg` the rest: its terms moved on by those steps, its
+    /// count reduced (the planner hands a long segment over in parts, up
+    /// to its horizon). False, and nothing done, when `count` is 0 or the
+    /// ring lacks room for them.
+    #[inline(never)]
+    pub fn push_steps(&self, seg: &mut Segment, count: u32) -> bool {
+        let count = count.min(seg.count);
         let head = self.head.load(Ordering::Relaxed);
         let turn = seg.forward == self.head_backward.load(Ordering::Relaxed);
-        let entries = seg.count.saturating_add(u32::from(turn));
-        if seg.count == 0 || entries > self.room() {
-            return Err(seg);
+        let entries = count.saturating_add(u32::from(turn));
+        if count == 0 || entries > self.room() {
+            return false;
         }
         // A run from rest (the interrupt idle, nothing queued: only this
         // context can change that) puts its time origin half a tick in, so
@@ -451,7 +466,13 @@ impl StepSchedule {
         self.head_backward.store(!seg.forward, Ordering::Relaxed);
         compiler_fence(Ordering::SeqCst);
         self.head.store(end, Ordering::Relaxed);
-        Ok(())
+        seg.interval = x.interval;
+        seg.add = x.add as i64;
+        seg.add2 = x.add2 as i64;
+        seg.add3 = x.add3 as i64;
+        seg.add4 = x.add4 as i64;
+        seg.count -= count;
+        true
     }
 
     /// Expands the next steps of `x` for the entries `from` up to `to`
