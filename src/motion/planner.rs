@@ -1,29 +1,31 @@
 //! The planner: goals in, schedule segments out (thread mode).
 //!
-//! It keeps the state at the *end* of what is already queued (position,
+//! It keeps the state at the *end* of what is already planned (position,
 //! direction, v², exact time) and appends to the [`StepSchedule`] from there:
-//! queued steps are never rewritten, so no step is ever scheduled in the
-//! past, and a change of goal takes effect after the queued horizon
-//! ([`PlannerConfig::horizon_us`]). Only "stop at once" discards the queue.
+//! pushed steps are never rewritten, so no step is ever scheduled in the
+//! past. Only "stop at once" discards the queue.
 //!
-//! Compression: each segment of `n` steps takes from the [`Profile`] the
-//! exact times of its first, next-to-last and last step. Its intervals are
-//! the quadratic in the step number (`interval`, `add`, `add2`) whose first
-//! and last interval are the exact ones and whose total is the exact span.
-//! So every segment starts and ends exactly on the profile, consecutive
-//! segments join with continuous interval *and* continuous interval change
-//! (the motor sees no acceleration jump at a junction), and inside a
-//! segment the error is the fourth-order remainder, kept negligible by
-//! [`Profile::segment_len`] (velocity change ≤ 2^-5 per segment). Times the
+//! Compression: each segment of `n = 2^k` steps takes from the [`Profile`]
+//! the exact time of its last step, and `dt/dx = 1/v` and `d²t/dx² =
+//! −a/v³` at both ends; its step times follow the quintic matching all
+//! six (quintic Hermite, `fit_segment`), handed to the interrupt as the
+//! forward differences `interval, add, …, add4`. So every segment starts
+//! and ends on the profile and consecutive segments join with continuous
+//! velocity *and* acceleration; inside, the error bounds of
+//! [`Profile::segment_len`] hold (time, acceleration, precision). Times the
 //! interrupt will accumulate are tracked exactly (`t_isr`), so nothing
 //! drifts.
 //!
-//! Cost per segment: three profile evaluations (a square root and a
-//! division each, on 128-bit numbers but through 64-bit routines:
-//! `profile::isqrt`, `profile::div`) and a few multiplications; the fit
-//! divides by `C(n,2)` and `C(n,3)` the same way; segments hold tens to thousands of
-//! steps once the speed is above `sqrt(64·a)` steps/s (below that they are
-//! single steps, at a step rate low enough not to matter).
+//! Latency: a segment is fitted whole but pushed in parts, each up to the
+//! horizon ([`PlannerConfig::horizon_us`]); a new goal drops the rest and
+//! goes back to the last pushed step (`drop_pending`), so a change of goal
+//! takes effect after the horizon however long the segments are.
+//!
+//! Cost per segment: one profile evaluation (a square root and a division,
+//! on 128-bit numbers but through 64-bit routines: `profile::isqrt`,
+//! `profile::div`), the end slope (a division), two curvatures (a few
+//! multiplications) and the length bounds (logarithms); segments hold up to
+//! 2^7 steps on a ramp and 2^8 on a cruise (single steps near rest only).
 
 use super::profile::{div, isqrt, slope_of, stop_steps, w_of, Profile, SegmentBudget, V_FRAC};
 use super::schedule::{Segment, StepSchedule, TICK_FRAC_BITS};

@@ -361,7 +361,7 @@ impl Profile {
     ///   1/30 tick with ramp segments of at most 2^7 steps.
     ///
     /// No division or root: the bounds are compared as logarithms
-    /// ([`log2_q8`], 1/256 bit, rounded towards shorter segments).
+    /// (`log2_q8`, 1/256 bit, rounded towards shorter segments).
     pub fn segment_len(&self, step_ticks: Option<u64>, curv: i64, budget: &SegmentBudget) -> u64 {
         let piece = self.pieces[self.idx];
         let piece_end = (piece.end >> X_FRAC).min(u128::from(u64::MAX)) as u64;

@@ -1,21 +1,22 @@
 //! The step schedule between the planner (thread mode) and the step-timer
 //! interrupt, and the interrupt side that consumes it ([`StepSource`]).
 //!
-//! A [`Segment`] is Klipper's `(interval, count, add)` with one more term:
-//! `count` steps, the first `interval` after the previous step; after each
-//! step the interval grows by `add` and `add` grows by `add2`. The intervals
-//! are thus a quadratic in the step number, which lets the planner match the
-//! exact first interval, last interval and total time of every segment, so
-//! that the intervals are continuous from one segment to the next (the
-//! acceleration the motor sees has no jumps). Times are timer ticks in
-//! Q32.32 fixed point.
+//! A [`Segment`] is Klipper's `(interval, count, add)` with three more
+//! terms: `count` steps, the first `interval` after the previous step;
+//! after each step the interval grows by `add`, `add` by `add2`, `add2` by
+//! `add3` and `add3` by `add4`. The intervals are thus a quartic in the
+//! step number (the step times a quintic), which lets the planner match
+//! the profile's time, velocity and acceleration at both ends of every
+//! segment, so that the motor sees no velocity or acceleration jump from
+//! one segment to the next. Times are timer ticks in Q32.32 fixed point.
 //!
 //! # A ring of per-step delays
 //!
-//! [`StepSchedule::push`] (thread mode) expands each segment at once into
-//! its steps' integer delays, one `u32` per step, in a ring of
-//! [`SCHEDULE_STEPS`] entries: it accumulates the exact Q32.32 times (the
-//! three adds per step above) and carries the fraction of each time into
+//! [`StepSchedule::push`] (thread mode) expands each segment — or, with
+//! [`StepSchedule::push_steps`], its next steps — into its steps' integer
+//! delays, one `u32` per step, in a ring of [`SCHEDULE_STEPS`] entries: it
+//! accumulates the exact Q32.32 times (the five adds per step above) and
+//! carries the fraction of each time into
 //! the next (`frac`, whose origin is half a tick in when a run starts from
 //! rest), so every delay rounds its exact time to the nearest tick and
 //! rounding never accumulates. The interrupt only pops one delay per step.
