@@ -228,3 +228,59 @@ fn seed_move_precision_margins() {
         run.planner.segments_fitted
     );
 }
+
+/// A change of goal takes effect within the horizon however long the
+/// segments are (README "Planner and precision"): at a slow cruise the
+/// segments are fitted 64 steps (128 ms) long, yet a stop given mid-cruise
+/// starts decelerating after at most the horizon (3 ms) and one step —
+/// the unpushed rest of the segment is dropped.
+#[test]
+fn a_new_goal_takes_effect_within_the_horizon() {
+    let tick_hz = 10_000_000;
+    let mut run = PlannerRun::new(tick_hz, 1000);
+    let r = ramp(500.0, 5_000.0, 5_000.0); // 500 steps/s: 2 ms per step
+    run.control();
+    assert!(run.planner.set_goal(Goal::Move {
+        target: 100_000,
+        ramp: r,
+        end_velocity: 0
+    }));
+    // cruise from step 25 on; run well into it
+    for _ in 0..400 {
+        run.tick();
+    }
+    let fitted_before = run.planner.segments_fitted;
+    for _ in 0..200 {
+        run.tick();
+    }
+    let fitted = run.planner.segments_fitted - fitted_before;
+    assert!(fitted <= 4, "{fitted} segments for 100 cruise steps");
+    let now_s = run.now_us as f64 * 1e-6;
+    assert!(run.planner.set_goal(Goal::Stop { decel: r.decel }));
+    run.run_until_rest(10_000_000);
+    // the first interval longer than the cruise's 2 ms marks the stop
+    let f = f64::from(tick_hz);
+    let first_slow = run
+        .steps
+        .windows(2)
+        .find(|w| {
+            w[0].tick as f64 / f > now_s
+                && w[1].exact.wrapping_sub(w[0].exact) as f64 / common::axis::Q / f > 0.002 * 1.0001
+        })
+        .expect("a deceleration");
+    // it begins at the step before it: after what was pushed (≤ the 3 ms
+    // horizon) and at most one more cruise step (a stop ends on a whole
+    // step, so it may cruise up to one step before it brakes)
+    let late = first_slow[0].tick as f64 / f - now_s;
+    assert!(late <= 0.003 + 0.002 * 1.01, "stop began {late} s late");
+    // and it is the commanded stop: 500²/(2·5000) = 25 steps
+    let made_after = run
+        .steps
+        .iter()
+        .filter(|s| s.tick as f64 / f > now_s)
+        .count();
+    assert!(
+        (25..=30).contains(&made_after),
+        "{made_after} steps after the stop"
+    );
+}
