@@ -27,7 +27,9 @@
 //! multiplications) and the length bounds (logarithms); segments hold up to
 //! 2^7 steps on a ramp and 2^8 on a cruise (single steps near rest only).
 
-use super::profile::{div, isqrt, slope_of, stop_steps, w_of, Profile, SegmentBudget, V_FRAC};
+use super::profile::{
+    isqrt, slope_of, stop_steps, travel_ticks, w_along, w_of, Profile, SegmentBudget, V_FRAC,
+};
 use super::schedule::{Segment, StepSchedule, TICK_FRAC_BITS};
 
 /// Highest step rate the drive generates, steps/s. Faster requests are
@@ -792,19 +794,10 @@ impl Planner {
                 -(j as i64)
             };
         let dx = u128::from(j) << 32;
-        let w = match p.slope {
-            0 => p.w,
-            s if s > 0 => p.w + s as u128 * dx,
-            s => p.w.saturating_sub(s.unsigned_abs() * dx),
-        };
-        let den = isqrt(p.w) + isqrt(w);
-        self.t_ideal = if j == 0 || den == 0 {
-            p.t_ideal
-        } else {
-            let k_time = 20 * u128::from(self.cfg.tick_hz);
-            p.t_ideal
-                .wrapping_add(div(k_time * dx * (1 << V_FRAC), den) as u64)
-        };
+        let w = w_along(p.w, p.slope, dx);
+        let k_time = 20 * u128::from(self.cfg.tick_hz);
+        let dt = travel_ticks(k_time, dx, isqrt(p.w) + isqrt(w));
+        self.t_ideal = p.t_ideal.wrapping_add(dt);
         self.w = w;
         self.s_end = 0;
     }

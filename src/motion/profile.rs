@@ -76,6 +76,26 @@ impl SegmentBudget {
     }
 }
 
+/// v² after `dx` (Q32 steps) on a piece of v² slope `slope` (per Q32
+/// unit) from v² = `w`: v² is linear in the position on a piece.
+pub(crate) fn w_along(w: u128, slope: i128, dx: u128) -> u128 {
+    if slope >= 0 {
+        w + slope as u128 * dx
+    } else {
+        w.saturating_sub(slope.unsigned_abs() * dx)
+    }
+}
+
+/// Ticks (Q32.32) to travel `dx` (Q32 steps) between two points whose
+/// velocities sum to `v_sum` (fixed point): `Δt = 2·Δx/(v1 + v2)`, with
+/// `k_time` = 20 × the tick frequency. 0 for no distance or no speed.
+pub(crate) fn travel_ticks(k_time: u128, dx: u128, v_sum: u128) -> u64 {
+    if dx == 0 || v_sum == 0 {
+        return 0;
+    }
+    div(k_time * dx * (1u128 << V_FRAC), v_sum) as u64
+}
+
 /// `num / den ≈ m / 2^sh` with `m` in [2^30, 2^32) (`num`, `den` > 0,
 /// `num` < 2^96): 30 bits of a ratio of any size, one division.
 fn ratio(num: u128, den: u128) -> (u64, u32) {
@@ -431,18 +451,14 @@ impl Profile {
             self.w_end
         } else if slope == 0 {
             self.w_cruise
-        } else if slope > 0 {
-            self.aw + slope as u128 * dx
         } else {
-            self.aw.saturating_sub(slope.unsigned_abs() * dx)
+            w_along(self.aw, slope, dx)
         };
         // cruise: same v² as the anchor, same v (no root)
         let v = if w == self.aw { self.av } else { isqrt(w) };
-        let den = self.av + v;
-        if dx > 0 && den > 0 {
-            let dt = div(self.k_time * dx * (1u128 << V_FRAC), den);
-            self.at = self.at.wrapping_add(dt as u64);
-        }
+        self.at = self
+            .at
+            .wrapping_add(travel_ticks(self.k_time, dx, self.av + v));
         self.ax = x;
         self.aw = w;
         self.av = v;
