@@ -98,7 +98,7 @@ pub(crate) fn travel_ticks(k_time: u128, dx: u128, v_sum: u128) -> u64 {
 
 /// `num / den ≈ m / 2^sh` with `m` in [2^30, 2^32) (`num`, `den` > 0,
 /// `num` < 2^96): 30 bits of a ratio of any size, one division.
-fn ratio(num: u128, den: u128) -> (u64, u32) {
+pub(crate) fn ratio(num: u128, den: u128) -> (u64, u32) {
     let sh = (31 + den.ilog2() as i32 - num.ilog2() as i32).max(0) as u32;
     (div(num << sh.min(127 - num.ilog2()), den) as u64, sh)
 }

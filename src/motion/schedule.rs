@@ -119,7 +119,7 @@
 
 use core::sync::atomic::{compiler_fence, AtomicBool, AtomicI32, AtomicU32, AtomicU8, Ordering};
 
-use super::profile::div;
+use super::profile::ratio;
 
 /// Entries of the per-step ring (a power of two): delays plus the rare
 /// direction markers, one slot for the end sentinel and the pending step.
@@ -173,25 +173,19 @@ pub fn brake_rate(decel: u64, tick_hz: u32) -> u32 {
     if num == 0 {
         return RATE_AT_ONCE;
     }
-    let (lnum, lden) = (num.ilog2() as i32, den.ilog2() as i32);
-    // num · 2^s / den lands in [2^22, 2^24) with this s, [2^23, 2^24) after
-    // at most one doubling.
-    let mut s = RATE_MANTISSA_BITS as i32 - 1 + lden - lnum;
-    if s < 0 {
+    if RATE_MANTISSA_BITS as i32 - 1 + den.ilog2() as i32 - (num.ilog2() as i32) < 0 {
         return RATE_AT_ONCE; // more than 2^23 steps/tick²: no step fits
     }
-    // profile::div: the 64-bit route, and one shared copy of the generic
-    // u128 division instead of two inlined ones (1.6 KiB on a Cortex-M)
-    let mut m = div(num << s, den);
-    if m < 1 << (RATE_MANTISSA_BITS - 1) {
-        s += 1;
-        m = div(num << s, den);
-    }
+    // the ratio as a 31/32-bit mantissa and a shift (profile::ratio, one
+    // 128-by-64 division), cut to 24 bits: the same floor(num·2^s/den)
+    let (m, sh) = ratio(num, den);
+    let r = (64 - m.leading_zeros()) - RATE_MANTISSA_BITS;
+    let (m, s) = (m >> r, sh - r);
     if s > 111 {
         // below 2^-88 steps/tick²: slower than anything the planner runs
         return 1 | (111 << RATE_MANTISSA_BITS);
     }
-    (m as u32 & RATE_MANTISSA) | ((s as u32) << RATE_MANTISSA_BITS)
+    (m as u32 & RATE_MANTISSA) | (s << RATE_MANTISSA_BITS)
 }
 
 /// The interval after `p` (Q32.32 ticks) when braking at `rate`
