@@ -186,7 +186,7 @@ impl SlotInfo {
 /// The segment being handed to the interrupt: fitted whole, pushed in
 /// parts up to the horizon, so that its length (the fit's cost is per
 /// segment) does not delay a change of goal (module docs).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 struct Pending {
     /// Its steps not yet pushed, and their terms (`count` = 0: none).
     rest: Segment,
@@ -251,6 +251,8 @@ pub struct Planner {
     /// none) and the v² it belongs to.
     s_end: u64,
     s_end_w: u128,
+    /// The curvature there (Q32.32 ticks per step², [`Profile::curvature`]).
+    c_end: i64,
 }
 
 impl Planner {
@@ -275,26 +277,11 @@ impl Planner {
             planned_steps: 0,
             segments_fitted: 0,
             budget: SegmentBudget::new(cfg.tick_hz, cfg.max_segment_us),
-            pending: Pending {
-                rest: Segment {
-                    interval: 0,
-                    add: 0,
-                    add2: 0,
-                    add3: 0,
-                    add4: 0,
-                    count: 0,
-                    forward: true,
-                },
-                n: 0,
-                pos: 0,
-                w: 0,
-                t_ideal: 0,
-                slope: 0,
-                info: SlotInfo::default(),
-            },
+            pending: Pending::default(),
             horizon_q: 0,
             s_end: 0,
             s_end_w: 0,
+            c_end: 0,
         };
         p.horizon_q = p.ticks_q(u64::from(cfg.horizon_us));
         p
@@ -552,6 +539,8 @@ impl Planner {
     /// Plans `goal` from the end state. False if it cannot run.
     fn start(&mut self, goal: Goal) -> bool {
         let hz = self.cfg.tick_hz;
+        // a new profile: its curvature differs (emit's cached end values)
+        self.s_end = 0;
         match goal {
             Goal::Stop { decel } => {
                 if self.w > 0 {
@@ -658,24 +647,27 @@ impl Planner {
         let Some(profile) = self.profile.as_mut() else {
             return;
         };
-        let s0 = if self.s_end_w == self.w && self.s_end != 0 {
-            // the end slope of the previous segment: one division saved
-            Some(self.s_end)
+        let (s0, c0) = if self.s_end_w == self.w && self.s_end != 0 {
+            // the end slope and curvature of the previous segment, same
+            // profile (start() clears them): a division and a curvature
+            // saved
+            (Some(self.s_end), self.c_end)
         } else {
-            profile.step_ticks()
+            let s0 = profile.step_ticks();
+            (s0, s0.map_or(0, |s0| profile.curvature(s0)))
         };
-        let c0 = s0.map_or(0, |s0| profile.curvature(s0));
         let n = profile.segment_len(s0, c0, &self.budget);
         let (pos, w, t_ideal) = (self.pos, self.w, self.t_ideal);
         let slope = profile.piece_slope();
         let v_start = profile.velocity();
         let t_last = profile.advance(n);
         let s1 = profile.step_ticks();
+        let c1 = s1.map_or(0, |s1| profile.curvature(s1));
         // the span the interrupt must make, from where it will be
         let span = t_last.wrapping_sub(self.t_isr);
         let [interval, add, add2, add3, add4] = match (n, s0, s1) {
             (2.., Some(s0), Some(s1)) => {
-                let ends = [(s0, c0), (s1, profile.curvature(s1))];
+                let ends = [(s0, c0), (s1, c1)];
                 fit_segment(n, ends, span)
             }
             // single steps (or no slope at the end: evenly, the rest of
@@ -692,7 +684,7 @@ impl Planner {
         };
         self.w = profile.w();
         self.forward = profile.forward;
-        (self.s_end, self.s_end_w) = (s1.unwrap_or(0), self.w);
+        (self.s_end, self.c_end, self.s_end_w) = (s1.unwrap_or(0), c1, self.w);
         let signed = |v: u64| {
             if profile.forward {
                 v as i32

@@ -230,7 +230,7 @@ pub struct LimitBrake {
 }
 
 /// A run of steps with linearly changing interval (see the module docs).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Segment {
     /// Ticks (Q32.32) from the previous step to the first step of this one.
