@@ -27,9 +27,7 @@
 //! multiplications) and the length bounds (logarithms); segments hold up to
 //! 2^7 steps on a ramp and 2^8 on a cruise (single steps near rest only).
 
-use super::profile::{
-    isqrt, slope_of, stop_steps, travel_ticks, w_along, w_of, Profile, SegmentBudget, V_FRAC,
-};
+use super::profile::{isqrt, slope_of, stop_steps, w_along, w_of, Profile, SegmentBudget, V_FRAC};
 use super::schedule::{Segment, StepSchedule, TICK_FRAC_BITS};
 
 /// Highest step rate the drive generates, steps/s. Faster requests are
@@ -253,6 +251,10 @@ pub struct Planner {
     s_end_w: u128,
     /// The curvature there (Q32.32 ticks per step², [`Profile::curvature`]).
     c_end: i64,
+    /// Time per step (Q32.32 ticks, 0 = none) of the steps already pushed
+    /// where a new goal cut a segment ([`Planner::drop_pending`]): the
+    /// next segment starts with it, so that the velocity stays continuous.
+    s_join: u64,
 }
 
 impl Planner {
@@ -282,6 +284,7 @@ impl Planner {
             s_end: 0,
             s_end_w: 0,
             c_end: 0,
+            s_join: 0,
         };
         p.horizon_q = p.ticks_q(u64::from(cfg.horizon_us));
         p
@@ -436,6 +439,7 @@ impl Planner {
         self.then = None;
         self.w = 0;
         self.pending.rest.count = 0;
+        self.s_join = 0;
         if sched.is_running() || !sched.is_empty() || sched.limit_brake().is_some() {
             // also after the interrupt's limit brake (schedule.rs): wait
             // for its end, then take the position back and release it
@@ -498,6 +502,7 @@ impl Planner {
                 self.t_ideal = now;
             }
             self.t_isr = now;
+            self.s_join = 0;
         }
         self.oldest = self.first_unfinished(sched.step_index());
         let horizon = self.horizon_q;
@@ -653,7 +658,11 @@ impl Planner {
             // saved
             (Some(self.s_end), self.c_end)
         } else {
-            let s0 = profile.step_ticks();
+            // after a cut (drop_pending), the slope of the steps made
+            let s0 = match core::mem::take(&mut self.s_join) {
+                0 => profile.step_ticks(),
+                s => Some(s),
+            };
             (s0, s0.map_or(0, |s0| profile.curvature(s0)))
         };
         let n = profile.segment_len(s0, c0, &self.budget);
@@ -740,36 +749,32 @@ impl Planner {
         if (self.t_isr.wrapping_add(seg.interval).wrapping_sub(self.now) as i64) < 0 {
             self.late_segments = self.late_segments.wrapping_add(1);
         }
-        // Σ of the k intervals = Σ_i C(k, i+1)·(i-th term), wrapping like
-        // the expansion's sums
-        let terms = [
-            seg.interval,
-            seg.add as u64,
-            seg.add2 as u64,
-            seg.add3 as u64,
-            seg.add4 as u64,
-        ];
-        if !sched.push_steps(seg, k) {
+        let first_part = u64::from(seg.count) == self.pending.n;
+        let Some(made) = sched.push_steps(seg, k) else {
             return false;
-        }
-        let made = binomials(u64::from(k))
-            .iter()
-            .zip(terms)
-            .fold(0u64, |t, (c, term)| t.wrapping_add(c.wrapping_mul(term)));
+        };
         self.t_isr = self.t_isr.wrapping_add(made);
-        let mut info = self.pending.info;
-        info.last_index = sched.last_pushed_index();
-        info.to_end = self.pending.rest.count;
-        self.slots[self.segments as usize % SCHEDULE_SLOTS] = info;
-        self.segments = self.segments.wrapping_add(1);
+        // one slot per segment, its end moved on with each part
+        if first_part {
+            self.slots[self.segments as usize % SCHEDULE_SLOTS] = self.pending.info;
+            self.segments = self.segments.wrapping_add(1);
+        }
+        let slot = &mut self.slots[self.segments.wrapping_sub(1) as usize % SCHEDULE_SLOTS];
+        slot.last_index = sched.last_pushed_index();
+        slot.to_end = self.pending.rest.count;
         self.pending.rest.count == 0
     }
 
     /// A new goal: the pending segment's steps not yet pushed are dropped,
-    /// and the state goes back to its last pushed step — position, v² on
-    /// its piece, and the exact time there (`Δt = 2Δx/(v1+v2)` from the
-    /// segment's start, as the profile times it), so that the new goal
-    /// continues from that step and takes effect within the horizon.
+    /// and the state goes back to its last pushed step, so that the new
+    /// goal continues from that step and takes effect within the horizon:
+    /// its position and v² (linear along its piece), and the time and
+    /// slope of the steps made — where the interrupt will be, not the
+    /// profile's exact time and `1/v` there: inside a segment the fit
+    /// differs from those by up to its error bound, and the next segment
+    /// must continue the steps made without a jump in time or velocity
+    /// (a jump of 0.3 µs in one step would be a spike of 60 000 steps/s²
+    /// at 6000 steps/s). The new profile starts from that time.
     fn drop_pending(&mut self) {
         let p = self.pending;
         let left = u64::from(p.rest.count);
@@ -785,12 +790,16 @@ impl Planner {
             } else {
                 -(j as i64)
             };
-        let dx = u128::from(j) << 32;
-        let w = w_along(p.w, p.slope, dx);
-        let k_time = 20 * u128::from(self.cfg.tick_hz);
-        let dt = travel_ticks(k_time, dx, isqrt(p.w) + isqrt(w));
-        self.t_ideal = p.t_ideal.wrapping_add(dt);
-        self.w = w;
+        self.w = w_along(p.w, p.slope, u128::from(j) << 32);
+        self.t_ideal = self.t_isr;
+        // T'(j) from the forward differences at j (D = ln(1 + Δ)):
+        // Δ − Δ²/2 + Δ³/3 − Δ⁴/4 + Δ⁵/5, exact for the quintic
+        let r = p.rest;
+        let higher = (r.add.wrapping_mul(-30))
+            .wrapping_add(r.add2.wrapping_mul(20))
+            .wrapping_add(r.add3.wrapping_mul(-15))
+            .wrapping_add(r.add4.wrapping_mul(12));
+        self.s_join = r.interval.wrapping_add((higher / 60) as u64);
         self.s_end = 0;
     }
 }
@@ -839,38 +848,9 @@ fn fit_segment(n: u64, ends: [(u64, i64); 2], span: u64) -> [u64; 5] {
     ]
 }
 
-/// `C(n, 1..=5)`, exact in 64 bits for `n ≤ 2^12` (segments hold at most
-/// 2^8 steps). The divisions are exact: by 2 and 4 shifts, by 3 and 5
-/// multiplications by the inverse modulo 2^64 (a u64 division is a
-/// software routine on a 32-bit core).
-fn binomials(n: u64) -> [u64; 5] {
-    const INV3: u64 = 0xAAAA_AAAA_AAAA_AAAB;
-    const INV5: u64 = 0xCCCC_CCCC_CCCC_CCCD;
-    let m = |k: u64| n.saturating_sub(k);
-    let c2 = (n * m(1)) >> 1;
-    let c3 = (c2 * m(2)).wrapping_mul(INV3);
-    let c4 = (c3 * m(3)) >> 2;
-    let c5 = (c4 * m(4)).wrapping_mul(INV5);
-    [n, c2, c3, c4, c5]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// The division-free binomials equal the plain ones up to 2^12.
-    #[test]
-    fn binomials_are_exact() {
-        for n in 0..=4096u64 {
-            let mut c = [0u64; 5];
-            let mut b = 1u128;
-            for (k, ck) in c.iter_mut().enumerate() {
-                b = b * u128::from(n.saturating_sub(k as u64)) / (k as u128 + 1);
-                *ck = b as u64;
-            }
-            assert_eq!(binomials(n), c, "{n}");
-        }
-    }
 
     /// 0x606C / statusword bit 13 follow the segment the interrupt is
     /// executing (SPEC §8.2): over a move of many laps of the step ring,

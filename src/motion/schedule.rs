@@ -314,6 +314,9 @@ struct Expansion {
     add3: u64,
     add4: u64,
     frac: u32,
+    /// The delays written, summed (wrapping): with `frac`'s change, the
+    /// exact time they make (`StepSchedule::push_steps`).
+    sum: u32,
 }
 
 impl Expansion {
@@ -335,6 +338,7 @@ impl Expansion {
         self.add = self.add.wrapping_add(self.add2);
         self.add2 = self.add2.wrapping_add(self.add3);
         self.add3 = self.add3.wrapping_add(self.add4);
+        self.sum = self.sum.wrapping_add(delay);
         delay
     }
 
@@ -400,26 +404,28 @@ impl StepSchedule {
     /// them (plus a direction marker if the direction changes).
     pub fn push(&self, seg: Segment) -> Result<(), Segment> {
         let mut rest = seg;
-        if self.push_steps(&mut rest, seg.count) {
-            Ok(())
-        } else {
-            Err(seg)
+        match self.push_steps(&mut rest, seg.count) {
+            Some(_) => Ok(()),
+            None => Err(seg),
         }
     }
 
     /// Appends the first `count` steps of `seg` (all of them at most) and
     /// leaves in `seg` the rest: its terms moved on by those steps, its
     /// count reduced (the planner hands a long segment over in parts, up
-    /// to its horizon). False, and nothing done, when `count` is 0 or the
-    /// ring lacks room for them.
+    /// to its horizon). Returns the time the appended steps take, Q32.32
+    /// ticks (wrapping): the sum of their intervals, exactly (each step's
+    /// interval is its delay plus the change of the carried fraction, so
+    /// the sum is the delays' plus the fraction's change). `None`, and
+    /// nothing done, when `count` is 0 or the ring lacks room for them.
     #[inline(never)]
-    pub fn push_steps(&self, seg: &mut Segment, count: u32) -> bool {
+    pub fn push_steps(&self, seg: &mut Segment, count: u32) -> Option<u64> {
         let count = count.min(seg.count);
         let head = self.head.load(Ordering::Relaxed);
         let turn = seg.forward == self.head_backward.load(Ordering::Relaxed);
         let entries = count.saturating_add(u32::from(turn));
         if count == 0 || entries > self.room() {
-            return false;
+            return None;
         }
         // A run from rest (the interrupt idle, nothing queued: only this
         // context can change that) puts its time origin half a tick in, so
@@ -436,6 +442,7 @@ impl StepSchedule {
             add3: seg.add3 as u64,
             add4: seg.add4 as u64,
             frac,
+            sum: 0,
         };
         // ring[head], the old sentinel, is written last (module docs)
         let end = head.wrapping_add(entries);
@@ -467,7 +474,9 @@ impl StepSchedule {
         seg.add3 = x.add3 as i64;
         seg.add4 = x.add4 as i64;
         seg.count -= count;
-        true
+        // (the fraction's change is signed: a carry made it smaller)
+        let dfrac = i64::from(x.frac) - i64::from(frac);
+        Some((u64::from(x.sum) << TICK_FRAC_BITS).wrapping_add(dfrac as u64))
     }
 
     /// Expands the next steps of `x` for the entries `from` up to `to`
