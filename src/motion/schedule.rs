@@ -342,10 +342,14 @@ impl Expansion {
         delay
     }
 
-    /// Writes the next steps' delays to `entries`, in order.
+    /// Writes the next steps' delays to `first` (if given) and `entries`,
+    /// in order: one call per push (its state is loaded and stored once).
     #[inline(never)]
-    fn fill(&mut self, entries: &[AtomicU32]) {
+    fn fill(&mut self, first: Option<&mut u32>, entries: &[AtomicU32]) {
         let mut x = *self;
+        if let Some(first) = first {
+            *first = x.step();
+        }
         for entry in entries {
             entry.store(x.step(), Ordering::Relaxed);
         }
@@ -494,20 +498,19 @@ impl StepSchedule {
                 i = i.wrapping_add(1);
             }
         }
-        // the first through the same loop (one copy of it), into a local
-        let first = AtomicU32::new(END);
-        x.fill(core::slice::from_ref(&first));
-        // the rest: the ring in at most two contiguous pieces (the `min`s
-        // never cut: fewer than SCHEDULE_STEPS entries)
+        // the first into a local, the rest to the ring in at most two
+        // contiguous pieces (the `min`s never cut: fewer than
+        // SCHEDULE_STEPS entries)
+        let mut first = END;
         let start = from.wrapping_add(1) as usize % SCHEDULE_STEPS;
         let n = to.wrapping_sub(from).wrapping_sub(1) as usize;
         let (before, after) = self.ring.split_at(start);
         let k = n.min(after.len());
-        x.fill(&after[..k]);
+        x.fill(Some(&mut first), &after[..k]);
         if k < n {
-            x.fill(&before[..(n - k).min(before.len())]);
+            x.fill(None, &before[..(n - k).min(before.len())]);
         }
-        first.into_inner()
+        first
     }
 
     /// Ring index (wrapping) of the last entry pushed: after a push, its
