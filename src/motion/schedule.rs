@@ -342,18 +342,42 @@ impl Expansion {
         delay
     }
 
-    /// Writes the next steps' delays to `first` (if given) and `entries`,
-    /// in order: one call per push (its state is loaded and stored once).
+    /// `seg`'s terms with the carried fraction and delay sum `carry`.
+    fn of(seg: &Segment, carry: (u32, u32)) -> Self {
+        Self {
+            interval: seg.interval,
+            add: seg.add as u64,
+            add2: seg.add2 as u64,
+            add3: seg.add3 as u64,
+            add4: seg.add4 as u64,
+            frac: carry.0,
+            sum: carry.1,
+        }
+    }
+
+    /// Writes the next steps' delays of `seg` to `first` (if given) and
+    /// `entries`, in order, and moves `seg`'s terms and `carry` (fraction,
+    /// delay sum) on: one call per push, straight from and to the segment.
     #[inline(never)]
-    fn fill(&mut self, first: Option<&mut u32>, entries: &[AtomicU32]) {
-        let mut x = *self;
+    fn fill(
+        seg: &mut Segment,
+        carry: &mut (u32, u32),
+        first: Option<&mut u32>,
+        entries: &[AtomicU32],
+    ) {
+        let mut x = Self::of(seg, *carry);
         if let Some(first) = first {
             *first = x.step();
         }
         for entry in entries {
             entry.store(x.step(), Ordering::Relaxed);
         }
-        *self = x;
+        seg.interval = x.interval;
+        seg.add = x.add as i64;
+        seg.add2 = x.add2 as i64;
+        seg.add3 = x.add3 as i64;
+        seg.add4 = x.add4 as i64;
+        *carry = (x.frac, x.sum);
     }
 }
 
@@ -439,18 +463,10 @@ impl StepSchedule {
         } else {
             self.frac.load(Ordering::Relaxed)
         };
-        let mut x = Expansion {
-            interval: seg.interval,
-            add: seg.add as u64,
-            add2: seg.add2 as u64,
-            add3: seg.add3 as u64,
-            add4: seg.add4 as u64,
-            frac,
-            sum: 0,
-        };
+        let mut carry = (frac, 0);
         // ring[head], the old sentinel, is written last (module docs)
         let end = head.wrapping_add(entries);
-        let first_step = self.expand(&mut x, head.wrapping_add(u32::from(turn)), end);
+        let first_step = self.expand(seg, &mut carry, head.wrapping_add(u32::from(turn)), end);
         let first = match (turn, seg.forward) {
             (false, _) => first_step,
             (true, forward) => {
@@ -467,29 +483,24 @@ impl StepSchedule {
         // one core: program order is all the interrupt needs (module docs)
         compiler_fence(Ordering::SeqCst);
         self.entry(head).store(first, Ordering::Relaxed);
-        self.frac.store(x.frac, Ordering::Relaxed);
+        self.frac.store(carry.0, Ordering::Relaxed);
         compiler_fence(Ordering::SeqCst);
         self.head_backward.store(!seg.forward, Ordering::Relaxed);
         compiler_fence(Ordering::SeqCst);
         self.head.store(end, Ordering::Relaxed);
-        seg.interval = x.interval;
-        seg.add = x.add as i64;
-        seg.add2 = x.add2 as i64;
-        seg.add3 = x.add3 as i64;
-        seg.add4 = x.add4 as i64;
         seg.count -= count;
         // (the fraction's change is signed: a carry made it smaller)
-        let dfrac = i64::from(x.frac) - i64::from(frac);
-        Some((u64::from(x.sum) << TICK_FRAC_BITS).wrapping_add(dfrac as u64))
+        let dfrac = i64::from(carry.0) - i64::from(frac);
+        Some((u64::from(carry.1) << TICK_FRAC_BITS).wrapping_add(dfrac as u64))
     }
 
-    /// Expands the next steps of `x` for the entries `from` up to `to`
+    /// Expands the next steps of `seg` for the entries `from` up to `to`
     /// (excluded, at least one): writes all but the first, which it
     /// returns, so that the caller can write it last.
-    fn expand(&self, x: &mut Expansion, from: u32, to: u32) -> u32 {
+    fn expand(&self, seg: &mut Segment, carry: &mut (u32, u32), from: u32, to: u32) -> u32 {
         #[cfg(not(target_os = "none"))]
         {
-            let mut shadow = *x;
+            let mut shadow = Expansion::of(seg, *carry);
             let mut i = from;
             while i != to {
                 shadow.step();
@@ -506,9 +517,9 @@ impl StepSchedule {
         let n = to.wrapping_sub(from).wrapping_sub(1) as usize;
         let (before, after) = self.ring.split_at(start);
         let k = n.min(after.len());
-        x.fill(Some(&mut first), &after[..k]);
+        Expansion::fill(seg, carry, Some(&mut first), &after[..k]);
         if k < n {
-            x.fill(None, &before[..(n - k).min(before.len())]);
+            Expansion::fill(seg, carry, None, &before[..(n - k).min(before.len())]);
         }
         first
     }
