@@ -284,3 +284,55 @@ fn a_new_goal_takes_effect_within_the_horizon() {
         "{made_after} steps after the stop"
     );
 }
+
+/// A goal that cuts a pushed segment continues the steps made without a
+/// jump (README "Planner and precision"). The sequence is the one
+/// `random_velocity_changes` found (its regression file keeps it too):
+/// three speed changes while accelerating, a reversal, and a stop with the
+/// same deceleration given 4 to 11 ms into the reversal, so at several
+/// points inside its segments; the acceleration between consecutive
+/// intervals must stay within issue 3's +2 % across every cut. Starting
+/// the next segment from the profile's exact time and `1/v` at the cut
+/// instead (where the fit is off by up to its error bound), 4 of these 8
+/// stops fail, by up to +3.0 %.
+#[test]
+fn a_cut_segment_continues_the_steps_made() {
+    let tick = 8_000_000;
+    let a = 72_327.919_231_136_18;
+    let speeds = [
+        (43_559.732_431_885_77, 30),
+        (44_437.635_945_552_96, 31),
+        (49_233.039_954_760_105, 22),
+    ];
+    for stop_after_ms in 4..12 {
+        let mut run = PlannerRun::new(tick, 1000);
+        run.control();
+        for (v, ms) in speeds {
+            assert!(run.planner.set_goal(Goal::Run {
+                forward: true,
+                ramp: ramp(v, a, a),
+            }));
+            for _ in 0..ms {
+                run.tick();
+            }
+        }
+        assert!(run.planner.set_goal(Goal::Run {
+            forward: false,
+            ramp: ramp(10_599.300_280_016_108, a, a),
+        }));
+        for _ in 0..stop_after_ms {
+            run.tick();
+        }
+        assert!(run.planner.set_goal(Goal::Stop {
+            decel: (a * 10.0) as u64
+        }));
+        run.run_until_rest(600_000_000);
+        let net: i64 = run
+            .steps
+            .iter()
+            .map(|s| if s.forward { 1 } else { -1 })
+            .sum();
+        assert_eq!(run.axis.position(), net);
+        check_dynamics(&run.steps, tick, 49_233.039_954_760_105, a);
+    }
+}
