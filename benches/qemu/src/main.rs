@@ -375,6 +375,42 @@ mod bench {
             (isr + planner) as f32 / ramp_f32 as f32
         );
 
+        // ---- the same on a faster move, for information (no target)
+        let _ = writeln!(
+            c,
+            "-- for information, no target: the seed's move, {SEED_MOVE_STEPS} steps at \
+             50 000 steps/s, 100 000 steps/s², same rhythm"
+        );
+        let seed = simulate_move_with(i64::from(SEED_MOVE_STEPS), SEED_RAMP, systick_now);
+        expect(
+            "seed move: final position",
+            seed.final_position as u32,
+            SEED_MOVE_STEPS,
+        );
+        let net = |ticks: u32, calls: u32| {
+            (u64::from(ticks) * INSTR_PER_TICK * 10).saturating_sub(u64::from(calls) * overhead)
+                / u64::from(seed.steps)
+        };
+        let _ = writeln!(
+            c,
+            "   ({} steps, {} interrupt calls, {} planner calls)",
+            seed.steps, seed.advance_calls, seed.fill_calls
+        );
+        row(
+            "step interrupt side, seed move",
+            net(seed.advance_clock, seed.advance_calls),
+            "step",
+            None,
+            &mut ok,
+        );
+        row(
+            "planner, seed move, amortised",
+            net(seed.fill_clock, seed.fill_calls),
+            "step",
+            None,
+            &mut ok,
+        );
+
         if ok {
             let _ = writeln!(c, "all targets met");
         } else {

@@ -382,6 +382,17 @@ pub const MOVE_RAMP: Ramp = Ramp {
     decel: RAMP_ACCEL_STEPS_PER_S2 as u64 * 10,
 };
 
+/// The seed's move (`seed_move_precision_margins`, README "Planner and
+/// precision"): 200 000 steps at 50 000 steps/s, 100 000 steps/s² — a
+/// faster move, on which the planner's per-call and per-segment costs
+/// spread over more steps. Reported for information, without a target.
+pub const SEED_MOVE_STEPS: u32 = 200_000;
+pub const SEED_RAMP: Ramp = Ramp {
+    velocity: 500_000,
+    accel: 1_000_000,
+    decel: 1_000_000,
+};
+
 /// Control-loop period of the simulated glue (the firmware's 1 kHz loop).
 pub const CONTROL_PERIOD_US: u64 = 1000;
 
@@ -444,6 +455,11 @@ pub fn dither(i: u32) {
 /// down-counter: the M4 bench passes SysTick; the host bench, which counts
 /// the two functions with callgrind instead, passes a constant).
 pub fn simulate_move(target: i64, clock: fn() -> u32) -> MoveCost {
+    simulate_move_with(target, MOVE_RAMP, clock)
+}
+
+/// [`simulate_move`] with other limits.
+pub fn simulate_move_with(target: i64, ramp: Ramp, clock: fn() -> u32) -> MoveCost {
     let cfg = PlannerConfig::default();
     let ticks_per_us = u64::from(cfg.tick_hz / 1_000_000);
     let mut planner = Planner::new(cfg);
@@ -452,7 +468,7 @@ pub fn simulate_move(target: i64, clock: fn() -> u32) -> MoveCost {
     let mut cost = MoveCost::default();
     planner.set_goal(Goal::Move {
         target,
-        ramp: MOVE_RAMP,
+        ramp,
         end_velocity: 0,
     });
     let mut now_us: u64 = 0;
