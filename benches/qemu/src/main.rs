@@ -118,6 +118,46 @@ mod bench {
         }
     }
 
+    /// One simulated move in the glue's rhythm: checks that it ends at
+    /// `steps`, prints its counts and the interrupt's and the planner's
+    /// instructions per step (tenths) against `targets`, returns both.
+    fn move_rows(
+        name: &str,
+        steps: u32,
+        cost: MoveCost,
+        overhead: u64,
+        targets: [Option<u64>; 2],
+        ok: &mut bool,
+    ) -> (u64, u64) {
+        expect(name, cost.final_position as u32, steps);
+        let net = |ticks: u32, calls: u32| {
+            (u64::from(ticks) * INSTR_PER_TICK * 10).saturating_sub(u64::from(calls) * overhead)
+                / u64::from(cost.steps)
+        };
+        let _ = writeln!(
+            Console,
+            "   ({} steps, {} interrupt calls, {} planner calls)",
+            cost.steps, cost.advance_calls, cost.fill_calls
+        );
+        let isr = net(cost.advance_clock, cost.advance_calls);
+        let planner = net(cost.fill_clock, cost.fill_calls);
+        row(
+            "step interrupt side (StepSource::advance)",
+            isr,
+            "step",
+            targets[0],
+            ok,
+        );
+        row(
+            "planner (Planner::fill), amortised",
+            planner,
+            "step",
+            targets[1],
+            ok,
+        );
+        (isr, planner)
+    }
+
     /// 1000 NOPs: checks 40 instructions per tick and the baseline.
     #[inline(never)]
     fn nops_1000(_: &mut ()) -> u32 {
@@ -337,35 +377,12 @@ mod bench {
             fail("timed regions did not average to 1013 +- 1 instructions");
         }
         let overhead = per_region(clock_only);
-        let cost = simulate_move(i64::from(RAMP_MOVE_STEPS), systick_now);
-        expect(
+        let (isr, planner) = move_rows(
             "simulated move: final position",
-            cost.final_position as u32,
             RAMP_MOVE_STEPS,
-        );
-        let net = |ticks: u32, calls: u32| {
-            (u64::from(ticks) * INSTR_PER_TICK * 10).saturating_sub(u64::from(calls) * overhead)
-                / u64::from(cost.steps)
-        };
-        let _ = writeln!(
-            c,
-            "   ({} steps, {} interrupt calls, {} planner calls)",
-            cost.steps, cost.advance_calls, cost.fill_calls
-        );
-        let isr = net(cost.advance_clock, cost.advance_calls);
-        let planner = net(cost.fill_clock, cost.fill_calls);
-        row(
-            "step interrupt side (StepSource::advance)",
-            isr,
-            "step",
-            Some(20),
-            &mut ok,
-        );
-        row(
-            "planner (Planner::fill), amortised",
-            planner,
-            "step",
-            Some(60),
+            simulate_move(i64::from(RAMP_MOVE_STEPS), systick_now),
+            overhead,
+            [Some(20), Some(60)],
             &mut ok,
         );
         let _ = writeln!(
@@ -381,33 +398,12 @@ mod bench {
             "-- for information, no target: the seed's move, {SEED_MOVE_STEPS} steps at \
              50 000 steps/s, 100 000 steps/s², same rhythm"
         );
-        let seed = simulate_move_with(i64::from(SEED_MOVE_STEPS), SEED_RAMP, systick_now);
-        expect(
+        move_rows(
             "seed move: final position",
-            seed.final_position as u32,
             SEED_MOVE_STEPS,
-        );
-        let net = |ticks: u32, calls: u32| {
-            (u64::from(ticks) * INSTR_PER_TICK * 10).saturating_sub(u64::from(calls) * overhead)
-                / u64::from(seed.steps)
-        };
-        let _ = writeln!(
-            c,
-            "   ({} steps, {} interrupt calls, {} planner calls)",
-            seed.steps, seed.advance_calls, seed.fill_calls
-        );
-        row(
-            "step interrupt side, seed move",
-            net(seed.advance_clock, seed.advance_calls),
-            "step",
-            None,
-            &mut ok,
-        );
-        row(
-            "planner, seed move, amortised",
-            net(seed.fill_clock, seed.fill_calls),
-            "step",
-            None,
+            simulate_move_with(i64::from(SEED_MOVE_STEPS), SEED_RAMP, systick_now),
+            overhead,
+            [None, None],
             &mut ok,
         );
 
