@@ -584,6 +584,15 @@ pub(crate) fn isqrt(w: u128) -> u128 {
 mod tests {
     use super::*;
 
+    /// The tests' random numbers: xorshift on 128 bits.
+    const SEED: u128 = 0x9E37_79B9_7F4A_7C15_F39C_C060_5CED_C834;
+    fn xorshift(x: &mut u128) -> u128 {
+        *x ^= *x << 13;
+        *x ^= *x >> 7;
+        *x ^= *x << 17;
+        *x
+    }
+
     const F: u32 = 10_000_000;
 
     fn ticks(t: u64) -> f64 {
@@ -675,13 +684,8 @@ mod tests {
                 "{u} / {v}"
             );
         }
-        let mut x: u128 = 0x9E37_79B9_7F4A_7C15_F39C_C060_5CED_C834;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            x
-        };
+        let mut x = SEED;
+        let mut next = || xorshift(&mut x);
         for i in 0..20_000u32 {
             let w = next() >> (i % 128);
             assert_eq!(isqrt(w), w.isqrt(), "isqrt {w}");
@@ -736,12 +740,9 @@ mod tests {
     /// The logarithms bracket the exact ones within 12/256 bit.
     #[test]
     fn log2_bounds() {
-        let mut x: u128 = 0x9E37_79B9_7F4A_7C15_F39C_C060_5CED_C834;
+        let mut x = SEED;
         for i in 0..20_000u32 {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            let v = (x >> (i % 127)).max(1);
+            let v = (xorshift(&mut x) >> (i % 127)).max(1);
             let exact = 256.0 * (v as f64).log2();
             let (lo, hi) = (f64::from(log2_q8(v)), f64::from(log2_q8_up(v)));
             assert!(lo <= exact + 1e-9 && exact <= hi, "{v}: {lo} {exact} {hi}");
