@@ -471,20 +471,6 @@ impl Planner {
             // below would find, without its set-up)
             return Fill::Full;
         }
-        if !self.flushing && self.pending.rest.count > 0 && sched.is_running() {
-            // the other common call: the next part of the pending segment
-            // (what `fill_on` would do first, without its set-up)
-            self.oldest = self.first_unfinished(sched.step_index());
-            if !self.push_pending(sched, now.wrapping_add(self.horizon_q)) {
-                return Fill::Full;
-            }
-        }
-        self.fill_on(now, sched)
-    }
-
-    /// The rest of [`Planner::fill`]: everything but its two common calls.
-    #[inline(never)]
-    fn fill_on(&mut self, now: u64, sched: &StepSchedule) -> Fill {
         if self.flushing {
             let braking = sched.limit_brake().is_some_and(|b| !b.done);
             if braking || sched.flush_pending() && (sched.is_running() || !sched.is_empty()) {
