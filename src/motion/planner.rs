@@ -301,12 +301,7 @@ impl Planner {
 
     /// Velocity after the last queued step, 0.1 steps/s (signed).
     pub fn end_velocity(&self) -> i64 {
-        let v = (isqrt(self.w) >> V_FRAC) as i64;
-        if self.forward {
-            v
-        } else {
-            -v
-        }
+        signed(self.forward, (isqrt(self.w) >> V_FRAC) as u64)
     }
 
     /// Direction of the motion being planned, if any.
@@ -327,7 +322,6 @@ impl Planner {
         if self.flushing || self.then.is_some() {
             return None;
         }
-        let signed = |forward: bool, n: u64| if forward { n as i64 } else { -(n as i64) };
         match &self.profile {
             // a finite profile ending at rest (an endless run has no steps)
             Some(p) if p.w_end() == 0 => Some(self.pos + signed(p.forward, p.steps? - p.done())),
@@ -686,21 +680,10 @@ impl Planner {
         self.t_ideal = t_last;
         self.planned_steps = self.planned_steps.wrapping_add(n);
         self.segments_fitted = self.segments_fitted.wrapping_add(1);
-        self.pos += if profile.forward {
-            n as i64
-        } else {
-            -(n as i64)
-        };
+        self.pos += signed(profile.forward, n);
         self.w = profile.w();
         self.forward = profile.forward;
         (self.s_end, self.c_end, self.s_end_w) = (s1.unwrap_or(0), c1, self.w);
-        let signed = |v: u64| {
-            if profile.forward {
-                v as i32
-            } else {
-                -(v as i32)
-            }
-        };
         self.pending = Pending {
             rest: Segment {
                 interval,
@@ -720,8 +703,8 @@ impl Planner {
                 last_index: 0,
                 to_end: 0,
                 count: n as u32,
-                v_start: signed(v_start),
-                v_end: signed(profile.velocity()),
+                v_start: signed(profile.forward, v_start) as i32,
+                v_end: signed(profile.forward, profile.velocity()) as i32,
                 ramping: profile.ramping() || profile.remaining() == 0,
             },
         };
@@ -784,12 +767,7 @@ impl Planner {
         let j = p.n - left;
         self.pending.rest.count = 0;
         self.planned_steps = self.planned_steps.wrapping_sub(left);
-        self.pos = p.pos
-            + if p.rest.forward {
-                j as i64
-            } else {
-                -(j as i64)
-            };
+        self.pos = p.pos + signed(p.rest.forward, j);
         self.w = w_along(p.w, p.slope, u128::from(j) << 32);
         self.t_ideal = self.t_isr;
         // T'(j) from the forward differences at j (D = ln(1 + Δ)):
@@ -801,6 +779,16 @@ impl Planner {
             .wrapping_add(r.add4.wrapping_mul(12));
         self.s_join = r.interval.wrapping_add((higher / 60) as u64);
         self.s_end = 0;
+    }
+}
+
+/// `n` steps (or 0.1 steps/s) as a signed count in the direction
+/// `forward`.
+fn signed(forward: bool, n: u64) -> i64 {
+    if forward {
+        n as i64
+    } else {
+        -(n as i64)
     }
 }
 
