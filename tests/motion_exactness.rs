@@ -9,6 +9,7 @@ use common::axis::{
     check_dynamics, check_ideal_times, check_times, ideal_run, trapezoid_time, GoalChange,
     PlannerRun,
 };
+use modbus_drive::motion::sim::RunStop;
 use modbus_drive::motion::{Goal, Ramp};
 use proptest::prelude::*;
 
@@ -233,7 +234,7 @@ fn seed_move_precision_margins() {
 /// segments are (README "Planner and precision"): at a slow cruise the
 /// segments are fitted 64 steps (128 ms) long, yet a stop given mid-cruise
 /// starts decelerating after at most the horizon (3 ms) and one step —
-/// the unpushed rest of the segment is dropped.
+/// its steps pushed beyond the horizon are taken back.
 #[test]
 fn a_new_goal_takes_effect_within_the_horizon() {
     let tick_hz = 10_000_000;
@@ -283,6 +284,50 @@ fn a_new_goal_takes_effect_within_the_horizon() {
         (25..=30).contains(&made_after),
         "{made_after} steps after the stop"
     );
+}
+
+/// A segment is pushed whole and a new goal takes back its steps due
+/// after the horizon in the next control call (README "Planner and
+/// precision"). If that call comes so late that the interrupt has already
+/// reached the cut, the planner stops at once (counted as an underrun)
+/// and plans the goal again from where the motor is: the move still ends
+/// exactly on its target.
+#[test]
+fn a_cut_the_interrupt_passed_first_plans_the_goal_again() {
+    let tick_hz = 10_000_000;
+    let mut run = PlannerRun::new(tick_hz, 1000);
+    let r = ramp(500.0, 5_000.0, 5_000.0); // 500 steps/s: 2 ms per step
+    run.control();
+    assert!(run.planner.set_goal(Goal::Move {
+        target: 100_000,
+        ramp: r,
+        end_velocity: 0
+    }));
+    for _ in 0..400 {
+        run.tick();
+    }
+    let queued = run
+        .sched
+        .last_pushed_index()
+        .wrapping_sub(run.sched.step_index());
+    assert!(queued > 4, "a long segment is queued ({queued} steps)");
+    assert!(run.planner.set_goal(Goal::Move {
+        target: 200,
+        ramp: r,
+        end_velocity: 0
+    }));
+    assert_eq!(run.planner.underruns, 0);
+    // the control loop stalls for 20 ms (10 steps): the interrupt runs on
+    // into the steps the new goal meant to take back
+    let until = run.axis.us_to_ticks(run.now_us + 20_000);
+    let steps = &mut run.steps;
+    while run.axis.run_until(&run.sched, until, |s| steps.push(s)) == RunStop::SwitchChanged {}
+    run.now_us += 20_000;
+    run.control();
+    assert_eq!(run.planner.underruns, 1, "the cut came too late");
+    run.run_until_rest(10_000_000);
+    assert_eq!(run.planner.actual_position(&run.sched), 200);
+    assert_eq!(i64::from(run.sched.position()), 200);
 }
 
 /// A goal that cuts a pushed segment continues the steps made without a

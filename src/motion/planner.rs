@@ -16,10 +16,13 @@
 //! interrupt will accumulate are tracked exactly (`t_isr`), so nothing
 //! drifts.
 //!
-//! Latency: a segment is fitted whole but pushed in parts, each up to the
-//! horizon ([`PlannerConfig::horizon_us`]); a new goal drops the rest and
-//! goes back to the last pushed step (`drop_pending`), so a change of goal
-//! takes effect after the horizon however long the segments are.
+//! Latency: a segment is fitted and pushed whole (in parts only when the
+//! ring lacks room), so most control calls find the horizon
+//! ([`PlannerConfig::horizon_us`]) covered and return at once; a new goal
+//! takes back the steps due after the horizon ([`StepSchedule::truncate`],
+//! in the next fill) and goes back to the last step that stays
+//! (`drop_pending`), so a change of goal takes effect after the horizon
+//! however long the segments are.
 //!
 //! Cost per segment: one profile evaluation (a square root and a division,
 //! on 128-bit numbers but through 64-bit routines: `profile::isqrt`,
@@ -117,7 +120,8 @@ pub struct PlannerConfig {
     /// How far ahead of `now` the schedule is filled. Must exceed the
     /// control period; it is also the latency of a change of goal (what
     /// is pushed to the interrupt stays; a segment is fitted whole but
-    /// pushed in parts up to the horizon, and a new goal drops the rest).
+    /// pushed whole, and a new goal takes back its steps after the
+    /// horizon).
     pub horizon_us: u32,
     /// Longest segment, µs (at most 2^22 ticks: the fit's numbers stay in
     /// 64 bits). Long segments cost the planner less per step; they do not
@@ -141,7 +145,8 @@ struct SlotInfo {
     /// Ring index of the segment's last step ([`StepSchedule::step_index`]).
     last_index: u32,
     /// Steps of its segment after its last step (a segment is pushed in
-    /// parts, up to the horizon), the segment's steps, and the signed
+    /// parts when the ring lacks room, and cut by a new goal), the
+    /// segment's steps, and the signed
     /// velocities (0.1 steps/s) before the segment's first and at its last
     /// step: v² is linear in the steps within a segment (one profile
     /// piece), so the velocity of any of its steps follows without keeping
@@ -181,9 +186,10 @@ impl SlotInfo {
     }
 }
 
-/// The segment being handed to the interrupt: fitted whole, pushed in
-/// parts up to the horizon, so that its length (the fit's cost is per
-/// segment) does not delay a change of goal (module docs).
+/// The segment being handed to the interrupt: fitted and pushed whole
+/// (in parts when the ring lacks room), and cut at the horizon by a new
+/// goal, so that its length (the fit's cost is per segment) does not delay
+/// a change of goal (module docs).
 #[derive(Clone, Copy, Debug, Default)]
 struct Pending {
     /// Its steps not yet pushed, and their terms (`count` = 0: none).
@@ -192,13 +198,22 @@ struct Pending {
     n: u64,
     /// The planner's state before it (position, v², exact time), and the
     /// v² slope of its piece: enough to find the state after any of its
-    /// steps when a new goal drops the steps not yet pushed.
+    /// steps when a new goal cuts it.
     pos: i64,
     w: u128,
     t_ideal: u64,
     slope: i128,
     /// For the drive's 0x606C: the velocities at its ends.
     info: SlotInfo,
+    /// Where it went, for a cut (`drop_pending`): its terms at its first
+    /// step, the fraction carried into that step, the time before it as
+    /// the interrupt will reach it, the ring index of its first step, and
+    /// the steps pushed (0: none, or nothing to cut).
+    start: Segment,
+    start_frac: u32,
+    t_start: u64,
+    first: u32,
+    pushed: u32,
 }
 
 /// See the module docs.
@@ -245,6 +260,12 @@ pub struct Planner {
     pending: Pending,
     /// `horizon_us` in Q32.32 ticks.
     horizon_q: u64,
+    /// A cut of the pending segment that [`Planner::fill`] has yet to
+    /// make in the ring (`drop_pending`): the ring index of the first step
+    /// taken back, the fraction carried there, and the goal planned from
+    /// it (planned again from where the motor is if the interrupt got
+    /// there first).
+    cut: Option<(u32, u32, Goal)>,
     /// Time per step at the end of the last segment (Q32.32 ticks, 0 =
     /// none) and the v² it belongs to.
     s_end: u64,
@@ -281,6 +302,7 @@ impl Planner {
             budget: SegmentBudget::new(cfg.tick_hz, cfg.max_segment_us),
             pending: Pending::default(),
             horizon_q: 0,
+            cut: None,
             s_end: 0,
             s_end_w: 0,
             c_end: 0,
@@ -412,9 +434,15 @@ impl Planner {
             self.then = ok.then_some(goal);
             return ok;
         }
+        // a motion being replaced is cut at the horizon; one planned to
+        // its end (Fill::Ended) is continued from its end
+        let cut = self.profile.is_some() || self.then.is_some();
         self.then = None;
         self.profile = None;
-        self.drop_pending();
+        self.drop_pending(cut);
+        if let Some(c) = self.cut.as_mut() {
+            c.2 = goal;
+        }
         let ok = self.start(goal);
         if !ok && self.w > 0 {
             // keep the motor under control: stop with the last deceleration
@@ -433,6 +461,8 @@ impl Planner {
         self.then = None;
         self.w = 0;
         self.pending.rest.count = 0;
+        self.pending.pushed = 0;
+        self.cut = None;
         self.s_join = 0;
         if sched.is_running() || !sched.is_empty() || sched.limit_brake().is_some() {
             // also after the interrupt's limit brake (schedule.rs): wait
@@ -454,6 +484,19 @@ impl Planner {
     pub fn fill(&mut self, now_us: u64, sched: &StepSchedule) -> Fill {
         let now = self.ticks_q(now_us);
         self.now = now;
+        if let Some((at, frac, goal)) = self.cut.take() {
+            if !sched.truncate(at, frac) {
+                // The interrupt got to the cut first (the control loop ran
+                // more than the horizon less a period late): stop at once
+                // and plan the goal again from where the motor is.
+                self.underruns = self.underruns.wrapping_add(1);
+                self.stop_at_once(sched);
+                if !self.flushing {
+                    self.pos = self.actual_position(sched);
+                }
+                self.set_goal(goal);
+            }
+        }
         let covered = self.t_isr.wrapping_sub(now) as i64 >= self.horizon_q as i64;
         if covered
             && !self.flushing
@@ -487,6 +530,8 @@ impl Planner {
                 // ran dry inside a segment (never expected): its rest
                 // and what follows move later, to now
                 let dt = now.wrapping_sub(self.t_isr);
+                // (a cut would find its steps by the old times: none)
+                self.pending.start.count = 0;
                 self.t_ideal = self.t_ideal.wrapping_add(dt);
                 self.pending.t_ideal = self.pending.t_ideal.wrapping_add(dt);
                 if let Some(p) = self.profile.as_mut() {
@@ -502,7 +547,7 @@ impl Planner {
         let horizon = self.horizon_q;
         loop {
             if self.pending.rest.count > 0 {
-                if !self.push_pending(sched, now.wrapping_add(horizon)) {
+                if !self.push_pending(sched) {
                     return Fill::Full;
                 }
                 continue;
@@ -684,16 +729,22 @@ impl Planner {
         self.w = profile.w();
         self.forward = profile.forward;
         (self.s_end, self.c_end, self.s_end_w) = (s1.unwrap_or(0), c1, self.w);
+        let seg = Segment {
+            interval,
+            add: add as i64,
+            add2: add2 as i64,
+            add3: add3 as i64,
+            add4: add4 as i64,
+            count: n as u32,
+            forward: profile.forward,
+        };
         self.pending = Pending {
-            rest: Segment {
-                interval,
-                add: add as i64,
-                add2: add2 as i64,
-                add3: add3 as i64,
-                add4: add4 as i64,
-                count: n as u32,
-                forward: profile.forward,
-            },
+            rest: seg,
+            start: seg,
+            start_frac: 0,
+            t_start: 0,
+            first: 0,
+            pushed: 0,
             n,
             pos,
             w,
@@ -710,69 +761,96 @@ impl Planner {
         };
     }
 
-    /// Pushes the pending segment's steps due before `until` (Q32.32
-    /// ticks), at least one. True when none is left; false when the
-    /// horizon, the ring or the segment bookkeeping stopped it.
-    fn push_pending(&mut self, sched: &StepSchedule, until: u64) -> bool {
+    /// Pushes the pending segment whole, or as much of it as the ring
+    /// takes (a new goal cuts it at the horizon, `drop_pending`). True when
+    /// none is left; false when the ring or the segment bookkeeping
+    /// stopped it.
+    fn push_pending(&mut self, sched: &StepSchedule) -> bool {
         let tracked = self.segments.wrapping_sub(self.oldest) as usize;
-        let ahead = until.wrapping_sub(self.t_isr) as i64;
-        if tracked >= SCHEDULE_SLOTS || ahead <= 0 {
+        if tracked >= SCHEDULE_SLOTS {
             return false;
         }
-        let seg = &mut self.pending.rest;
-        // steps that fit at the current interval (a deceleration's grow:
-        // up to 15 % past the horizon; 2^20 units: 32-bit division)
-        let interval = seg.interval.max(1);
-        let k = if interval >= ahead as u64 {
-            1
-        } else {
-            ((ahead as u64 >> 20) as u32 / ((interval >> 20) as u32).max(1)).max(1)
-        };
-        let k = k.min(seg.count).min(sched.free() as u32);
+        let pending = &mut self.pending;
+        let seg = &mut pending.rest;
+        let k = seg.count.min(sched.free() as u32);
         if (self.t_isr.wrapping_add(seg.interval).wrapping_sub(self.now) as i64) < 0 {
             self.late_segments = self.late_segments.wrapping_add(1);
         }
-        let first_part = u64::from(seg.count) == self.pending.n;
+        let first_part = pending.pushed == 0;
+        if first_part {
+            pending.start_frac = sched.carry_in();
+            pending.t_start = self.t_isr;
+        }
         let Some(made) = sched.push_steps(seg, k) else {
             return false;
         };
+        pending.pushed += k;
         self.t_isr = self.t_isr.wrapping_add(made);
+        let last = sched.last_pushed_index();
         // one slot per segment, its end moved on with each part
         if first_part {
-            self.slots[self.segments as usize % SCHEDULE_SLOTS] = self.pending.info;
+            pending.first = last.wrapping_sub(k - 1);
+            self.slots[self.segments as usize % SCHEDULE_SLOTS] = pending.info;
             self.segments = self.segments.wrapping_add(1);
         }
         let slot = &mut self.slots[self.segments.wrapping_sub(1) as usize % SCHEDULE_SLOTS];
-        slot.last_index = sched.last_pushed_index();
-        slot.to_end = self.pending.rest.count;
-        self.pending.rest.count == 0
+        slot.last_index = last;
+        slot.to_end = pending.rest.count;
+        pending.rest.count == 0
     }
 
-    /// A new goal: the pending segment's steps not yet pushed are dropped,
-    /// and the state goes back to its last pushed step, so that the new
-    /// goal continues from that step and takes effect within the horizon:
-    /// its position and v² (linear along its piece), and the time and
+    /// A new goal: the state goes back to the last step of the pending
+    /// segment that stays, so that the new goal continues from that step
+    /// and takes effect within the horizon. The segment was pushed whole
+    /// (or as far as the ring took it); with `cut` (a motion being
+    /// replaced, not one planned to its end) its steps due after the
+    /// horizon are taken back from the ring ([`StepSchedule::truncate`],
+    /// in the next [`Planner::fill`]: `cut`), and the steps not pushed
+    /// are dropped. What the state goes back to:
+    /// the position and v² (linear along its piece), and the time and
     /// slope of the steps made — where the interrupt will be, not the
     /// profile's exact time and `1/v` there: inside a segment the fit
     /// differs from those by up to its error bound, and the next segment
     /// must continue the steps made without a jump in time or velocity
     /// (a jump of 0.3 µs in one step would be a spike of 60 000 steps/s²
     /// at 6000 steps/s). The new profile starts from that time.
-    fn drop_pending(&mut self) {
+    fn drop_pending(&mut self, cut: bool) {
         let p = self.pending;
-        let left = u64::from(p.rest.count);
+        self.pending.rest.count = 0;
+        self.pending.pushed = 0;
+        // the steps dropped, and the terms at the last step that stays
+        let (mut left, mut r) = (p.rest.count, p.rest);
+        if cut && p.pushed > 1 && p.start.count > 0 {
+            // the steps due before the horizon (at least one), found by
+            // expanding the segment again from its start
+            let (mut seg, mut frac) = (p.start, p.start_frac);
+            let until = self
+                .now
+                .wrapping_add(self.horizon_q)
+                .wrapping_sub(p.t_start);
+            let (steps, time) = seg.advance_until(&mut frac, until, p.pushed);
+            if steps < p.pushed {
+                // taken back from the ring in the next fill (set_goal may
+                // run where the schedule is not at hand)
+                let goal = Goal::Stop { decel: 0 }; // set_goal's, below
+                self.cut = Some((p.first.wrapping_add(steps), frac, goal));
+                (left, r) = (left + p.pushed - steps, seg);
+                self.t_isr = p.t_start.wrapping_add(time);
+                let slot = &mut self.slots[self.segments.wrapping_sub(1) as usize % SCHEDULE_SLOTS];
+                slot.last_index = p.first.wrapping_add(steps - 1);
+                slot.to_end = p.n as u32 - steps;
+            }
+        }
         if left == 0 {
             return;
         }
-        let j = p.n - left;
-        self.pending.rest.count = 0;
+        let (left, j) = (u64::from(left), p.n - u64::from(left));
         self.planned_steps = self.planned_steps.wrapping_sub(left);
         self.pos = p.pos + signed(p.rest.forward, j);
         self.w = w_along(p.w, p.slope, u128::from(j) << 32);
         self.t_ideal = self.t_isr;
         // T'(j) from the forward differences at j (D = ln(1 + Δ)):
         // Δ − Δ²/2 + Δ³/3 − Δ⁴/4 + Δ⁵/5, exact for the quintic
-        let r = p.rest;
         let higher = (r.add.wrapping_mul(-30))
             .wrapping_add(r.add2.wrapping_mul(20))
             .wrapping_add(r.add3.wrapping_mul(-15))

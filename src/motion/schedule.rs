@@ -250,6 +250,31 @@ pub struct Segment {
     pub forward: bool,
 }
 
+impl Segment {
+    /// Moves the terms on, as a push of the same steps would, by the
+    /// fewest steps (at least one, at most `max`, and at most `count`)
+    /// whose exact time reaches `until` (Q32.32 ticks, from the previous
+    /// step); `frac` is the fraction carried in and comes out carried on.
+    /// Returns the steps and their exact time, the same numbers a push
+    /// gives (planner.rs `drop_pending` finds with it where to cut a
+    /// segment pushed whole). Writes no entry.
+    pub fn advance_until(&mut self, frac: &mut u32, until: u64, max: u32) -> (u32, u64) {
+        let mut x = Expansion::of(self, (*frac, 0));
+        let max = max.min(self.count);
+        let (mut steps, mut time) = (0, 0);
+        while steps < max && (steps == 0 || (time as i64) < until as i64) {
+            x.step();
+            steps += 1;
+            let dfrac = i64::from(x.frac) - i64::from(*frac);
+            time = (u64::from(x.sum) << TICK_FRAC_BITS).wrapping_add(dfrac as u64);
+        }
+        x.store_terms(self);
+        self.count -= steps;
+        *frac = x.frac;
+        (steps, time)
+    }
+}
+
 /// The shared ring of per-step delays plus what the interrupt reports back
 /// (see the module docs for who may call what). `repr(C)`: the ring at the
 /// start and `next`/`quiet` right behind it, so that the interrupt's
@@ -367,6 +392,15 @@ impl Expansion {
         }
     }
 
+    /// Back into `seg`: its terms, moved on.
+    fn store_terms(&self, seg: &mut Segment) {
+        seg.interval = self.interval;
+        seg.add = self.add as i64;
+        seg.add2 = self.add2 as i64;
+        seg.add3 = self.add3 as i64;
+        seg.add4 = self.add4 as i64;
+    }
+
     /// Writes the next steps' delays of `seg` to `first` (if given) and
     /// `entries`, in order, and moves `seg`'s terms and `carry` (fraction,
     /// delay sum) on: one call per push, straight from and to the segment.
@@ -384,11 +418,7 @@ impl Expansion {
         for entry in entries {
             entry.store(x.step(), Ordering::Relaxed);
         }
-        seg.interval = x.interval;
-        seg.add = x.add as i64;
-        seg.add2 = x.add2 as i64;
-        seg.add3 = x.add3 as i64;
-        seg.add4 = x.add4 as i64;
+        x.store_terms(seg);
         *carry = (x.frac, x.sum);
     }
 }
@@ -452,8 +482,8 @@ impl StepSchedule {
 
     /// Appends the first `count` steps of `seg` (all of them at most) and
     /// leaves in `seg` the rest: its terms moved on by those steps, its
-    /// count reduced (the planner hands a long segment over in parts, up
-    /// to its horizon). Returns the time the appended steps take, Q32.32
+    /// count reduced (the planner hands a segment over in parts when the
+    /// ring lacks room for all of it). Returns the time the appended steps take, Q32.32
     /// ticks (wrapping): the sum of their intervals, exactly (each step's
     /// interval is its delay plus the change of the carried fraction, so
     /// the sum is the delays' plus the fraction's change). `None`, and
@@ -467,14 +497,7 @@ impl StepSchedule {
         if count == 0 || entries > self.room() {
             return None;
         }
-        // A run from rest (the interrupt idle, nothing queued: only this
-        // context can change that) puts its time origin half a tick in, so
-        // that the delays round every exact time to the nearest tick.
-        let frac = if !self.is_running() && self.is_empty() {
-            HALF_TICK
-        } else {
-            self.frac.load(Ordering::Relaxed)
-        };
+        let frac = self.carry_in();
         let mut carry = (frac, 0);
         // ring[head], the old sentinel, is written last (module docs)
         let end = head.wrapping_add(entries);
@@ -504,6 +527,53 @@ impl StepSchedule {
         // (the fraction's change is signed: a carry made it smaller)
         let dfrac = i64::from(carry.0) - i64::from(frac);
         Some((u64::from(carry.1) << TICK_FRAC_BITS).wrapping_add(dfrac as u64))
+    }
+
+    /// The fraction the next push carries on (module docs): the last
+    /// pushed step's, or half a tick for a run from rest (the interrupt
+    /// idle, nothing queued: only the producer can change that), so that
+    /// the delays round every exact time to the nearest tick.
+    pub fn carry_in(&self) -> u32 {
+        if !self.is_running() && self.is_empty() {
+            HALF_TICK
+        } else {
+            self.frac.load(Ordering::Relaxed)
+        }
+    }
+
+    /// Takes back the queued entries from ring index `at` on (producer
+    /// only): the queue then ends before `at`, and the next push starts
+    /// there, carrying the fraction `frac` (that of the step before `at`,
+    /// [`Segment::advance_until`]). The planner cuts a segment pushed
+    /// whole this way when a new goal arrives (planner.rs `drop_pending`).
+    ///
+    /// False, and nothing taken back, unless `at` is inside the queue and
+    /// not behind the interrupt's next read.
+    /// The interrupt reads `ring[next]` and never looks at `head` but to
+    /// drop the queue (flush, the limit brake's end, `cancel`), which
+    /// moves `next` to `head`. So: `head` first, then the sentinel at
+    /// `at`, then a second look at `next`. At or before `at`: the
+    /// interrupt has not read the entry there and will find the sentinel
+    /// (or has dropped the queue to the new `head`: empty, consistent).
+    /// Past it (it read the entry at `at` in between, or dropped the
+    /// queue to the old `head`): `head` goes back, and what was written at
+    /// `at` lies behind the interrupt, where nobody reads it.
+    pub fn truncate(&self, at: u32, frac: u32) -> bool {
+        let head = self.head.load(Ordering::Relaxed);
+        let next = self.next.load(Ordering::Relaxed);
+        if (at.wrapping_sub(next) as i32) < 0 || head.wrapping_sub(at) as i32 <= 0 {
+            return false;
+        }
+        self.head.store(at, Ordering::Relaxed);
+        compiler_fence(Ordering::SeqCst);
+        self.entry(at).store(END, Ordering::Relaxed);
+        compiler_fence(Ordering::SeqCst);
+        if (at.wrapping_sub(self.next.load(Ordering::Relaxed)) as i32) < 0 {
+            self.head.store(head, Ordering::Relaxed);
+            return false;
+        }
+        self.frac.store(frac, Ordering::Relaxed);
+        true
     }
 
     /// Expands the next steps of `seg` for the entries `from` up to `to`
@@ -1099,6 +1169,59 @@ mod tests {
     /// Delays from 2^31 ticks on share their top bit with the markers: they
     /// go the slow way and still come out whole; an interval below half a
     /// tick is a delay of 1, never the sentinel (0).
+    /// A cut (planner.rs `drop_pending`): the entries from the cut on are
+    /// taken back, the next push continues there with the fraction carried
+    /// to the cut, and `advance_until` finds the same steps and time as
+    /// the push made; a cut behind the interrupt's next read, or outside
+    /// the queue, changes nothing.
+    #[test]
+    fn truncate_takes_back_the_entries_ahead_of_the_interrupt() {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        // 7.25 ticks growing by a quarter: delays with carried fractions
+        let whole = seg(7 * ONE + ONE / 4, (ONE / 4) as i64, 0, 10, true);
+        let (mut rest, frac0) = (whole, sched.carry_in());
+        let pushed = sched.push_steps(&mut rest, 10).unwrap();
+        let first = sched.last_pushed_index().wrapping_sub(9);
+        // the time of all ten, found again without the ring
+        let (mut again, mut frac) = (whole, frac0);
+        assert_eq!(
+            again.advance_until(&mut frac, u64::MAX >> 1, 10),
+            (10, pushed)
+        );
+        // the interrupt makes three steps
+        let made: Vec<u32> = (0..3)
+            .map(|_| src.advance(&sched).unwrap().delay_ticks)
+            .collect();
+        // behind its next read (the pending step's entry), or at the
+        // sentinel, or past it: refused
+        assert!(!sched.truncate(first.wrapping_add(1), 0));
+        assert!(!sched.truncate(first.wrapping_add(10), 0));
+        assert!(!sched.truncate(first.wrapping_add(12), 0));
+        // cut after six steps: the time of the sixth is where they end
+        let (mut cut, mut frac) = (whole, frac0);
+        let until = 6 * 7 * ONE + 15 * (ONE / 4) - 1; // just before the sixth
+        let (steps, time) = cut.advance_until(&mut frac, until, 10);
+        assert_eq!(steps, 6);
+        assert_eq!(cut.count, 4);
+        assert_eq!(cut.interval, whole.interval + 6 * (ONE / 4));
+        assert!(sched.truncate(first.wrapping_add(6), frac));
+        assert_eq!(sched.last_pushed_index(), first.wrapping_add(5));
+        // a new push follows the sixth step, carrying its fraction
+        sched.push(seg(3 * ONE, 0, 0, 2, true)).unwrap();
+        let (d, n) = drain(&mut src, &sched);
+        let mut all = made.clone();
+        all.extend_from_slice(&d[..n]);
+        assert_eq!(all.len(), 6 + 2);
+        assert_eq!(
+            all[..6].iter().map(|&d| u64::from(d)).sum::<u64>(),
+            time >> 32
+        );
+        assert_eq!(&all[6..], &[3, 3]);
+        assert_eq!(sched.position(), 8);
+        assert!(sched.is_empty());
+    }
+
     #[test]
     fn long_and_zero_delays() {
         let sched = StepSchedule::new();
