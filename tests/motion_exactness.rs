@@ -230,6 +230,27 @@ fn seed_move_precision_margins() {
     );
 }
 
+/// 500 steps/s (2 ms per step), 5000 steps/s² both ways.
+fn slow_ramp() -> Ramp {
+    ramp(500.0, 5_000.0, 5_000.0)
+}
+
+/// A move of 100 000 steps with [`slow_ramp`], 400 ms in: cruising since
+/// step 25, in segments of 64 steps (128 ms).
+fn slow_cruise(tick_hz: u32) -> PlannerRun {
+    let mut run = PlannerRun::new(tick_hz, 1000);
+    run.control();
+    assert!(run.planner.set_goal(Goal::Move {
+        target: 100_000,
+        ramp: slow_ramp(),
+        end_velocity: 0
+    }));
+    for _ in 0..400 {
+        run.tick();
+    }
+    run
+}
+
 /// A change of goal takes effect within the horizon however long the
 /// segments are (README "Planner and precision"): at a slow cruise the
 /// segments are fitted 64 steps (128 ms) long, yet a stop given mid-cruise
@@ -237,19 +258,8 @@ fn seed_move_precision_margins() {
 /// its steps pushed beyond the horizon are taken back.
 #[test]
 fn a_new_goal_takes_effect_within_the_horizon() {
-    let tick_hz = 10_000_000;
-    let mut run = PlannerRun::new(tick_hz, 1000);
-    let r = ramp(500.0, 5_000.0, 5_000.0); // 500 steps/s: 2 ms per step
-    run.control();
-    assert!(run.planner.set_goal(Goal::Move {
-        target: 100_000,
-        ramp: r,
-        end_velocity: 0
-    }));
-    // cruise from step 25 on; run well into it
-    for _ in 0..400 {
-        run.tick();
-    }
+    let (tick_hz, r) = (10_000_000, slow_ramp());
+    let mut run = slow_cruise(tick_hz);
     let fitted_before = run.planner.segments_fitted;
     for _ in 0..200 {
         run.tick();
@@ -294,18 +304,7 @@ fn a_new_goal_takes_effect_within_the_horizon() {
 /// exactly on its target.
 #[test]
 fn a_cut_the_interrupt_passed_first_plans_the_goal_again() {
-    let tick_hz = 10_000_000;
-    let mut run = PlannerRun::new(tick_hz, 1000);
-    let r = ramp(500.0, 5_000.0, 5_000.0); // 500 steps/s: 2 ms per step
-    run.control();
-    assert!(run.planner.set_goal(Goal::Move {
-        target: 100_000,
-        ramp: r,
-        end_velocity: 0
-    }));
-    for _ in 0..400 {
-        run.tick();
-    }
+    let (r, mut run) = (slow_ramp(), slow_cruise(10_000_000));
     let queued = run
         .sched
         .last_pushed_index()
