@@ -206,9 +206,10 @@ struct Pending {
     /// For the drive's 0x606C: the velocities at its ends.
     info: SlotInfo,
     /// Where it went, for a cut (`drop_pending`): its terms at its first
-    /// step, the fraction carried into that step, the time before it as
-    /// the interrupt will reach it, the ring index of its first step, and
-    /// the steps pushed (0: none, or nothing to cut).
+    /// step (`count` 0: its times are no longer those, as after the ring
+    /// ran dry inside it, so no cut), the fraction carried into that
+    /// step, the time before it as the interrupt will reach it, the ring
+    /// index of its first step, and the steps pushed (0: none).
     start: Segment,
     start_frac: u32,
     t_start: u64,
@@ -439,9 +440,14 @@ impl Planner {
         let cut = self.profile.is_some() || self.then.is_some();
         self.then = None;
         self.profile = None;
-        self.drop_pending(cut);
-        if let Some(c) = self.cut.as_mut() {
-            c.2 = goal;
+        match self.drop_pending(cut) {
+            Some((at, frac)) => self.cut = Some((at, frac, goal)),
+            // a cut still waiting (two goals before a fill): the latest
+            None => {
+                if let Some(c) = self.cut.as_mut() {
+                    c.2 = goal;
+                }
+            }
         }
         let ok = self.start(goal);
         if !ok && self.w > 0 {
@@ -805,8 +811,8 @@ impl Planner {
     /// (or as far as the ring took it); with `cut` (a motion being
     /// replaced, not one planned to its end) its steps due after the
     /// horizon are taken back from the ring ([`StepSchedule::truncate`],
-    /// in the next [`Planner::fill`]: `cut`), and the steps not pushed
-    /// are dropped. What the state goes back to:
+    /// in the next [`Planner::fill`]: returned here, kept in `cut`), and
+    /// the steps not pushed are dropped. What the state goes back to:
     /// the position and v² (linear along its piece), and the time and
     /// slope of the steps made — where the interrupt will be, not the
     /// profile's exact time and `1/v` there: inside a segment the fit
@@ -814,12 +820,14 @@ impl Planner {
     /// must continue the steps made without a jump in time or velocity
     /// (a jump of 0.3 µs in one step would be a spike of 60 000 steps/s²
     /// at 6000 steps/s). The new profile starts from that time.
-    fn drop_pending(&mut self, cut: bool) {
+    fn drop_pending(&mut self, cut: bool) -> Option<(u32, u32)> {
         let p = self.pending;
         self.pending.rest.count = 0;
         self.pending.pushed = 0;
-        // the steps dropped, and the terms at the last step that stays
-        let (mut left, mut r) = (p.rest.count, p.rest);
+        // the steps dropped, the terms at the last step that stays, and
+        // the cut to make in the ring (its first ring index, the fraction
+        // carried there)
+        let (mut left, mut r, mut taken) = (p.rest.count, p.rest, None);
         if cut && p.pushed > 1 && p.start.count > 0 {
             // the steps due before the horizon (at least one), found by
             // expanding the segment again from its start
@@ -832,8 +840,7 @@ impl Planner {
             if steps < p.pushed {
                 // taken back from the ring in the next fill (set_goal may
                 // run where the schedule is not at hand)
-                let goal = Goal::Stop { decel: 0 }; // set_goal's, below
-                self.cut = Some((p.first.wrapping_add(steps), frac, goal));
+                taken = Some((p.first.wrapping_add(steps), frac));
                 (left, r) = (left + p.pushed - steps, seg);
                 self.t_isr = p.t_start.wrapping_add(time);
                 let slot = &mut self.slots[self.segments.wrapping_sub(1) as usize % SCHEDULE_SLOTS];
@@ -842,7 +849,7 @@ impl Planner {
             }
         }
         if left == 0 {
-            return;
+            return None;
         }
         let (left, j) = (u64::from(left), p.n - u64::from(left));
         self.planned_steps = self.planned_steps.wrapping_sub(left);
@@ -857,6 +864,7 @@ impl Planner {
             .wrapping_add(r.add4.wrapping_mul(12));
         self.s_join = r.interval.wrapping_add((higher / 60) as u64);
         self.s_end = 0;
+        taken
     }
 }
 

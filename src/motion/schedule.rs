@@ -265,8 +265,7 @@ impl Segment {
         while steps < max && (steps == 0 || (time as i64) < until as i64) {
             x.step();
             steps += 1;
-            let dfrac = i64::from(x.frac) - i64::from(*frac);
-            time = (u64::from(x.sum) << TICK_FRAC_BITS).wrapping_add(dfrac as u64);
+            time = time_made(*frac, (x.frac, x.sum));
         }
         x.store_terms(self);
         self.count -= steps;
@@ -339,6 +338,15 @@ fn carried(frac: &mut u32, interval: u64) -> u32 {
     let (f, carry) = frac.overflowing_add(interval as u32);
     *frac = f;
     ((interval >> TICK_FRAC_BITS) as u32).wrapping_add(u32::from(carry))
+}
+
+/// The exact time (Q32.32 ticks, wrapping) of steps expanded from the
+/// carried fraction `frac` to `carry` (fraction, delay sum): the sum of
+/// their intervals, which is the delays' sum plus the fraction's change
+/// (signed: a carry made it smaller).
+fn time_made(frac: u32, carry: (u32, u32)) -> u64 {
+    let dfrac = i64::from(carry.0) - i64::from(frac);
+    (u64::from(carry.1) << TICK_FRAC_BITS).wrapping_add(dfrac as u64)
 }
 
 /// The producer's exact-time accumulator over one segment (module docs).
@@ -483,10 +491,8 @@ impl StepSchedule {
     /// Appends the first `count` steps of `seg` (all of them at most) and
     /// leaves in `seg` the rest: its terms moved on by those steps, its
     /// count reduced (the planner hands a segment over in parts when the
-    /// ring lacks room for all of it). Returns the time the appended steps take, Q32.32
-    /// ticks (wrapping): the sum of their intervals, exactly (each step's
-    /// interval is its delay plus the change of the carried fraction, so
-    /// the sum is the delays' plus the fraction's change). `None`, and
+    /// ring lacks room for all of it). Returns the time the appended
+    /// steps take, exactly ([`time_made`]). `None`, and
     /// nothing done, when `count` is 0 or the ring lacks room for them.
     #[inline(never)]
     pub fn push_steps(&self, seg: &mut Segment, count: u32) -> Option<u64> {
@@ -524,9 +530,7 @@ impl StepSchedule {
         compiler_fence(Ordering::SeqCst);
         self.head.store(end, Ordering::Relaxed);
         seg.count -= count;
-        // (the fraction's change is signed: a carry made it smaller)
-        let dfrac = i64::from(carry.0) - i64::from(frac);
-        Some((u64::from(carry.1) << TICK_FRAC_BITS).wrapping_add(dfrac as u64))
+        Some(time_made(frac, carry))
     }
 
     /// The fraction the next push carries on (module docs): the last
@@ -1166,9 +1170,6 @@ mod tests {
         assert_eq!(sched.position(), -1);
     }
 
-    /// Delays from 2^31 ticks on share their top bit with the markers: they
-    /// go the slow way and still come out whole; an interval below half a
-    /// tick is a delay of 1, never the sentinel (0).
     /// A cut (planner.rs `drop_pending`): the entries from the cut on are
     /// taken back, the next push continues there with the fraction carried
     /// to the cut, and `advance_until` finds the same steps and time as
@@ -1222,6 +1223,9 @@ mod tests {
         assert!(sched.is_empty());
     }
 
+    /// Delays from 2^31 ticks on share their top bit with the markers: they
+    /// go the slow way and still come out whole; an interval below half a
+    /// tick is a delay of 1, never the sentinel (0).
     #[test]
     fn long_and_zero_delays() {
         let sched = StepSchedule::new();
