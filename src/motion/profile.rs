@@ -228,10 +228,11 @@ impl Profile {
     ) -> Self {
         let mut p = Self::start(forward, None, w0, t0, tick_hz);
         p.w_cruise = wc;
+        // through `div` (flash budget, as `stop_steps`)
         if w0 <= wc {
-            p.push((wc - w0).checked_div(su).unwrap_or(0), su as i128);
+            p.push(if su == 0 { 0 } else { div(wc - w0, su) }, su as i128);
         } else {
-            p.push((w0 - wc) / sd.max(1), -(sd as i128));
+            p.push(div(w0 - wc, sd.max(1)), -(sd as i128));
         }
         p.push(u128::MAX, 0);
         p

@@ -90,8 +90,9 @@
 //! takes at most one marker and one step, so it is constant time too. A
 //! braking step (below) costs six 64×64 → 128-bit multiplies and a
 //! variable shift, still no division and no loop. The expansion is thread
-//! mode's, in [`StepSchedule::push`]: about 42 instructions per step and
-//! 35 per push on the M4 (README "Proof").
+//! mode's, in [`StepSchedule::push`]: on the M4 14 instructions per step
+//! when the higher terms fit 32 bits (`Expansion::narrow`, the common
+//! segment; about 40 otherwise) plus a few dozen per push (README "Proof").
 //!
 //! # Limit brake (SPEC §8.7, issue 6)
 //!
@@ -340,6 +341,20 @@ fn carried(frac: &mut u32, interval: u64) -> u32 {
     ((interval >> TICK_FRAC_BITS) as u32).wrapping_add(u32::from(carry))
 }
 
+/// `delay` as a ring entry: 0 (from an interval below half a tick, never
+/// planned: the sentinel's value) becomes 1 and a delay past the longest
+/// (or a negative `interval`) [`MAX_DELAY_TICKS`].
+#[inline(always)]
+fn clamped(delay: u32, interval: u64) -> u32 {
+    if delay.wrapping_sub(1) < MAX_DELAY_TICKS {
+        delay
+    } else if interval >> 63 != 0 {
+        MAX_DELAY_TICKS
+    } else {
+        1
+    }
+}
+
 /// The exact time (Q32.32 ticks, wrapping) of steps expanded from the
 /// carried fraction `frac` to `carry` (fraction, delay sum): the sum of
 /// their intervals, which is the delays' sum plus the fraction's change
@@ -369,16 +384,7 @@ impl Expansion {
     /// on.
     #[inline(always)]
     fn step(&mut self) -> u32 {
-        let mut delay = carried(&mut self.frac, self.interval);
-        if delay.wrapping_sub(1) >= MAX_DELAY_TICKS {
-            // 0 (an interval below half a tick, never planned: the
-            // sentinel's value) or past the longest delay
-            delay = if self.interval >> 63 != 0 {
-                MAX_DELAY_TICKS
-            } else {
-                1
-            };
-        }
+        let delay = clamped(carried(&mut self.frac, self.interval), self.interval);
         self.interval = self.interval.wrapping_add(self.add);
         self.add = self.add.wrapping_add(self.add2);
         self.add2 = self.add2.wrapping_add(self.add3);
@@ -409,6 +415,65 @@ impl Expansion {
         seg.add4 = self.add4 as i64;
     }
 
+    /// The next `steps` steps can take the narrow loop of
+    /// [`Expansion::run`]: the terms from `add2` on stay inside `i32`
+    /// (`add2 + j·add3 + C(j,2)·add4` and `add3 + j·add4` for every
+    /// `j ≤ steps`, the terms after the last step included), so 32-bit
+    /// sums give them exactly; and every interval stays between 1 and
+    /// 2^31 ticks (`|interval_j − interval| ≤ Σ C(steps, k)·|term k|`),
+    /// so no delay needs [`clamped`].
+    fn narrow(&self, steps: usize) -> bool {
+        const LIM: u64 = 1 << 31;
+        let l = steps as u64;
+        let m = |t: u64| (t as i64).unsigned_abs();
+        let (a1, a2, a3, a4) = (m(self.add), m(self.add2), m(self.add3), m(self.add4));
+        if a2 >= LIM || a3 >= LIM || a4 >= LIM || steps > SCHEDULE_STEPS {
+            return false;
+        }
+        // C(l, k) for k = 2, 3, 4 (< 2^32 for l ≤ 512)
+        let c2 = l * l.saturating_sub(1) / 2;
+        let c3 = c2 * l.saturating_sub(2) / 3;
+        let c4 = c3 * l.saturating_sub(3) / 4;
+        let drift = (a1.saturating_mul(l))
+            .saturating_add(c2 * a2)
+            .saturating_add(c3 * a3)
+            .saturating_add(c4 * a4);
+        a3 + l * a4 < LIM
+            && a2 + l * a3 + c2 * a4 < LIM
+            && self.interval.saturating_sub(drift) >= 1 << TICK_FRAC_BITS
+            && self.interval.saturating_add(drift) < 1 << 63
+    }
+
+    /// [`Expansion::step`] for every entry; with `add2`, `add3` and `add4`
+    /// in 32-bit registers and no clamp when [`Expansion::narrow`] allows
+    /// (the common push: the higher terms are small): the same delays
+    /// and terms from a loop whose state fits the Cortex-M's registers.
+    #[inline(always)]
+    fn run(&mut self, entries: &[AtomicU32]) {
+        if !self.narrow(entries.len()) {
+            for entry in entries {
+                entry.store(self.step(), Ordering::Relaxed);
+            }
+            return;
+        }
+        let (mut interval, mut add) = (self.interval, self.add);
+        let (mut add2, mut add3, add4) = (self.add2 as i32, self.add3 as i32, self.add4 as i32);
+        let (mut frac, mut sum) = (self.frac, self.sum);
+        for entry in entries {
+            let delay = carried(&mut frac, interval);
+            entry.store(delay, Ordering::Relaxed);
+            sum = sum.wrapping_add(delay);
+            let next_add3 = add3.wrapping_add(add4);
+            let next_add2 = add2.wrapping_add(add3);
+            let next_add = add.wrapping_add(add2 as i64 as u64);
+            interval = interval.wrapping_add(add);
+            (add, add2, add3) = (next_add, next_add2, next_add3);
+        }
+        (self.interval, self.add) = (interval, add);
+        (self.add2, self.add3) = (add2 as i64 as u64, add3 as i64 as u64);
+        (self.frac, self.sum) = (frac, sum);
+    }
+
     /// Writes the next steps' delays of `seg` to `first` (if given) and
     /// `entries`, in order, and moves `seg`'s terms and `carry` (fraction,
     /// delay sum) on: one call per push, straight from and to the segment.
@@ -423,9 +488,7 @@ impl Expansion {
         if let Some(first) = first {
             *first = x.step();
         }
-        for entry in entries {
-            entry.store(x.step(), Ordering::Relaxed);
-        }
+        x.run(entries);
         x.store_terms(seg);
         *carry = (x.frac, x.sum);
     }
@@ -1006,6 +1069,83 @@ mod tests {
             count,
             forward,
         }
+    }
+
+    /// The narrow loop of `Expansion::run` gives the same delays, terms,
+    /// fraction and delay sum as `Expansion::step` one step at a time, on
+    /// random segments from tiny to huge terms; it is taken for most
+    /// (small higher terms) and refused at the edges of its bounds.
+    #[test]
+    fn the_narrow_loop_expands_like_step_by_step() {
+        let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let narrow_ring = [const { AtomicU32::new(0) }; SCHEDULE_STEPS];
+        let (mut narrow, mut wide) = (0, 0);
+        let check = |x: Expansion, steps: usize| {
+            let mut a = x;
+            let mut b = x;
+            let took_narrow = a.narrow(steps);
+            a.run(&narrow_ring[..steps]);
+            for (k, entry) in narrow_ring[..steps].iter().enumerate() {
+                assert_eq!(entry.load(Ordering::Relaxed), b.step(), "step {k}");
+            }
+            let terms = |e: &Expansion| (e.interval, e.add, e.add2, e.add3, e.add4, e.frac, e.sum);
+            assert_eq!(terms(&a), terms(&b));
+            took_narrow
+        };
+        for i in 0..20_000u32 {
+            // each term's size drawn on its own, signs at random
+            let mut term = |lo: u32, span: u64| {
+                let t = next() >> (lo + (next() % span) as u32);
+                if next() & 1 == 0 {
+                    t
+                } else {
+                    t.wrapping_neg()
+                }
+            };
+            let interval = term(1, 1) >> (i % 40);
+            let x = Expansion {
+                interval,
+                add: term(8, 50),
+                add2: term(16, 48),
+                add3: term(24, 40),
+                add4: term(30, 34),
+                frac: term(0, 1) as u32,
+                sum: term(0, 1) as u32,
+            };
+            let steps = 1 + (term(0, 1) % (SCHEDULE_STEPS as u64 - 1)) as usize;
+            if check(x, steps) {
+                narrow += 1;
+            } else {
+                wide += 1;
+            }
+        }
+        assert!(
+            narrow > 1_000 && wide > 1_000,
+            "narrow {narrow}, wide {wide}"
+        );
+        // at the edges: add2 reaching i32::MAX exactly after 100 steps
+        // (taken), one unit beyond (refused); intervals from exactly 1 tick
+        // (taken) and just below (refused)
+        let edge = |add2: u64, add3: u64, interval: u64| Expansion {
+            interval,
+            add: 0,
+            add2,
+            add3,
+            add4: 0,
+            frac: 0,
+            sum: 0,
+        };
+        let top = (1u64 << 31) - 1 - 100 * 1000;
+        assert!(check(edge(top, 1000, 1 << 50), 100));
+        assert!(!check(edge(top + 1, 1000, 1 << 50), 100));
+        assert!(check(edge(0, 0, ONE), 300));
+        assert!(!check(edge(0, 0, ONE - 1), 300));
     }
 
     fn drain(src: &mut StepSource, sched: &StepSchedule) -> ([u32; 64], usize) {
