@@ -251,6 +251,12 @@ pub struct Planner {
     pub late_segments: u32,
     /// `now` of the current fill (Q32.32 ticks).
     now: u64,
+    /// The last fill returned [`Fill::Full`] with more to plan, and no
+    /// goal or stop has come since: the next fill may return at once
+    /// while the horizon is covered ([`Planner::fill`]).
+    covered: bool,
+    /// Q32.32 ticks per µs of the control clock.
+    tick_per_us: u64,
     /// Steps queued since start (wrapping; a stop at once drops some of
     /// them unmade): lets a test tell which profile timed a step.
     pub planned_steps: u64,
@@ -298,6 +304,8 @@ impl Planner {
             underruns: 0,
             late_segments: 0,
             now: 0,
+            covered: false,
+            tick_per_us: u64::from(cfg.tick_hz / 1_000_000) << TICK_FRAC_BITS,
             planned_steps: 0,
             segments_fitted: 0,
             budget: SegmentBudget::new(cfg.tick_hz, cfg.max_segment_us),
@@ -425,6 +433,7 @@ impl Planner {
     /// end of the queue with the velocity there. Returns false (and plans
     /// nothing) if the goal cannot run (a zero velocity or ramp).
     pub fn set_goal(&mut self, goal: Goal) -> bool {
+        self.covered = false;
         if self.flushing {
             // plan it once the interrupt has dropped the queue and the
             // position is known again
@@ -463,6 +472,7 @@ impl Planner {
     /// once (SPEC §8.1, §8.3 option 0/3+). The interrupt carries it out at
     /// its next step; [`Planner::fill`] waits for that.
     pub fn stop_at_once(&mut self, sched: &StepSchedule) {
+        self.covered = false;
         self.profile = None;
         self.then = None;
         self.w = 0;
@@ -482,14 +492,38 @@ impl Planner {
     /// multiplication, the tick being a whole number of MHz
     /// ([`PlannerConfig::tick_hz`]).
     fn ticks_q(&self, us: u64) -> u64 {
-        us.wrapping_mul(u64::from(self.cfg.tick_hz / 1_000_000)) << TICK_FRAC_BITS
+        us.wrapping_mul(self.tick_per_us)
     }
 
     /// Appends segments until `now_us + horizon` is covered, the ring is
     /// full, or the goal has been planned to its end.
+    ///
+    /// Most calls find the horizon still covered: with `covered` set (the
+    /// last call returned [`Fill::Full`] with more to plan, and no goal or
+    /// stop came since) that is one comparison and a look at the ring,
+    /// without the set-up of the full fill.
+    #[inline]
     pub fn fill(&mut self, now_us: u64, sched: &StepSchedule) -> Fill {
         let now = self.ticks_q(now_us);
         self.now = now;
+        if self.covered
+            && self.t_isr.wrapping_sub(now) as i64 >= self.horizon_q as i64
+            && (sched.is_running() || !sched.is_empty())
+        {
+            return Fill::Full;
+        }
+        let fill = self.fill_from(now, sched);
+        self.covered = fill == Fill::Full
+            && !self.flushing
+            && self.cut.is_none()
+            && (self.pending.rest.count > 0
+                || self.profile.as_ref().is_some_and(|p| p.remaining() != 0));
+        fill
+    }
+
+    /// [`Planner::fill`] past its first check.
+    #[inline(never)]
+    fn fill_from(&mut self, now: u64, sched: &StepSchedule) -> Fill {
         if let Some((at, frac, goal)) = self.cut.take() {
             if !sched.truncate(at, frac) {
                 // The interrupt got to the cut first (the control loop ran

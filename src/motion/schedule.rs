@@ -424,22 +424,22 @@ impl Expansion {
     /// so no delay needs [`clamped`].
     fn narrow(&self, steps: usize) -> bool {
         const LIM: u64 = 1 << 31;
-        let l = steps as u64;
         let m = |t: u64| (t as i64).unsigned_abs();
         let (a1, a2, a3, a4) = (m(self.add), m(self.add2), m(self.add3), m(self.add4));
-        if a2 >= LIM || a3 >= LIM || a4 >= LIM || steps > SCHEDULE_STEPS {
+        if steps > SCHEDULE_STEPS || a1 >= 1 << 48 || (a2 | a3 | a4) >= LIM {
             return false;
         }
-        // C(l, k) for k = 2, 3, 4 (< 2^32 for l ≤ 512)
+        // 32-bit factors from here (one `umull` per product): l ≤ 2^9,
+        // C(l, 2) < 2^17, C(l, 3) < 2^25, C(l, 4) < 2^32
+        let (l, a2, a3, a4) = (steps as u32, a2 as u32, a3 as u32, a4 as u32);
+        let wide = |x: u32, y: u32| u64::from(x) * u64::from(y);
         let c2 = l * l.saturating_sub(1) / 2;
         let c3 = c2 * l.saturating_sub(2) / 3;
-        let c4 = c3 * l.saturating_sub(3) / 4;
-        let drift = (a1.saturating_mul(l))
-            .saturating_add(c2 * a2)
-            .saturating_add(c3 * a3)
-            .saturating_add(c4 * a4);
-        a3 + l * a4 < LIM
-            && a2 + l * a3 + c2 * a4 < LIM
+        let c4 = (wide(c3, l.saturating_sub(3)) / 4) as u32;
+        // each product below 2^57, 2^48, 2^56, 2^63: no overflow
+        let drift = a1 * u64::from(l) + wide(c2, a2) + wide(c3, a3) + wide(c4, a4);
+        u64::from(a3) + wide(l, a4) < LIM
+            && u64::from(a2) + wide(l, a3) + wide(c2, a4) < LIM
             && self.interval.saturating_sub(drift) >= 1 << TICK_FRAC_BITS
             && self.interval.saturating_add(drift) < 1 << 63
     }
