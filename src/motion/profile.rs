@@ -121,14 +121,31 @@ const MAX_RAMP_SEGMENT_LOG2: u32 = 7;
 /// A lower bound of `256·log2 x` (`x > 0`), at most 12/256 bit below:
 /// the exponent and five bits of mantissa through a table.
 pub(crate) fn log2_q8(x: u128) -> i32 {
-    let e = 127 - x.leading_zeros();
+    // through the 64-bit one: its top 64 bits carry the same exponent
+    // and mantissa (128-bit shifts are long on a 32-bit core)
+    let hi = (x >> 64) as u64;
+    if hi == 0 {
+        return log2_q8_64(x as u64);
+    }
+    let z = hi.leading_zeros();
+    let top = if z == 0 {
+        hi
+    } else {
+        (hi << z) | (x as u64 >> (64 - z))
+    };
+    log2_q8_64(top) + (64 - z as i32) * 256
+}
+
+/// [`log2_q8`] of a 64-bit number.
+fn log2_q8_64(x: u64) -> i32 {
+    let e = 63 - x.leading_zeros();
     let top = (if e >= 5 { x >> (e - 5) } else { x << (5 - e) }) as usize & 31;
     e as i32 * 256 + i32::from(LOG2_FRAC_Q8[top])
 }
 
 /// An upper bound of `256·log2 x` (`x > 0`).
-fn log2_q8_up(x: u128) -> i32 {
-    log2_q8(x) + 12
+fn log2_q8_up(x: u64) -> i32 {
+    log2_q8_64(x) + 12
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -338,7 +355,11 @@ impl Profile {
     /// Time per step (Q32.32 ticks) at the last timed step: `dt/dx = 1/v`,
     /// the slope the planner's segment fit matches at each end. `None` at
     /// rest or below about 0.2 steps/s (the quotient would not fit), where
-    /// segments are single steps anyway.
+    /// segments are single steps anyway. Exact (rounded down): on a
+    /// cruise the fit's higher terms are then exactly 0 (a slope good to
+    /// 2^-30 only, a reciprocal by a 64-by-32 division, left them noise
+    /// whose rounding over 256-step segments fed back from segment to
+    /// segment: ±2·10^-5 of the velocity on the seed's cruise).
     pub fn step_ticks(&self) -> Option<u64> {
         // 1/v in ticks per step = 10·f·2^V_FRAC / av = k_time·2^(V_FRAC-1) / av,
         // and 2^32 more for Q32.32
@@ -421,12 +442,12 @@ impl Profile {
             return 1;
         };
         // length bound: n·p ≤ the longest segment
-        let mut k = (budget.log_max_ticks - log2_q8_up(u128::from(s0))) >> 8;
+        let mut k = (budget.log_max_ticks - log2_q8_up(s0)) >> 8;
         k = k.min(avail.ilog2() as i32);
         if piece.slope != 0 {
             let sl = piece.slope.unsigned_abs();
             // m = aw / (sl·2^32) steps
-            let log_m = log2_q8(self.aw.max(1)) - log2_q8_up(sl) - (X_FRAC as i32) * 256;
+            let log_m = log2_q8(self.aw.max(1)) - log2_q8(sl) - 12 - (X_FRAC as i32) * 256;
             let accel = piece.slope > 0;
             k = k.min((log_m - if accel { 256 } else { 512 }) >> 8);
             // E (ticks·256) = B/2 − ¼ with B = min(1 µs, p/25)
@@ -437,12 +458,12 @@ impl Profile {
                 return 1;
             }
             let log_k = if accel { LOG2_Q8_1000 } else { LOG2_Q8_250 };
-            let log_e = log2_q8(u128::from(e_q8)) - 8 * 256;
-            let log_p = log2_q8_up(u128::from(s0)) - 32 * 256;
+            let log_e = log2_q8_64(e_q8) - 8 * 256;
+            let log_p = log2_q8_up(s0) - 32 * 256;
             let x = log_k + log_e + 5 * log_m - log_p;
             k = k.min(x.div_euclid(6 * 256));
-            let c = u128::from(curv.unsigned_abs()).max(1);
-            k = k.min((log2_q8(c) - LOG2_Q8_8).div_euclid(4 * 256));
+            let c = curv.unsigned_abs().max(1);
+            k = k.min((log2_q8_64(c) - LOG2_Q8_8).div_euclid(4 * 256));
             // and the time error of that rounding, C(n, 5)·½ of 2^-32
             // tick summed over the segment: ≤ 1/30 tick up to 2^7
             k = k.min(MAX_RAMP_SEGMENT_LOG2 as i32);
@@ -843,7 +864,11 @@ mod tests {
         for i in 0..20_000u32 {
             let v = (xorshift(&mut x) >> (i % 127)).max(1);
             let exact = 256.0 * (v as f64).log2();
-            let (lo, hi) = (f64::from(log2_q8(v)), f64::from(log2_q8_up(v)));
+            let (lo, hi) = (f64::from(log2_q8(v)), f64::from(log2_q8(v) + 12));
+            if let Ok(v64) = u64::try_from(v) {
+                assert_eq!(log2_q8_64(v64), log2_q8(v));
+                assert_eq!(log2_q8_up(v64), log2_q8(v) + 12);
+            }
             assert!(lo <= exact + 1e-9 && exact <= hi, "{v}: {lo} {exact} {hi}");
         }
         assert_eq!(log2_q8(1), 0);
