@@ -24,11 +24,12 @@
 //! (`drop_pending`), so a change of goal takes effect after the horizon
 //! however long the segments are.
 //!
-//! Cost per segment: one profile evaluation (a square root and a division,
-//! on 128-bit numbers but through 64-bit routines: `profile::isqrt`,
-//! `profile::div`), the end slope (a division), two curvatures (a few
-//! multiplications) and the length bounds (logarithms); segments hold up to
-//! 2^7 steps on a ramp and 2^8 on a cruise (single steps near rest only).
+//! Cost per segment: one profile evaluation (a square root, and on a ramp
+//! a multiplication, elsewhere a division, on 128-bit numbers but through
+//! 64-bit routines: `profile::isqrt`, `profile::div`), the end slope (a
+//! division), two curvatures (a few multiplications) and the length bounds
+//! (logarithms); segments hold up to 2^7 steps on a ramp and 2^8 on a
+//! cruise (single steps near rest only).
 
 use super::profile::{isqrt, slope_of, stop_steps, w_along, w_of, Profile, SegmentBudget, V_FRAC};
 use super::schedule::{Segment, StepSchedule, TICK_FRAC_BITS};

@@ -8,6 +8,9 @@
 //! two positions of one piece is `Δt = 2·Δx / (v1 + v2)` — one square root
 //! and one division, no cancellation, no accumulation: every step time is
 //! computed from the continuous profile, not from the previous interval.
+//! On a ramp (from about 250 steps/s² at 10 MHz) the same time is
+//! `Δt = (v2 − v1)/a`, a multiplication by a factor kept per piece: the
+//! square root stays, the division goes (`Piece::per_v`).
 //!
 //! Units: velocity `V` in 0.1 steps/s (register 0.1 rev/s × PA10), held as
 //! `V · 2^20`; v² as `V² · 2^40`; acceleration `A` in 0.1 steps/s², which
