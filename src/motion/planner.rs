@@ -961,6 +961,55 @@ fn fit_segment(n: u64, ends: [(u64, i64); 2], span: u64) -> [u64; 5] {
 mod tests {
     use super::*;
 
+    /// A goal or a stop given between two fills is acted on by the next
+    /// fill, also one at the same `now` as the last: the quick return of a
+    /// covered horizon (`Planner::covered`) must not hide the cut of the
+    /// queued steps or the wait for a stop at once.
+    #[test]
+    fn a_goal_between_fills_is_planned_by_the_next_fill() {
+        use crate::motion::schedule::StepSource;
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        let mut p = Planner::new(PlannerConfig::default());
+        // 500 steps/s, 5000 steps/s²: cruising after 25 steps, in segments
+        // of 64 steps (128 ms), the horizon covered in most fills
+        let ramp = Ramp {
+            velocity: 5_000,
+            accel: 50_000,
+            decel: 50_000,
+        };
+        assert!(p.set_goal(Goal::Move {
+            target: 100_000,
+            ramp,
+            end_velocity: 0
+        }));
+        let (mut now_us, mut at) = (0u64, None::<u64>);
+        while now_us < 400_000 {
+            p.fill(now_us, &sched);
+            at = at.or((!sched.is_empty()).then_some(now_us * 10));
+            while let Some(t) = at.filter(|&t| t < (now_us + 1000) * 10) {
+                at = src.advance(&sched).map(|s| t + u64::from(s.delay_ticks));
+            }
+            now_us += 1000;
+        }
+        assert_eq!(p.fill(now_us, &sched), Fill::Full);
+        let free = sched.free();
+        let faster = Ramp {
+            velocity: 8_000,
+            ..ramp
+        };
+        assert!(p.set_goal(Goal::Run {
+            forward: true,
+            ramp: faster
+        }));
+        // the steps after the horizon taken back at once (the new goal is
+        // appended when the horizon needs it)
+        assert_eq!(p.fill(now_us, &sched), Fill::Full);
+        assert!(sched.free() > free, "no cut: {free} -> {}", sched.free());
+        p.stop_at_once(&sched);
+        assert_eq!(p.fill(now_us, &sched), Fill::Waiting);
+    }
+
     /// 0x606C / statusword bit 13 follow the segment the interrupt is
     /// executing (SPEC §8.2): over a move of many laps of the step ring,
     /// the velocity shown at every step matches that step's own interval
