@@ -433,8 +433,8 @@ impl Profile {
     ///   45 % along an accelerating segment), `n⁴ ≤ |t''|/40` in units of
     ///   2^-32 tick (0.5 % looked safe by this count, with the fit's
     ///   0.2 % under issue 3's 2 %, but let through acceleration spikes of
-    ///   +3 % to +4 % in the random-move proptests, 2 runs in 36 of 300
-    ///   cases: the margin is kept); its time error, `C(n, 5)` half units, stays below
+    ///   +2.1 % to +4.3 % in the random-move proptests, 2 runs in 36 of
+    ///   300 cases: the margin is kept); its time error, `C(n, 5)` half units, stays below
     ///   1/30 tick with ramp segments of at most 2^7 steps.
     ///
     /// No division or root: the bounds are compared as logarithms
