@@ -507,19 +507,32 @@ impl Planner {
     pub fn fill(&mut self, now_us: u64, sched: &StepSchedule) -> Fill {
         let now = self.ticks_q(now_us);
         self.now = now;
-        if self.covered
-            && self.t_isr.wrapping_sub(now) as i64 >= self.horizon_q as i64
-            && (sched.is_running() || !sched.is_empty())
-        {
+        if self.covered && self.horizon_covered(now) && (sched.is_running() || !sched.is_empty()) {
             return Fill::Full;
         }
         let fill = self.fill_from(now, sched);
-        self.covered = fill == Fill::Full
-            && !self.flushing
-            && self.cut.is_none()
-            && (self.pending.rest.count > 0
-                || self.profile.as_ref().is_some_and(|p| p.remaining() != 0));
+        self.covered = fill == Fill::Full && self.cut.is_none() && self.more_to_plan();
         fill
+    }
+
+    /// What is queued reaches `now` + the horizon.
+    #[inline(always)]
+    fn horizon_covered(&self, now: u64) -> bool {
+        self.t_isr.wrapping_sub(now) as i64 >= self.horizon_q as i64
+    }
+
+    /// Not waiting for a stop at once, and steps left to push or to plan.
+    #[inline(always)]
+    fn more_to_plan(&self) -> bool {
+        !self.flushing
+            && (self.pending.rest.count > 0
+                || self.profile.as_ref().is_some_and(|p| p.remaining() != 0))
+    }
+
+    /// The slot of the last segment pushed.
+    #[inline(always)]
+    fn last_slot(&mut self) -> &mut SlotInfo {
+        &mut self.slots[self.segments.wrapping_sub(1) as usize % SCHEDULE_SLOTS]
     }
 
     /// [`Planner::fill`] past its first check.
@@ -538,15 +551,13 @@ impl Planner {
                 self.set_goal(goal);
             }
         }
-        let covered = self.t_isr.wrapping_sub(now) as i64 >= self.horizon_q as i64;
-        if covered
-            && !self.flushing
-            && (self.pending.rest.count > 0
-                || self.profile.as_ref().is_some_and(|p| p.remaining() != 0))
+        if self.horizon_covered(now)
+            && self.more_to_plan()
             && (sched.is_running() || !sched.is_empty())
         {
-            // the common call: the horizon is covered (what the loop
-            // below would find, without its set-up)
+            // the horizon is covered (after a goal or a cut, which clear
+            // `covered`): what the loop below would find, without its
+            // set-up
             return Fill::Full;
         }
         if self.flushing {
@@ -585,7 +596,6 @@ impl Planner {
             self.s_join = 0;
         }
         self.oldest = self.first_unfinished(sched.step_index());
-        let horizon = self.horizon_q;
         loop {
             if self.pending.rest.count > 0 {
                 if !self.push_pending(sched) {
@@ -614,7 +624,7 @@ impl Planner {
                 }
                 return Fill::Ended;
             }
-            if self.t_isr.wrapping_sub(now) as i64 >= horizon as i64 {
+            if self.horizon_covered(now) {
                 return Fill::Full;
             }
             self.emit();
@@ -834,10 +844,11 @@ impl Planner {
             self.slots[self.segments as usize % SCHEDULE_SLOTS] = pending.info;
             self.segments = self.segments.wrapping_add(1);
         }
-        let slot = &mut self.slots[self.segments.wrapping_sub(1) as usize % SCHEDULE_SLOTS];
+        let to_end = pending.rest.count;
+        let slot = self.last_slot();
         slot.last_index = last;
-        slot.to_end = pending.rest.count;
-        pending.rest.count == 0
+        slot.to_end = to_end;
+        to_end == 0
     }
 
     /// A new goal: the state goes back to the last step of the pending
@@ -878,7 +889,7 @@ impl Planner {
                 taken = Some((p.first.wrapping_add(steps), frac));
                 (left, r) = (left + p.pushed - steps, seg);
                 self.t_isr = p.t_start.wrapping_add(time);
-                let slot = &mut self.slots[self.segments.wrapping_sub(1) as usize % SCHEDULE_SLOTS];
+                let slot = self.last_slot();
                 slot.last_index = p.first.wrapping_add(steps - 1);
                 slot.to_end = p.n as u32 - steps;
             }

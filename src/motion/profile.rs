@@ -162,7 +162,7 @@ struct Piece {
     accel: (u64, u32),
     /// On a ramp, Q32.32 ticks per unit of velocity change, × 2^40
     /// (at least 2^47 significant: f ≥ 1 MHz and a ≤ [`crate::motion::MAX_ACCEL`]):
-    /// `Δt = Δv/a` ([`Profile::move_anchor`]), when one unit of velocity
+    /// `Δt = Δv/a` ([`Profile::ticks_to`]), when one unit of velocity
     /// error costs at most [`MAX_TICKS_PER_V`]; else 0.
     per_v: u64,
 }
@@ -434,8 +434,9 @@ impl Profile {
     ///   2^-32 tick (0.5 % looked safe by this count, with the fit's
     ///   0.2 % under issue 3's 2 %, but let through acceleration spikes of
     ///   +2.1 % to +4.3 % in the random-move proptests, 2 runs in 36 of
-    ///   300 cases: the margin is kept); its time error, `C(n, 5)` half units, stays below
-    ///   1/30 tick with ramp segments of at most 2^7 steps.
+    ///   300 cases: the margin is kept); its time error, `C(n, 5)` half
+    ///   units, stays below 1/30 tick with ramp segments of at most 2^7
+    ///   steps.
     ///
     /// No division or root: the bounds are compared as logarithms
     /// (`log2_q8`, 1/256 bit, rounded towards shorter segments).
