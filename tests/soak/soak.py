@@ -47,19 +47,25 @@ from pymodbus.pdu.register_message import (
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "e2e"))
-from conftest import crc16, with_crc  # noqa: E402  (the e2e harness' independent CRC)
+from conftest import ReceiveQueue, crc16, wait_until_read, with_crc  # noqa: E402  (the e2e harness)
 
 BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
 DRIVES = (1, 2)
+# The virtual drive stamps bytes when it *reads* them, so what separates two
+# frames on its line is the time between its two reads, not between our two
+# sends: a drive process held up by a busy host would read two frames at
+# once and merge them. So after every send the soak first waits until the
+# drive has read the bytes (`Bus.drained`), and only then starts its pause.
 # After a frame that must stay unanswered: t3.5 for the frame to close, the
-# virtual drive's 1 ms poll, the reply delay t3.5 again, and a margin for a
-# busy host: the virtual drive stamps bytes when it reads them, so if it
-# reads the next frame together with this one they merge into one frame.
+# virtual drive's 1 ms poll, the reply delay t3.5 again, and a margin.
 SILENCE_S = 0.012
-# Far above t3.5 (+ the drive's 1 ms poll): the halves are two frames even
-# when the host is busy (the virtual drive stamps bytes when it reads them).
+# Far above t3.5 (+ the drive's 1 ms poll): the halves are two frames.
 LONG_GAP_S = 0.020
-REPLY_TIMEOUT_S = 0.5
+# A late reply is still a reply: a held-up host must not turn it into a
+# missing one (and then into a wrong reply to the next frame).
+REPLY_TIMEOUT_S = 2.0
+# How long `Bus.drained` waits for the drive to read what was sent.
+DRAIN_TIMEOUT_S = 5.0
 
 # registers (SPEC §5)
 CONTROLWORD, STATUSWORD, MODE = 0x6040, 0x6041, 0x6060
@@ -130,9 +136,26 @@ class Bus:
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.sock.setblocking(False)
         self.framer = FramerRTU(DecodePDU(False))
+        self.unread = ReceiveQueue(port, self.sock.getsockname()[1])
+        self.sends = 0
+        self.confirmed = 0  # sends the drive was seen to have read
+        self.late_reads = 0  # sends the drive had not read after DRAIN_TIMEOUT_S
 
     def send(self, data: bytes):
+        """Sends `data` and returns once the drive process has read it."""
         self.sock.sendall(data)
+        self.drained()
+
+    def drained(self) -> None:
+        """Waits until the drive process has read everything sent so far
+        (`wait_until_read`): from then on the drive has stamped the bytes,
+        and a pause we make is a pause on its line."""
+        self.sends += 1
+        seen = wait_until_read(self.unread, DRAIN_TIMEOUT_S)
+        if seen:
+            self.confirmed += 1
+        elif seen is not None:
+            self.late_reads += 1
 
     def read(self, want: int | None, timeout: float) -> bytes:
         """Bytes until `want` (> 0) arrived (then a short quiet period, so
@@ -482,14 +505,19 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(keep or tmp)
         with VirtualDrive(work, ["--drives", "1,2"]) as vd:
-            ok &= Soak(Bus(vd.port), random.Random(args.seed)).run(args.frames)
-            # The soak never sends a gap between t1.5 and t3.5: a broken
-            # frame in the drive's own log is one the virtual line split (it
-            # stamps bytes when it reads them; a host that holds the drive
-            # process up can put a read of one frame ~1 ms after the last).
-            broken = vd.stderr().count("drive 1 on tcp") and len(
-                re.findall(r"drive 1 on tcp [^:]+:\d+: broken frame", vd.stderr()))
-            print(f"  {'broken frames in the drive log':<32}{broken:>8}   (the soak sends none)")
+            bus = Bus(vd.port)
+            ok &= Soak(bus, random.Random(args.seed)).run(args.frames)
+            # The soak sends every frame in one write and never pauses
+            # inside one, so the drives must see no broken frame (silence
+            # > t1.5 inside it). Both drives frame the same line: drive 1's
+            # count is the line's.
+            broken = len(re.findall(r"drive 1 on tcp [^:]+:\d+: broken frame", vd.stderr()))
+            print(f"  {'broken frames in the drive log':<32}{broken:>8}   (must be 0)")
+            # Sends the drive had not read after DRAIN_TIMEOUT_S: the pause
+            # after them was not a pause on the drive's line.
+            print(f"  {'sends read late by the drive':<32}{bus.late_reads:>8}   (must be 0)")
+            print(f"  {'sends seen read (sock_diag)':<32}{bus.confirmed:>8}   of {bus.sends}")
+            ok &= broken == 0 and bus.late_reads == 0
         if not args.no_faults:
             for check in (fault_comm_loss, fault_limit_mid_move):
                 try:
