@@ -34,6 +34,11 @@ DRIVES AND AXES:
                              position is at or above STEPS. Every axis.
     --home-switch FROM:TO    Home switch: active while FROM <= position <= TO.
                              Every axis.
+    --allow-limit-overlap    Accept a --cw-limit at or above the --ccw-limit:
+                             where the two overlap both limits are active
+                             (a wiring fault, e.g. a cut cable to normally
+                             closed switches), and the drive faults there
+                             (error register bit 0, SPEC §8.7).
 
 FILES:
     --state FILE             The drives' parameter flash lives in FILE (created
@@ -122,6 +127,7 @@ fn err<T>(msg: impl Into<String>) -> Result<T, UsageError> {
 
 pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageError> {
     let mut o = Options::default();
+    let mut limit_overlap = false;
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
         // `--flag=value` and `--flag value` are both accepted.
@@ -140,6 +146,7 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             "-V" | "--version" => return Ok(Command::Version),
             "--no-pty" => o.pty = false,
             "--no-status" => o.status_line = false,
+            "--allow-limit-overlap" => limit_overlap = true,
             "--pty-link" => o.pty_link = Some(PathBuf::from(value("--pty-link")?)),
             "--tcp" => {
                 let v = value("--tcp")?;
@@ -173,9 +180,10 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
         return err("--no-pty leaves no transport: add --tcp ADDR:PORT");
     }
     if let (Some(cw), Some(ccw)) = (o.axis.cw_limit_steps, o.axis.ccw_limit_steps) {
-        if cw >= ccw {
+        if cw >= ccw && !limit_overlap {
             return err(format!(
-                "--cw-limit {cw} must lie below --ccw-limit {ccw} (CW is the negative side, SPEC §8.6)"
+                "--cw-limit {cw} must lie below --ccw-limit {ccw} (CW is the negative side, \
+                 SPEC §8.6); --allow-limit-overlap stages both limits active between them"
             ));
         }
     }
@@ -278,6 +286,18 @@ mod tests {
         );
         assert!(o.state.is_some() && o.trace.is_some() && o.plot.is_some());
         assert!(!o.status_line);
+    }
+
+    #[test]
+    fn overlapping_limits_need_the_flag_that_stages_a_wiring_fault() {
+        let overlap = ["--cw-limit", "1000", "--ccw-limit", "500"];
+        let Err(UsageError(msg)) = parse(overlap.iter().map(|s| s.to_string())) else {
+            panic!("overlapping limits accepted without --allow-limit-overlap");
+        };
+        assert!(msg.contains("--allow-limit-overlap"), "{msg}");
+        let o = run(&[&overlap[..], &["--allow-limit-overlap"]].concat()).unwrap();
+        assert_eq!(o.axis.cw_limit_steps, Some(1000));
+        assert_eq!(o.axis.ccw_limit_steps, Some(500));
     }
 
     #[test]

@@ -16,10 +16,11 @@ every move the position error. Every bad count must be 0.
 Then the faults (SPEC §8.7), each on a fresh drive: communication loss with
 PA20 stops the motor and sets the fault (0x1001 bit 4), fault reset
 recovers; a CCW limit hit in the middle of a move stops it with the quick
-stop ramp and the position stays exact. (Both limits active at once cannot
-be staged on the virtual drive: its CLI refuses overlapping switch windows,
-one axis cannot be at both ends. The core's tests/drive_states.rs and the
-`drive` fuzz target cover it.) Exit status 0 only if everything holds.
+stop ramp and the position stays exact; both limits active at once (a
+wiring fault, staged with overlapping limit windows, --allow-limit-overlap)
+in the middle of a move is a fault with error register bit 0, the motor
+stops with the quick stop ramp, and fault reset is refused while both stay
+active. Exit status 0 only if everything holds.
 """
 
 from __future__ import annotations
@@ -455,6 +456,51 @@ def fault_comm_loss(workdir: Path) -> None:
               " fault reset recovers: ok")
 
 
+def fault_both_limits(workdir: Path) -> None:
+    # A wiring fault: the CW limit active at and below 1000, the CCW limit at
+    # and above 500, so both are active on 500..=1000 (--allow-limit-overlap).
+    cw_edge, ccw_edge = 1000, 500
+    args = ["--drives", "1", "--cw-limit", str(cw_edge), "--ccw-limit", str(ccw_edge),
+            "--allow-limit-overlap"]
+    with VirtualDrive(workdir, args) as vd:
+        bus = Bus(vd.port)
+        # 0.5 rev/s, 10 rev/s², quick stop 10 rev/s² (PA10 = 10000 steps/rev)
+        v, a, qs = 5, 100, 100
+        bus.write_many(1, VELOCITY, split_i32(v))
+        bus.write_many(1, ACCEL, [a, a, qs])
+        bus.enable(1, 1)  # at 0 only the CW limit is active: no fault
+        err = bus.read_regs(1, ERROR_REGISTER, 1)[0]
+        assert err == 0, f"both limits: error register {err:#06x} with one limit active"
+        bus.write_many(1, TARGET, split_i32(5000))
+        bus.write(1, CONTROLWORD, 0x1F)
+        bus.write(1, CONTROLWORD, 0x0F)
+        bus.wait(1, lambda sw: sw & 0x4F == 0x08, 5, "fault")
+        err = bus.read_regs(1, ERROR_REGISTER, 1)[0]
+        assert err == 1 << 0, f"both limits: error register {err:#06x}, want bit 0 alone"
+        sw = bus.statusword(1)
+        assert sw & (1 << 14) and sw & (1 << 15), f"both limits: bits 14/15 not both set: {sw:#06x}"
+        p1 = bus.position(1)
+        time.sleep(0.2)
+        assert bus.position(1) == p1, "both limits: the motor still moves in fault"
+        # the fault reaction is the quick stop ramp from cruise: v²/2d past
+        # the edge, started by the control loop as a new goal, so it begins
+        # within the planner's horizon (3 ms) of the control call at the
+        # edge's step: at most 3 ms of cruise steps late, and the ramp's
+        # last whole step
+        v_steps, qs_steps = v * 1000, qs * 1000
+        expect = ccw_edge + v_steps ** 2 / (2 * qs_steps)
+        late = v_steps * 3 / 1000 + 2
+        assert expect - 2 <= p1 <= expect + late, \
+            f"both limits: stopped at {p1}, quick stop ramp ends at {expect:.0f} (+{late:.0f} allowed)"
+        # fault reset is refused while both are still active (SPEC §8.1)
+        bus.write(1, CONTROLWORD, 0x00)
+        bus.write(1, CONTROLWORD, 0x80)
+        sw = bus.statusword(1)
+        assert sw & 0x4F == 0x08, f"both limits: fault reset accepted while both active: {sw:#06x}"
+        print(f"fault: both limits active (overlap {ccw_edge}..{cw_edge}) mid-move: fault, 0x1001 = bit 0,"
+              f" quick stop at {p1} (v²/2d: {expect:.0f}), fault reset refused while both active: ok")
+
+
 def fault_limit_mid_move(workdir: Path) -> None:
     limit = 5000
     with VirtualDrive(workdir, ["--drives", "1", "--ccw-limit", str(limit), "--cw-limit", "-50000"]) as vd:
@@ -519,7 +565,7 @@ def main() -> int:
             print(f"  {'sends seen read (sock_diag)':<32}{bus.confirmed:>8}   of {bus.sends}")
             ok &= broken == 0 and bus.late_reads == 0
         if not args.no_faults:
-            for check in (fault_comm_loss, fault_limit_mid_move):
+            for check in (fault_comm_loss, fault_both_limits, fault_limit_mid_move):
                 try:
                     check(work)
                 except AssertionError as e:
