@@ -63,20 +63,6 @@ fn short_triangles_and_single_steps() {
     }
 }
 
-/// A triangle with a steep rise and a slow fall: its peak is rounded to
-/// 2^-32 step, and a falling line continued from the rising line's v² at
-/// that point would reach rest up to (1 + a/d)·2^-32 step early, which
-/// moved the last of these 0.2 s steps by 1.1 µs (found by `random_moves`
-/// with 50,000 cases: 113 steps, 183 steps/s, 1.38·10⁶ steps/s² up,
-/// 49.9 down, 4 MHz). A triangle's fall now runs on its line through the
-/// end.
-#[test]
-fn a_steep_rise_then_a_slow_fall_ends_on_time() {
-    single_move(4_000_000, 113, 1832, 13_795_295, 499);
-    single_move(10_000_000, -113, 1832, 20_000_000, 500);
-    single_move(8_000_000, 1000, 100_000, 20_000_000, 500);
-}
-
 #[test]
 fn at_the_maximum_step_rate() {
     single_move(10_000_000, 300_000, 2_000_000, 20_000_000, 20_000_000);
