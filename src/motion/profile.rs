@@ -121,7 +121,11 @@ const LOG2_Q8_40_UP: i32 = 1363;
 /// Longest segment on a ramp, as a power of two (steps).
 const MAX_RAMP_SEGMENT_LOG2: u32 = 7;
 
-/// A lower bound of `256·log2 x` (`x > 0`), at most 12/256 bit below:
+/// How far below `256·log2 x` [`log2_q8`] may be (1/256 bits): adding it
+/// gives an upper bound.
+const LOG2_Q8_SLACK: i32 = 12;
+
+/// A lower bound of `256·log2 x` (`x > 0`), at most [`LOG2_Q8_SLACK`]/256 bit below:
 /// the exponent and five bits of mantissa through a table.
 pub(crate) fn log2_q8(x: u128) -> i32 {
     // through the 64-bit one: its top 64 bits carry the same exponent
@@ -148,7 +152,7 @@ fn log2_q8_64(x: u64) -> i32 {
 
 /// An upper bound of `256·log2 x` (`x > 0`).
 fn log2_q8_up(x: u64) -> i32 {
-    log2_q8_64(x) + 12
+    log2_q8_64(x) + LOG2_Q8_SLACK
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -453,7 +457,9 @@ impl Profile {
         if piece.slope != 0 {
             let sl = piece.slope.unsigned_abs();
             // m = aw / (sl·2^32) steps
-            let log_m = log2_q8(self.aw.max(1)) - log2_q8(sl) - 12 - (X_FRAC as i32) * 256;
+            // (the slope's upper bound: its log2_q8 plus the slack)
+            let log_m =
+                log2_q8(self.aw.max(1)) - (log2_q8(sl) + LOG2_Q8_SLACK) - (X_FRAC as i32) * 256;
             let accel = piece.slope > 0;
             k = k.min((log_m - if accel { 256 } else { 512 }) >> 8);
             // E (ticks·256) = B/2 − ¼ with B = min(1 µs, p/25)
@@ -870,10 +876,10 @@ mod tests {
         for i in 0..20_000u32 {
             let v = (xorshift(&mut x) >> (i % 127)).max(1);
             let exact = 256.0 * (v as f64).log2();
-            let (lo, hi) = (f64::from(log2_q8(v)), f64::from(log2_q8(v) + 12));
+            let (lo, hi) = (f64::from(log2_q8(v)), f64::from(log2_q8(v) + LOG2_Q8_SLACK));
             if let Ok(v64) = u64::try_from(v) {
                 assert_eq!(log2_q8_64(v64), log2_q8(v));
-                assert_eq!(log2_q8_up(v64), log2_q8(v) + 12);
+                assert_eq!(log2_q8_up(v64), log2_q8(v) + LOG2_Q8_SLACK);
             }
             assert!(lo <= exact + 1e-9 && exact <= hi, "{v}: {lo} {exact} {hi}");
         }
