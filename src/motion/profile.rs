@@ -529,12 +529,30 @@ impl Profile {
         let dx = x - self.ax;
         // on the ramp's own line v² = aw + slope·dx (not the exact end
         // value, not a decelerating line run out at 0)
-        let (w, on_line) = if self.steps.is_some_and(|s| x == u128::from(s) << X_FRAC) {
+        let end = self.steps.map(|s| u128::from(s) << X_FRAC);
+        let (w, on_line) = if end == Some(x) {
             (self.w_end, false)
         } else if slope == 0 {
             (self.w_cruise, false)
         } else {
-            let w = w_along(self.aw, slope, dx);
+            // A triangle's falling ramp runs on its line through the end
+            // point, not through its peak: the peak is rounded to 2^-32
+            // step, and the rising line's v² there, carried on with the
+            // falling slope, would reach the end velocity up to
+            // (1 + a/d)·2^-32 step early; with a ≫ d that moved the last
+            // slow steps by a µs (1.4·10⁶ steps/s² up, 50 down). The v²
+            // jump this leaves at the peak is (a + d)·2^-31 steps²/s².
+            // (After a cruise the start is rounded the same way but not
+            // amplified, < 2^-32 step; stops planned again at a whole step
+            // of their own ramp keep the step they added then.)
+            let last = self.idx + 1 == self.n_pieces;
+            let (base, slope, dx) = match end {
+                Some(end) if slope < 0 && last && self.pieces[self.idx - 1].slope > 0 => {
+                    (self.w_end, -slope, end - x)
+                }
+                _ => (self.aw, slope, dx),
+            };
+            let w = w_along(base, slope, dx);
             (w, slope > 0 || w > 0)
         };
         // cruise: same v² as the anchor, same v (no root)

@@ -370,8 +370,12 @@ pub struct GoalChange {
 
 /// The ideal profile of a whole run of goal changes, each continuing from
 /// the previous one's ideal state (position, velocity, time) at its
-/// `queued` step; at a knife edge the candidate nearer to the steps made is
-/// taken (both are valid profiles).
+/// `queued` step. At a knife edge both candidates are valid profiles, and
+/// which one the planner took can show only much later (a stop one step
+/// further moves every step after it): the choices are made jointly, the
+/// combination nearest to the steps made over the whole run (least
+/// largest time error, a different number of steps counting as far) is
+/// taken. Knife edges are rare: almost always one combination.
 pub fn ideal_run(
     changes: &[GoalChange],
     steps: &[StepRecord],
@@ -381,31 +385,40 @@ pub fn ideal_run(
     d: f64,
 ) -> Vec<IdealStep> {
     let f = f64::from(tick_hz);
-    let mut ideal: Vec<IdealStep> = Vec::new();
-    for (i, c) in changes.iter().enumerate() {
-        let k0 = c.queued as usize;
-        ideal.truncate(k0);
+    let error = |ideal: &[IdealStep]| {
+        if ideal.len() != steps.len() {
+            return f64::INFINITY;
+        }
+        ideal
+            .iter()
+            .zip(steps)
+            .map(|(w, s)| (s.tick as f64 / f - w.t).abs())
+            .fold(0.0, f64::max)
+    };
+    // depth-first over the changes; each level continues a prefix
+    let mut best: Option<(f64, Vec<IdealStep>)> = None;
+    let mut stack = vec![(0usize, Vec::<IdealStep>::new())];
+    while let Some((i, mut ideal)) = stack.pop() {
+        let Some(c) = changes.get(i) else {
+            let e = error(&ideal);
+            if best.as_ref().is_none_or(|(b, _)| e < *b) {
+                best = Some((e, ideal));
+            }
+            continue;
+        };
+        ideal.truncate(c.queued as usize);
         let x0: i64 = ideal.iter().map(|s| if s.forward { 1 } else { -1 }).sum();
         let (v0, t0) = match c.idle_fill_us {
             Some(us) => (0.0, us as f64 * 1e-6),
             None => ideal.last().map_or((0.0, 0.0), |s| (s.v, s.t)),
         };
-        let span_end = changes
-            .get(i + 1)
-            .map_or(steps.len(), |n| n.queued as usize);
-        let error = |cand: &Vec<IdealStep>| {
-            cand.iter()
-                .zip(&steps[k0.min(steps.len())..span_end.min(steps.len())])
-                .map(|(w, s)| (s.tick as f64 / f - w.t).abs())
-                .fold(0.0, f64::max)
-        };
-        let best = ideal_goal(x0, v0, t0, c.target, v, a, d)
-            .into_iter()
-            .min_by(|p, q| error(p).total_cmp(&error(q)))
-            .expect("at least one profile");
-        ideal.extend(best);
+        for cand in ideal_goal(x0, v0, t0, c.target, v, a, d) {
+            let mut next = ideal.clone();
+            next.extend(cand);
+            stack.push((i + 1, next));
+        }
     }
-    ideal
+    best.expect("at least one profile").1
 }
 
 /// Issue 3's step time bound, min(1 µs, 5 % of the local interval), for
