@@ -128,33 +128,7 @@ proptest! {
         a in log_range(1_000.0, 1_000_000.0),
         d in log_range(1_000.0, 1_000_000.0),
     ) {
-        let tick = 10_000_000;
-        let mut run = PlannerRun::new(tick, 1000);
-        let r = ramp(v, a, d);
-        let (vr, ar, dr) = (r.velocity as f64 / 10.0, r.accel as f64 / 10.0, r.decel as f64 / 10.0);
-        run.control();
-        let mut last = 0;
-        let mut changes = Vec::new();
-        for (target, after_ms) in &targets {
-            assert!(run.planner.set_goal(Goal::Move { target: *target, ramp: r, end_velocity: 0 }));
-            // the steps that keep the old profile: those queued when the
-            // goal arrived (set_goal drops what was fitted but not yet
-            // handed to the interrupt)
-            changes.push(GoalChange {
-                queued: run.planner.planned_steps,
-                idle_fill_us: run.idle_fill_us,
-                target: *target,
-            });
-            last = *target;
-            for _ in 0..*after_ms {
-                run.tick();
-            }
-        }
-        run.run_until_rest(600_000_000);
-        prop_assert_eq!(run.axis.position(), last);
-        let ideal = ideal_run(&changes, &run.steps, tick, vr, ar, dr);
-        check_ideal_times(&run.steps, tick, &ideal);
-        check_dynamics(&run.steps, tick, v, a.max(d));
+        let run = goal_changes(&targets, v, a, d);
         prop_assert_eq!(run.planner.late_segments, 0);
         prop_assert_eq!(run.planner.underruns, 0);
     }
@@ -203,38 +177,53 @@ proptest! {
 #[test]
 fn a_stop_on_a_knife_edge_is_judged_over_the_whole_run() {
     let (v, a, d) = (8769.418050774098, 842456.1648962538, 2270.72602813759);
+    let run = goal_changes(&[(-16435, 39), (0, 1), (0, 1)], v, a, d);
+    // the planner reverses at the old target: the stop on the edge
+    assert_eq!(run.steps.len(), 2 * 16435);
+}
+
+/// Hands the moves `targets` to the planner one after another, each for
+/// its number of 1 ms control periods (cruise `v`, acceleration `a`,
+/// deceleration `d`, steps/s and steps/s²; 10 MHz timer), runs to rest,
+/// and checks the end position, the step times against the ideal profiles
+/// of the changes (`ideal_run`) and the dynamics (`check_dynamics`).
+fn goal_changes(targets: &[(i64, u64)], v: f64, a: f64, d: f64) -> PlannerRun {
     let tick = 10_000_000;
     let mut run = PlannerRun::new(tick, 1000);
     let r = ramp(v, a, d);
-    run.control();
-    let mut changes = Vec::new();
-    for (target, after_ms) in [(-16435, 39), (0, 1), (0, 1)] {
-        assert!(run.planner.set_goal(Goal::Move {
-            target,
-            ramp: r,
-            end_velocity: 0
-        }));
-        changes.push(GoalChange {
-            queued: run.planner.planned_steps,
-            idle_fill_us: run.idle_fill_us,
-            target,
-        });
-        for _ in 0..after_ms {
-            run.tick();
-        }
-    }
-    run.run_until_rest(600_000_000);
-    assert_eq!(run.axis.position(), 0);
-    // the planner reverses at the old target: the stop on the edge
-    assert_eq!(run.steps.len(), 2 * 16435);
     let (vr, ar, dr) = (
         r.velocity as f64 / 10.0,
         r.accel as f64 / 10.0,
         r.decel as f64 / 10.0,
     );
+    run.control();
+    let mut last = 0;
+    let mut changes = Vec::new();
+    for &(target, after_ms) in targets {
+        assert!(run.planner.set_goal(Goal::Move {
+            target,
+            ramp: r,
+            end_velocity: 0
+        }));
+        // the steps that keep the old profile: those queued when the
+        // goal arrived (set_goal drops what was fitted but not yet
+        // handed to the interrupt)
+        changes.push(GoalChange {
+            queued: run.planner.planned_steps,
+            idle_fill_us: run.idle_fill_us,
+            target,
+        });
+        last = target;
+        for _ in 0..after_ms {
+            run.tick();
+        }
+    }
+    run.run_until_rest(600_000_000);
+    assert_eq!(run.axis.position(), last);
     let ideal = ideal_run(&changes, &run.steps, tick, vr, ar, dr);
     check_ideal_times(&run.steps, tick, &ideal);
     check_dynamics(&run.steps, tick, v, a.max(d));
+    run
 }
 
 /// The margins behind the README's precision figures, on the seed's move
