@@ -20,6 +20,8 @@ command -v gungraun-runner >/dev/null ||
 (cd benches && RUSTFLAGS="" cargo clippy -q -p workloads -p qemu-bench \
   --target thumbv7em-none-eabihf -- -D warnings)
 (cd benches && RUSTFLAGS="" cargo clippy -q -p host-bench --benches -- -D warnings)
+# the per-step experiment's exactness (its row is for information)
+(cd benches && RUSTFLAGS="" cargo test -q -p workloads)
 
 echo "-- Cortex-M4 (QEMU mps2-an386, -icount shift=0): benches/run-qemu.sh"
 out="$(mktemp)"

@@ -29,6 +29,7 @@ mod bench {
     use core::hint::black_box;
 
     use crate::rt::{exit, Console};
+    use workloads::per_step::{per_step_move, PerStep};
     use workloads::*;
 
     /// Instructions per SysTick tick: 25 MHz CPU clock, 1 ns per instruction.
@@ -208,13 +209,16 @@ mod bench {
                 profile_one(&mut AssemblerFeed::new(frame), assembler_frame);
             }
         }
+        if which == "perstep" {
+            profile_one(&mut PerStep::default(), per_step_move);
+        }
         if which == "move" {
             fn one_move(_: &mut ()) -> u32 {
                 simulate_move(i64::from(RAMP_MOVE_STEPS), || 0).steps
             }
             profile_one(&mut (), one_move);
         }
-        fail("BENCH_PROFILE: move, or drive-|rmodbus-|assembler- + fc03-2|fc03-10|fc10|fc06")
+        fail("BENCH_PROFILE: move, perstep, or drive-|rmodbus-|assembler- + fc03-2|fc03-10|fc10|fc06")
     }
 
     #[inline(never)]
@@ -404,6 +408,23 @@ mod bench {
             simulate_move_with(i64::from(SEED_MOVE_STEPS), SEED_RAMP, systick_now),
             overhead,
             [None, None],
+            &mut ok,
+        );
+
+        // ---- a design experiment, for information (no target)
+        let _ = writeln!(
+            c,
+            "-- for information, no target: the same {RAMP_MOVE_STEPS}-step move by a per-step \
+             planner (experiment, workloads/src/per_step.rs), same rhythm"
+        );
+        let mut per_step = PerStep::default();
+        let (t, steps) = measure(&mut per_step, per_step_move, 3);
+        expect("per-step experiment: steps", steps, RAMP_MOVE_STEPS);
+        row(
+            "per-step exact roots, whole move",
+            t / u64::from(steps),
+            "step",
+            None,
             &mut ok,
         );
 

@@ -505,3 +505,5 @@ pub fn simulate_move_with(target: i64, ramp: Ramp, clock: fn() -> u32) -> MoveCo
     cost.steps = sched.position().unsigned_abs();
     cost
 }
+
+pub mod per_step;
