@@ -11,15 +11,16 @@
 //! second-order prediction and one Newton correction — a 32×32 → 64
 //! multiplication and one 32-bit division (`sdiv`, one instruction), no
 //! software division. The fall is the rise mirrored about the peak. The
-//! first and last 15 steps take the exact root (`u64::isqrt`), where the
-//! prediction is far off. Delays are rounded like the drive's ring:
+//! steps less than 16 from rest take the exact root (`u64::isqrt`), where
+//! the prediction is far off. Delays are rounded like the drive's ring:
 //! every step at its exact time to the nearest tick.
 //!
 //! It is deliberately the cheapest case: one move, no cruise, no change
 //! of goal, no direction, no velocity shown, and a 2^-10-tick root that
 //! only fits this move (issue 3's acceleration bound needs about
 //! 2^-16 tick at 200 000 steps/s, and 64-bit roots there). Its cost is
-//! therefore a floor for a per-step design, not an estimate of one.
+//! therefore a floor for a per-step design written like the rest of the
+//! core (safe Rust: no assembly), not an estimate of one.
 
 use crate::{RAMP_ACCEL_STEPS_PER_S2, RAMP_MOVE_STEPS};
 
