@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Firmware stage (issue 6), run by .ci/run: both boards built in profile fw
 # (release, opt-level z),
-# clippy -D warnings on both, flash / static-RAM budgets checked and printed.
+# clippy -D warnings on both, each ELF checked against its chip's memories
+# (.ci/memory_map.py), flash / static-RAM budgets checked and printed.
 # No board is attached in CI: nothing is flashed or run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -13,13 +14,15 @@ rustup component add llvm-tools
 host="$(rustc -vV | sed -n 's/^host: //p')"
 llvm_size="$(rustc --print sysroot)/lib/rustlib/$host/bin/llvm-size"
 
-# board target feature flash_budget_KiB ram_budget_KiB
+# board chip target feature flash_budget_KiB ram_budget_KiB
 check() {
-  local board=$1 target=$2 feature=$3 flash_kib=$4 ram_kib=$5
+  local board=$1 chip=$2 target=$3 feature=$4 flash_kib=$5 ram_kib=$6
   local elf="target/$target/fw/modbus-drive"
   echo "---- $board ($target, --features $feature)"
   cargo clippy --profile fw --bin modbus-drive --target "$target" --features "$feature" -- -D warnings || return 1
   cargo build --profile fw --bin modbus-drive --target "$target" --features "$feature" || return 1
+  # every section and symbol inside the chip's memories (datasheet figures)
+  python3 .ci/memory_map.py "$chip" "$elf" || return 1
   # Flash = every section placed in flash (0x0800_0000..) + the .data image;
   # static RAM = every section placed in RAM (0x2000_0000..): .data, .bss,
   # .uninit (defmt-rtt buffer). The stack is not a section (flip-link puts
@@ -39,6 +42,6 @@ check() {
 # both boards are checked and printed before the stage fails (set -e does
 # not act inside a function called with ||: hence the explicit returns)
 bad=0
-check STM32G431CB thumbv7em-none-eabihf board-g431 64 16 || bad=1
-check STM32F103C8 thumbv7m-none-eabi board-f103 56 12 || bad=1
+check STM32G431CB stm32g431cb thumbv7em-none-eabihf board-g431 64 16 || bad=1
+check STM32F103C8 stm32f103c8 thumbv7m-none-eabi board-f103 56 12 || bad=1
 exit $bad

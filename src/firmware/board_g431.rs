@@ -41,7 +41,7 @@ pub const NAME: &str = "STM32G431CB";
 pub const STEP_TICK_HZ: u32 = 10_000_000;
 
 /// The parameter pages: the last two 2 KiB pages (offsets from 0x0800_0000),
-/// which `memory.x` leaves out of FLASH.
+/// which `memory-g431.x` leaves out of FLASH.
 pub const PARAM_FLASH_START: u32 = 0x1_F000;
 pub const PARAM_FLASH_LEN: u32 = 0x1000;
 

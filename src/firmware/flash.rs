@@ -2,7 +2,7 @@
 //! embedded-storage `NorFlash` whose offsets start at 0 (SPEC §9 storage; the
 //! storage logic on top of it is `params`' business).
 //!
-//! The board's memory map (`memory.x`, `memory-f103.x`) leaves these pages
+//! The board's memory map (`memory-g431.x`, `memory-f103.x`) leaves these pages
 //! out of FLASH, so the linker can never place code there. Generic over the
 //! flash driver (embassy-stm32's blocking `Flash` on the boards), hence free
 //! of HAL types: `tests/firmware_calc.rs` checks it against a RAM flash.
