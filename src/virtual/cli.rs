@@ -24,6 +24,13 @@ TRANSPORTS (both may be used at once):
                              several at once. Repeatable. Port 0 picks a free
                              port (printed on stderr).
 
+COMMISSIONING PAGE:
+    --web ADDR:PORT          Serve a page on ADDR:PORT (only there; e.g.
+                             127.0.0.1:8080): live scope, status, dictionary
+                             and PA table, jog / move / homing, switches.
+                             Its requests go through the drive's dispatcher
+                             as a second port. Port 0 picks a free port.
+
 DRIVES AND AXES:
     --drives LIST            Addresses of the drives on the bus, comma
                              separated, 1..=247, distinct [default: 1]. Each
@@ -85,6 +92,7 @@ pub struct Options {
     pub trace: Option<PathBuf>,
     pub plot: Option<PathBuf>,
     pub status_line: bool,
+    pub web: Option<SocketAddr>,
 }
 
 impl Default for Options {
@@ -99,6 +107,7 @@ impl Default for Options {
             trace: None,
             plot: None,
             status_line: true,
+            web: None,
         }
     }
 }
@@ -157,6 +166,13 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
                             "--tcp {v}: expected ADDR:PORT, e.g. 127.0.0.1:5020 or [::1]:5020"
                         ))
                     }
+                }
+            }
+            "--web" => {
+                let v = value("--web")?;
+                match v.parse::<SocketAddr>() {
+                    Ok(a) => o.web = Some(a),
+                    Err(_) => return err(format!("--web {v}: expected ADDR:PORT, e.g. 127.0.0.1:8080")),
                 }
             }
             "--drives" => o.drives = parse_drives(&value("--drives")?)?,
@@ -270,8 +286,11 @@ mod tests {
             "--plot",
             "p.svg",
             "--no-status",
+            "--web",
+            "127.0.0.1:8080",
         ])
         .unwrap();
+        assert_eq!(o.web, Some("127.0.0.1:8080".parse().unwrap()));
         assert_eq!(o.pty_link, Some(PathBuf::from("/tmp/x")));
         assert_eq!(o.tcp.len(), 2);
         assert_eq!(o.drives, vec![3, 1, 247]);
@@ -306,6 +325,7 @@ mod tests {
             (&["--bogus"][..], "--bogus"),
             (&["--tcp"], "--tcp needs a value"),
             (&["--tcp", "localhost"], "ADDR:PORT"),
+            (&["--web", "8080"], "--web 8080: expected ADDR:PORT"),
             (&["--drives", "0"], "1..=247"),
             (&["--drives", "248"], "1..=247"),
             (&["--drives", "1,x"], "`x`"),
@@ -339,6 +359,7 @@ mod tests {
             "--trace",
             "--plot",
             "--no-status",
+            "--web",
             "--help",
             "--version",
         ] {
