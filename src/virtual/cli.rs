@@ -30,6 +30,13 @@ TRANSPORTS (both may be used at once):
                              reach the drive when there is only one. Several
                              clients at once. Repeatable; port 0 as --tcp.
 
+COMMISSIONING PAGE:
+    --web ADDR:PORT          Serve a page on ADDR:PORT (only there; e.g.
+                             127.0.0.1:8080): live scope, status, dictionary
+                             and PA table, jog / move / homing, switches.
+                             Its requests go through the drive's dispatcher
+                             as a second port. Port 0 picks a free port.
+
 DRIVES AND AXES:
     --drives LIST            Addresses of the drives on the bus, comma
                              separated, 1..=247, distinct [default: 1]. Each
@@ -96,6 +103,7 @@ pub struct Options {
     pub trace: Option<PathBuf>,
     pub plot: Option<PathBuf>,
     pub status_line: bool,
+    pub web: Option<SocketAddr>,
 }
 
 impl Default for Options {
@@ -112,6 +120,7 @@ impl Default for Options {
             trace: None,
             plot: None,
             status_line: true,
+            web: None,
         }
     }
 }
@@ -177,6 +186,7 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             "--modbus-tcp" => o
                 .modbus_tcp
                 .push(parse_socket("--modbus-tcp", &value("--modbus-tcp")?)?),
+            "--web" => o.web = Some(parse_socket("--web", &value("--web")?)?),
             "--drives" => o.drives = parse_drives(&value("--drives")?)?,
             "--cw-limit" => {
                 o.axis.cw_limit_steps = Some(parse_steps("--cw-limit", &value("--cw-limit")?)?)
@@ -300,8 +310,11 @@ mod tests {
             "--plot",
             "p.svg",
             "--no-status",
+            "--web",
+            "127.0.0.1:8080",
         ])
         .unwrap();
+        assert_eq!(o.web, Some("127.0.0.1:8080".parse().unwrap()));
         assert_eq!(o.pty_link, Some(PathBuf::from("/tmp/x")));
         assert_eq!(o.tcp.len(), 2);
         assert_eq!(o.modbus_tcp, vec!["127.0.0.1:5502".parse().unwrap()]);
@@ -345,6 +358,7 @@ mod tests {
             (&["--modbus-tcp"], "--modbus-tcp needs a value"),
             (&["--no-pty=yes"], "--no-pty takes no value"),
             (&["--standard-exceptions=1"], "takes no value"),
+            (&["--web", "8080"], "--web 8080: expected ADDR:PORT"),
             (&["--drives", "0"], "1..=247"),
             (&["--drives", "248"], "1..=247"),
             (&["--drives", "1,x"], "`x`"),
@@ -381,6 +395,7 @@ mod tests {
             "--trace",
             "--plot",
             "--no-status",
+            "--web",
             "--help",
             "--version",
         ] {
