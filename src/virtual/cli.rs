@@ -5,6 +5,8 @@ use std::fmt;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
+use modbus_drive::boards::Board;
+
 pub const HELP: &str = "\
 modbus-drive (virtual drive): the drive core running in real time on this
 machine, with a simulated axis per drive, reachable by any Modbus-RTU master.
@@ -25,6 +27,9 @@ TRANSPORTS (both may be used at once):
                              port (printed on stderr).
 
 DRIVES AND AXES:
+    --board g431|f103        The board whose step timer the drives run on, so
+                             that its limits apply (step tick 10 MHz on the
+                             G431, 8 MHz on the F103) [default: g431].
     --drives LIST            Addresses of the drives on the bus, comma
                              separated, 1..=247, distinct [default: 1]. Each
                              drive has its own simulated axis.
@@ -85,6 +90,7 @@ pub struct Options {
     pub trace: Option<PathBuf>,
     pub plot: Option<PathBuf>,
     pub status_line: bool,
+    pub board: Board,
 }
 
 impl Default for Options {
@@ -99,6 +105,7 @@ impl Default for Options {
             trace: None,
             plot: None,
             status_line: true,
+            board: Board::G431,
         }
     }
 }
@@ -160,6 +167,13 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
                 }
             }
             "--drives" => o.drives = parse_drives(&value("--drives")?)?,
+            "--board" => {
+                let v = value("--board")?;
+                o.board = match Board::from_short_name(&v) {
+                    Some(b) => b,
+                    None => return err(format!("--board {v}: expected g431 or f103")),
+                };
+            }
             "--cw-limit" => {
                 o.axis.cw_limit_steps = Some(parse_steps("--cw-limit", &value("--cw-limit")?)?)
             }
@@ -270,8 +284,10 @@ mod tests {
             "--plot",
             "p.svg",
             "--no-status",
+            "--board=F103",
         ])
         .unwrap();
+        assert_eq!(o.board, Board::F103);
         assert_eq!(o.pty_link, Some(PathBuf::from("/tmp/x")));
         assert_eq!(o.tcp.len(), 2);
         assert_eq!(o.drives, vec![3, 1, 247]);
@@ -313,6 +329,8 @@ mod tests {
             (&["--cw-limit", "ten"], "--cw-limit"),
             (&["--cw-limit", "5", "--ccw-limit", "5"], "below"),
             (&["--home-switch", "5"], "FROM:TO"),
+            (&["--board", "g474"], "g431 or f103"),
+            (&["--board"], "--board needs a value"),
             (&["--home-switch", "5:4"], "FROM must not exceed"),
             (&["--no-pty"], "no transport"),
             (
@@ -332,6 +350,7 @@ mod tests {
             "--no-pty",
             "--tcp",
             "--drives",
+            "--board",
             "--cw-limit",
             "--ccw-limit",
             "--home-switch",
