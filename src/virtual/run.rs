@@ -20,6 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
+use modbus_drive::boards::Board;
 use modbus_drive::device::{Identity, Response};
 use modbus_drive::dictionary::DriveLayer;
 use modbus_drive::drive::DriveEvent;
@@ -90,6 +91,7 @@ impl DriveSlot {
         index: usize,
         state: Option<&Path>,
         layout: AxisLayout,
+        board: Board,
     ) -> Result<Self, String> {
         let flash = match state {
             Some(path) => FileFlash::open(path, index)
@@ -99,6 +101,13 @@ impl DriveSlot {
         let mut store = ParamStore::new(flash, 0..REGION_BYTES as u32)
             .map_err(|e| format!("parameter store: {e:?}"))?;
         let mut device = Device::new(Identity::new("virtual"));
+        // steps timed in the chosen board's timer ticks, as its firmware
+        // does: the same limits (`--board`)
+        let planner = PlannerConfig {
+            tick_hz: board.step_tick_hz(),
+            ..PlannerConfig::default()
+        };
+        device.drive.set_planner_config(planner);
         let boot = store.boot();
         device.apply_boot(&boot);
         if !matches!(boot.outcome, BootOutcome::Loaded { .. }) {
@@ -117,7 +126,7 @@ impl DriveSlot {
             device,
             store,
             schedule: Box::new(StepSchedule::new()),
-            axis: sim_axis(layout),
+            axis: sim_axis(layout, planner.tick_hz),
             next_control_us: 0,
             last_statusword,
             last_mode,
@@ -167,10 +176,10 @@ impl DriveSlot {
 
 /// The simulated axis with the `--cw-limit` / `--ccw-limit` /
 /// `--home-switch` switches, at the step timer frequency the planner uses.
-fn sim_axis(layout: AxisLayout) -> SimAxis {
+fn sim_axis(layout: AxisLayout, tick_hz: u32) -> SimAxis {
     // with the limit-switch interrupt: the step interrupt brakes at the
     // edge step, as on the board (SPEC §8.7)
-    let mut axis = SimAxis::new(PlannerConfig::default().tick_hz).with_limit_interrupt();
+    let mut axis = SimAxis::new(tick_hz).with_limit_interrupt();
     if let Some(edge) = layout.cw_limit_steps {
         axis = axis.with_cw_limit(i64::from(edge));
     }
@@ -250,7 +259,8 @@ impl VirtualDrive {
         let mut drives = Vec::new();
         for (i, &address) in opts.drives.iter().enumerate() {
             drives.push(
-                DriveSlot::new(address, i, opts.state.as_deref(), opts.axis).map_err(StartError)?,
+                DriveSlot::new(address, i, opts.state.as_deref(), opts.axis, opts.board)
+                    .map_err(StartError)?,
             );
         }
         let mut lines = Vec::new();
