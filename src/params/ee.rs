@@ -56,7 +56,8 @@ impl EeOp {
     }
 }
 
-/// Why an EE operation failed (the master sees exception 4).
+/// Why an EE operation failed (the master sees exception 4, or 6 for
+/// [`EeError::StepsRunning`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum EeError {
@@ -64,6 +65,9 @@ pub enum EeError {
     Storage(StorageError),
     /// EE-rS without a backup ever made with EE-bA.
     NoBackup,
+    /// Refused, nothing changed: steps were being generated when it was to
+    /// run (SPEC §9; flash work would stall the step interrupt).
+    StepsRunning,
 }
 
 impl From<StorageError> for EeError {
