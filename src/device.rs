@@ -200,7 +200,7 @@ impl Device {
                 self.slave.count_deferred_exception();
                 reply[0] = ok_reply[0];
                 reply[1] = ok_reply[1] | 0x80;
-                reply[2] = crate::slave::Exception::DeviceFailure as u8;
+                reply[2] = crate::rtu::Exception::DeviceFailure as u8;
                 with_crc(reply, 3)
             }
         };

@@ -24,57 +24,8 @@ use crate::rtu::{crc16, with_crc, RxEvent, MAX_FRAME, MIN_FRAME};
 /// Broadcast address (§2).
 pub const BROADCAST: u8 = 0;
 
-/// Function codes (§4).
-pub mod function {
-    pub const READ_HOLDING_REGISTERS: u8 = 0x03;
-    pub const WRITE_SINGLE_REGISTER: u8 = 0x06;
-    pub const DIAGNOSTICS: u8 = 0x08;
-    pub const WRITE_MULTIPLE_REGISTERS: u8 = 0x10;
-    pub const ENCAPSULATED_INTERFACE: u8 = 0x2B;
-}
-
-/// Largest quantity of a 0x03 read (§4).
-pub const MAX_READ_QUANTITY: u16 = 125;
-/// Largest quantity of a 0x10 write (§4).
-pub const MAX_WRITE_QUANTITY: u16 = 123;
-
-/// The exception codes of seed 000 (SPEC §5.2).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Exception {
-    IllegalFunction = 1,
-    IllegalDataAddress = 2,
-    IllegalDataValue = 3,
-    DeviceFailure = 4,
-    WriteReadOnly = 5,
-    Busy = 6,
-    ReadWriteOnly = 7,
-    ByteCountMismatch = 8,
-    Parity = 9,
-    Crc = 10,
-    NoSuchRegister = 11,
-}
-
-impl Exception {
-    /// The vendor code (PA55 = 0).
-    pub const fn vendor_code(self) -> u8 {
-        self as u8
-    }
-
-    /// The code sent under the profile PA55 selects; `None` when the
-    /// standard profile sends nothing (9 and 10, §5.2).
-    pub const fn code(self, standard_profile: bool) -> Option<u8> {
-        if !standard_profile {
-            return Some(self as u8);
-        }
-        match self {
-            Self::WriteReadOnly | Self::ReadWriteOnly | Self::NoSuchRegister => Some(2),
-            Self::ByteCountMismatch => Some(3),
-            Self::Parity | Self::Crc => None,
-            other => Some(other as u8),
-        }
-    }
-}
+pub use crate::rtu::pdu::{function, MAX_READ_QUANTITY, MAX_WRITE_QUANTITY};
+pub use crate::rtu::Exception;
 
 /// What to do after a frame was handled.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -402,46 +353,4 @@ fn exception_reply(reply: &mut [u8; MAX_FRAME], address: u8, function: u8, code:
     reply[1] = function | 0x80;
     reply[2] = code;
     with_crc(reply, 3)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn standard_profile_maps_vendor_codes() {
-        // SPEC §5.2: PA55 = 1 → 5, 7, 11 → 2; 8 → 3; 9/10 never sent.
-        use Exception::*;
-        let all = [
-            IllegalFunction,
-            IllegalDataAddress,
-            IllegalDataValue,
-            DeviceFailure,
-            WriteReadOnly,
-            Busy,
-            ReadWriteOnly,
-            ByteCountMismatch,
-            Parity,
-            Crc,
-            NoSuchRegister,
-        ];
-        let standard = [
-            Some(1),
-            Some(2),
-            Some(3),
-            Some(4),
-            Some(2),
-            Some(6),
-            Some(2),
-            Some(3),
-            None,
-            None,
-            Some(2),
-        ];
-        for (i, (e, s)) in all.iter().zip(standard).enumerate() {
-            assert_eq!(e.code(false), Some(i as u8 + 1));
-            assert_eq!(e.vendor_code(), i as u8 + 1);
-            assert_eq!(e.code(true), s, "{e:?}");
-        }
-    }
 }

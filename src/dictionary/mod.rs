@@ -7,17 +7,22 @@
 //! everything the master writes is stored in [`OdValues`] / [`Params`] and
 //! handed to the drive layer as [`Config`].
 
+mod ee_command;
 mod legacy;
+mod monitor;
+mod pa;
 mod table;
 
+pub use ee_command::EeOp;
 pub use legacy::{Block as LegacyBlock, PA_BASE, PA_LAST};
+pub use monitor::{dp_value, DriveMonitor, StoreStatus, DP_BASE, DP_ERR, DP_LAST};
+pub use pa::{PaDef, Params, FIRMWARE_VERSION, PA, PA_COUNT};
 pub use table::{
     position, string_bytes, Access, DataType, Entry, Object, Span, STRING_BYTES, STRING_WORDS,
     TABLE,
 };
 
-use crate::params::{DriveMonitor, EeOp, Params, StoreStatus};
-use crate::slave::Exception;
+use crate::rtu::Exception;
 
 /// The RW/WO values of the SPEC §5 table as last written by the master.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
