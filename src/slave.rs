@@ -25,6 +25,7 @@ use crate::rtu::{crc16, with_crc, RxEvent, MAX_FRAME, MIN_FRAME};
 pub const BROADCAST: u8 = 0;
 
 pub use crate::rtu::pdu::{function, MAX_READ_QUANTITY, MAX_WRITE_QUANTITY};
+use crate::rtu::pdu::{ReadRequest, WriteMultipleRequest, WriteSingleRequest};
 pub use crate::rtu::Exception;
 
 /// What to do after a frame was handled.
@@ -288,31 +289,15 @@ impl Slave {
     }
 }
 
-/// Start address and quantity (or value) of a 0x03 / 0x06 / 0x10 PDU.
-fn address_and_word(pdu: &[u8]) -> Option<(u16, u16)> {
-    match pdu {
-        [_, a0, a1, q0, q1, ..] => Some((
-            u16::from_be_bytes([*a0, *a1]),
-            u16::from_be_bytes([*q0, *q1]),
-        )),
-        _ => None,
-    }
-}
-
 /// 0x03: `03 start quantity` → `03 bytecount words…`.
 fn read_holding_registers<D: DriveLayer>(
     pdu: &[u8],
     regs: &Registers<'_, D>,
     out: &mut [u8],
 ) -> Handled {
-    let (start, quantity) = address_and_word(pdu)
-        .filter(|_| pdu.len() == 5)
-        .ok_or(Exception::ByteCountMismatch)?;
-    if quantity == 0 || quantity > MAX_READ_QUANTITY {
-        return Err(Exception::IllegalDataValue);
-    }
-    let bytes = 2 * usize::from(quantity);
-    regs.read(start, quantity, &mut out[2..])?;
+    let request = ReadRequest::new_checked(pdu)?;
+    let bytes = 2 * usize::from(request.quantity());
+    regs.read(request, &mut out[2..])?;
     out[0] = function::READ_HOLDING_REGISTERS;
     out[1] = bytes as u8;
     Ok(Reply::Pdu(2 + bytes))
@@ -320,10 +305,8 @@ fn read_holding_registers<D: DriveLayer>(
 
 /// 0x06: `06 address value` → the same frame.
 fn write_single_register<D: DriveLayer>(pdu: &[u8], regs: &mut Registers<'_, D>) -> Handled {
-    let (address, value) = address_and_word(pdu)
-        .filter(|_| pdu.len() == 5)
-        .ok_or(Exception::ByteCountMismatch)?;
-    regs.write_single(address, value)?;
+    let request = WriteSingleRequest::new_checked(pdu)?;
+    regs.write_single(request.address(), request.value())?;
     Ok(Reply::Echo)
 }
 
@@ -333,16 +316,9 @@ fn write_multiple_registers<D: DriveLayer>(
     regs: &mut Registers<'_, D>,
     out: &mut [u8],
 ) -> Handled {
-    let (start, quantity) = address_and_word(pdu).ok_or(Exception::ByteCountMismatch)?;
-    let data = pdu.get(6..).ok_or(Exception::ByteCountMismatch)?;
-    let byte_count = usize::from(pdu[5]);
-    if byte_count != 2 * usize::from(quantity) || byte_count != data.len() {
-        return Err(Exception::ByteCountMismatch);
-    }
-    if quantity == 0 || quantity > MAX_WRITE_QUANTITY {
-        return Err(Exception::IllegalDataValue);
-    }
-    regs.write(start, quantity, data)?;
+    let request = WriteMultipleRequest::new_checked(pdu)?;
+    regs.write(request)?;
+    // a checked request is at least six bytes long
     out[..5].copy_from_slice(&pdu[..5]);
     Ok(Reply::Pdu(5))
 }
