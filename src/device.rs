@@ -228,9 +228,9 @@ impl Device {
             Err(_) => {
                 // Codes 4 and 6 are the same in both PA55 profiles.
                 let exception = if refused {
-                    crate::slave::Exception::Busy
+                    crate::rtu::Exception::Busy
                 } else {
-                    crate::slave::Exception::DeviceFailure
+                    crate::rtu::Exception::DeviceFailure
                 };
                 self.slave.count_deferred_exception(exception);
                 reply[0] = ok_reply[0];

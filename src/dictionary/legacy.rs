@@ -16,9 +16,9 @@
 //! ranges, all-or-nothing, word order) is shared with the §5 table in
 //! [`super::Registers`].
 
+use super::{dp_value, EeOp, Params, DP_BASE, DP_LAST, PA, PA_COUNT};
 use super::{DriveLayer, Registers};
-use crate::params::{dp_value, EeOp, Params, DP_BASE, DP_LAST, PA, PA_COUNT};
-use crate::slave::Exception;
+use crate::rtu::Exception;
 
 /// First address of PA0.
 pub const PA_BASE: u16 = 0x0064;

@@ -7,17 +7,23 @@
 //! everything the master writes is stored in [`OdValues`] / [`Params`] and
 //! handed to the drive layer as [`Config`].
 
+mod ee_command;
 mod legacy;
+mod monitor;
+mod pa;
 mod table;
 
+pub use ee_command::EeOp;
 pub use legacy::{Block as LegacyBlock, PA_BASE, PA_LAST};
+pub use monitor::{dp_value, DriveMonitor, StoreStatus, DP_BASE, DP_ERR, DP_LAST};
+pub use pa::{PaDef, Params, FIRMWARE_VERSION, PA, PA_COUNT};
 pub use table::{
     position, string_bytes, Access, DataType, Entry, Object, Span, STRING_BYTES, STRING_WORDS,
     TABLE,
 };
 
-use crate::params::{DriveMonitor, EeOp, Params, StoreStatus};
-use crate::slave::Exception;
+use crate::rtu::pdu::{ReadRequest, WriteMultipleRequest};
+use crate::rtu::Exception;
 
 /// The RW/WO values of the SPEC §5 table as last written by the master.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -182,11 +188,13 @@ fn put_word(out: &mut [u8], i: usize, w: u16) {
 
 /// The last address of a legacy request, if it stays inside `block`.
 fn legacy_span(block: LegacyBlock, start: u16, quantity: u16) -> Result<u16, Exception> {
-    let last = u32::from(start) + u32::from(quantity) - 1;
-    if quantity == 0 || last > u32::from(block.last()) {
-        Err(Exception::IllegalDataAddress)
-    } else {
-        Ok(last as u16)
+    // quantity ≥ 1 before it is used: `start + quantity - 1` never wraps
+    let Some(extra) = quantity.checked_sub(1) else {
+        return Err(Exception::IllegalDataAddress);
+    };
+    match start.checked_add(extra) {
+        Some(last) if last <= block.last() => Ok(last),
+        _ => Err(Exception::IllegalDataAddress),
     }
 }
 
@@ -201,9 +209,10 @@ fn join_words(first: u16, second: u16, low_word_first: bool) -> u32 {
 }
 
 impl<D: DriveLayer> Registers<'_, D> {
-    /// Function 0x03 after the length and quantity checks: §5.2 steps 4, 6,
+    /// Function 0x03 (length and quantity checked by [`ReadRequest`]): §5.2 steps 4, 6,
     /// 7 and 9, then `quantity` words big-endian into `out`.
-    pub fn read(&self, start: u16, quantity: u16, out: &mut [u8]) -> Result<(), Exception> {
+    pub fn read(&self, request: ReadRequest, out: &mut [u8]) -> Result<(), Exception> {
+        let (start, quantity) = (request.start(), request.quantity());
         let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
         match region {
             Region::Table(first) => {
@@ -304,15 +313,14 @@ impl<D: DriveLayer> Registers<'_, D> {
         Ok(())
     }
 
-    /// Function 0x10 after the length and quantity checks: §5.2 steps
+    /// Function 0x10 (length, byte count and quantity checked by
+    /// [`WriteMultipleRequest`]): §5.2 steps
     /// 4..=10, all-or-nothing. `data` holds `quantity` big-endian words.
     /// Stores every value, then tells the drive layer: values, then mode,
     /// then controlword (§5.2).
-    pub fn write(&mut self, start: u16, quantity: u16, data: &[u8]) -> Result<(), Exception> {
+    pub fn write(&mut self, request: WriteMultipleRequest<'_>) -> Result<(), Exception> {
+        let (start, quantity, data) = (request.start(), request.quantity(), request.data());
         let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
-        if data.len() != 2 * usize::from(quantity) {
-            return Err(Exception::ByteCountMismatch);
-        }
         match region {
             Region::Table(first) => {
                 // Checked in the §5.2 order (range 2, access 5, value 3,
