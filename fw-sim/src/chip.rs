@@ -117,9 +117,6 @@ impl Chip {
     pub fn flash_end(&self) -> u32 {
         self.flash_base + self.flash_len
     }
-    pub fn sram_end(&self) -> u32 {
-        self.sram_base + self.sram_len
-    }
 }
 
 /// Board pins the runner watches or drives (src/firmware/board_*.rs).
@@ -128,7 +125,6 @@ pub mod pins {
     pub type Pin = (usize, u8);
     pub const STEP: Pin = (0, 6);
     pub const DIR: Pin = (1, 0);
-    pub const ENABLE: Pin = (1, 1);
     pub const CW_LIMIT: Pin = (1, 12);
     pub const CCW_LIMIT: Pin = (1, 13);
     pub const HOME: Pin = (1, 14);

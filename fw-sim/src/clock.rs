@@ -19,7 +19,13 @@ pub struct Clock {
 
 impl Clock {
     pub fn new(sysclk: u32) -> Self {
-        Self { ps: 0, rem: 0, sysclk, busy_cycles: 0, sleep_cycles: 0 }
+        Self {
+            ps: 0,
+            rem: 0,
+            sysclk,
+            busy_cycles: 0,
+            sleep_cycles: 0,
+        }
     }
     pub fn now(&self) -> u64 {
         self.ps

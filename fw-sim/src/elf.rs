@@ -2,12 +2,10 @@
 //! named by the function around it) and the addresses of the WFI / WFE /
 //! SEV instructions the runner handles itself.
 
-use object::{Object, ObjectSegment, ObjectSymbol, SymbolKind};
+use object::{Object, ObjectSymbol, SymbolKind};
 
 pub struct Image {
     pub bytes: Vec<u8>,
-    /// (address, data) of every loadable segment with file contents.
-    pub segments: Vec<(u32, Vec<u8>)>,
     /// (address, size, name), sorted by address.
     symbols: Vec<(u32, u32, String)>,
     pub rtt: Option<u32>,
@@ -16,16 +14,6 @@ pub struct Image {
 impl Image {
     pub fn load(bytes: Vec<u8>) -> Result<Self, String> {
         let file = object::File::parse(&*bytes).map_err(|e| format!("not an ELF file: {e}"))?;
-        let mut segments = Vec::new();
-        for seg in file.segments() {
-            let data = seg.data().map_err(|e| e.to_string())?;
-            if data.is_empty() {
-                continue;
-            }
-            let (pa, _) = seg.file_range();
-            let _ = pa;
-            segments.push((seg.address() as u32, data.to_vec()));
-        }
         let mut symbols = Vec::new();
         let mut rtt = None;
         for s in file.symbols() {
@@ -33,13 +21,20 @@ impl Image {
             if name == "_SEGGER_RTT" {
                 rtt = Some(s.address() as u32);
             }
-            if matches!(s.kind(), SymbolKind::Text | SymbolKind::Data) && !name.is_empty() && !name.starts_with('$') {
+            if matches!(s.kind(), SymbolKind::Text | SymbolKind::Data)
+                && !name.is_empty()
+                && !name.starts_with('$')
+            {
                 let name = rustc_demangle(name);
                 symbols.push(((s.address() as u32) & !1, s.size() as u32, name));
             }
         }
         symbols.sort();
-        Ok(Self { bytes: bytes.clone(), segments, symbols, rtt })
+        Ok(Self {
+            bytes: bytes.clone(),
+            symbols,
+            rtt,
+        })
     }
 
     /// Physical load addresses: a segment's LMA differs from its VMA for
@@ -100,7 +95,9 @@ fn rustc_demangle(s: &str) -> String {
     let mut rest = body;
     while !rest.is_empty() {
         let n: String = rest.chars().take_while(|c| c.is_ascii_digit()).collect();
-        let Ok(len) = n.parse::<usize>() else { return s.to_string() };
+        let Ok(len) = n.parse::<usize>() else {
+            return s.to_string();
+        };
         rest = &rest[n.len()..];
         if rest.len() < len {
             return s.to_string();
@@ -108,8 +105,16 @@ fn rustc_demangle(s: &str) -> String {
         parts.push(&rest[..len]);
         rest = &rest[len..];
     }
-    if parts.last().is_some_and(|p| p.starts_with('h') && p.len() == 17) {
+    if parts
+        .last()
+        .is_some_and(|p| p.starts_with('h') && p.len() == 17)
+    {
         parts.pop();
     }
-    parts.join("::").replace("$LT$", "<").replace("$GT$", ">").replace("$u20$", " ").replace("..", "::")
+    parts
+        .join("::")
+        .replace("$LT$", "<")
+        .replace("$GT$", ">")
+        .replace("$u20$", " ")
+        .replace("..", "::")
 }

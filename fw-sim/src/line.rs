@@ -34,11 +34,14 @@ impl Line {
                 let p = nix::pty::openpty(None, None).map_err(std::io::Error::from)?;
                 let mut t = nix::sys::termios::tcgetattr(&p.slave).map_err(std::io::Error::from)?;
                 nix::sys::termios::cfmakeraw(&mut t);
-                nix::sys::termios::tcsetattr(&p.slave, nix::sys::termios::SetArg::TCSANOW, &t).map_err(std::io::Error::from)?;
+                nix::sys::termios::tcsetattr(&p.slave, nix::sys::termios::SetArg::TCSANOW, &t)
+                    .map_err(std::io::Error::from)?;
                 let path = nix::unistd::ttyname(&p.slave).map_err(std::io::Error::from)?;
-                let fl = nix::fcntl::fcntl(p.master.as_fd(), nix::fcntl::FcntlArg::F_GETFL).map_err(std::io::Error::from)?;
+                let fl = nix::fcntl::fcntl(p.master.as_fd(), nix::fcntl::FcntlArg::F_GETFL)
+                    .map_err(std::io::Error::from)?;
                 let fl = nix::fcntl::OFlag::from_bits_truncate(fl) | nix::fcntl::OFlag::O_NONBLOCK;
-                nix::fcntl::fcntl(p.master.as_fd(), nix::fcntl::FcntlArg::F_SETFL(fl)).map_err(std::io::Error::from)?;
+                nix::fcntl::fcntl(p.master.as_fd(), nix::fcntl::FcntlArg::F_SETFL(fl))
+                    .map_err(std::io::Error::from)?;
                 if std::fs::symlink_metadata(link).is_ok_and(|m| m.file_type().is_symlink()) {
                     std::fs::remove_file(link)?;
                 }
@@ -48,16 +51,16 @@ impl Line {
             }
             None => None,
         };
-        Ok(Self { listeners, conns: Vec::new(), pty })
-    }
-
-    pub fn connected(&self) -> bool {
-        !self.conns.is_empty() || self.pty.is_some()
+        Ok(Self {
+            listeners,
+            conns: Vec::new(),
+            pty,
+        })
     }
 
     /// Waits up to `timeout` for input; returns the chunks that arrived.
     pub fn poll(&mut self, timeout: Duration) -> Vec<Vec<u8>> {
-        let ms = timeout.as_millis().min(1000) as u16;
+        let ms = timeout.as_micros().div_ceil(1000).min(1000) as u16;
         {
             let mut fds: Vec<PollFd> = Vec::new();
             for l in &self.listeners {

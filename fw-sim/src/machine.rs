@@ -43,9 +43,13 @@ pub struct Machine {
     pub scs: Scs,
     /// Set by a bus access the model refuses; the runner stops.
     pub fault: Option<String>,
+    /// The program counter when the fault was raised.
+    pub fault_pc: Option<u32>,
     /// Instructions of the current slice so far (block granularity).
     pub slice_insns: u64,
     pub budget: u64,
+    /// End the slice at the next block boundary.
+    pub stop_soon: bool,
     /// Start address of the basic block being executed.
     pub block_pc: u32,
     pub block_cache: std::collections::HashMap<u64, u32>,
@@ -58,6 +62,8 @@ pub struct Machine {
     pending_rise: Option<(u64, bool)>,
     /// Event register (WFE/SEV).
     pub event: bool,
+    /// What the CPU hooks saw in the current slice.
+    pub events: crate::cpu::SliceEvents,
 }
 
 impl Machine {
@@ -74,16 +80,18 @@ impl Machine {
             exti: Exti::new(g4),
             gpio: [Port::new(g4, 0), Port::new(g4, 1)],
             tim: [
-                Timer::new("TIM2", chip::IRQ_TIM2, g4, g4),
-                Timer::new("TIM3", chip::IRQ_TIM3, g4, false),
-                Timer::new("TIM4", chip::IRQ_TIM4, g4, false),
+                Timer::new(chip::IRQ_TIM2, g4, g4),
+                Timer::new(chip::IRQ_TIM3, g4, false),
+                Timer::new(chip::IRQ_TIM4, g4, false),
             ],
-            usart: Usart::new(g4, chip::IRQ_USART1),
+            usart: Usart::new(g4),
             iwdg: Iwdg::new(g4, chip.lsi_hz),
             scs: Scs::new(chip.has_fpu, chip.cpuid),
             fault: None,
+            fault_pc: None,
             slice_insns: 0,
             budget: 0,
+            stop_soon: false,
             block_pc: 0,
             block_cache: Default::default(),
             touched: BTreeSet::new(),
@@ -93,6 +101,7 @@ impl Machine {
             trace,
             pending_rise: None,
             event: false,
+            events: Default::default(),
         };
         m.apply_clocks();
         m.apply_switches();
@@ -104,7 +113,10 @@ impl Machine {
     pub fn reset_peripherals(&mut self) {
         let fresh = Machine::new(
             self.chip,
-            std::mem::replace(&mut self.flash, Flash::new(true, 0, 0, 1, 0, 0, None, 0, 0).unwrap()),
+            std::mem::replace(
+                &mut self.flash,
+                Flash::new(true, 0, 0, 1, 0, 0, None, 0, 0).unwrap(),
+            ),
             self.switches,
             self.trace.take(),
         );
@@ -157,7 +169,11 @@ impl Machine {
 
     /// The DE pin as a GPIO (F1 always; G4 when PA12 is not in its AF).
     fn gpio_de(&self) -> Option<bool> {
-        let (port, pin) = if self.chip.is_g4() { pins::DE_G431 } else { pins::DE_F103 };
+        let (port, pin) = if self.chip.is_g4() {
+            pins::DE_G431
+        } else {
+            pins::DE_F103
+        };
         let p = &self.gpio[port];
         match p.mode(pin) {
             Mode::Alternate if self.chip.is_g4() => None,
@@ -217,7 +233,8 @@ impl Machine {
         self.scs.set_level(chip::IRQ_FLASH, l);
         let p = self.exti.pending();
         for line in 0..5 {
-            self.scs.set_level(chip::IRQ_EXTI0 + line, p & (1 << line) != 0);
+            self.scs
+                .set_level(chip::IRQ_EXTI0 + line, p & (1 << line) != 0);
         }
         self.scs.set_level(chip::IRQ_EXTI9_5, p & 0x3E0 != 0);
         self.scs.set_level(chip::IRQ_EXTI15_10, p & 0xFC00 != 0);
@@ -252,7 +269,7 @@ impl Machine {
     }
     fn af_output(&self, port: usize, pin: u8) -> Option<bool> {
         match (port, pin) {
-            (0, 6) => Some(self.tim[1].edges1.last().map_or(false, |e| e.1)),
+            (0, 6) => Some(self.tim[1].edges1.last().is_some_and(|e| e.1)),
             (0, 12) if self.chip.is_g4() => self.usart.de_output(),
             _ => None,
         }
@@ -270,7 +287,10 @@ impl Machine {
                 ((v >> (8 * (a & 3))) as u64) & mask(size)
             }
             Access::Unmodelled => {
-                self.fail(format!("read of unmodelled register {a:#010x} ({})", self.region_name(a)));
+                self.fail(format!(
+                    "read of unmodelled register {a:#010x} ({})",
+                    self.region_name(a)
+                ));
                 0
             }
             Access::Unsupported(w) => {
@@ -364,7 +384,7 @@ impl Machine {
                 let idr = self.idr(1);
                 self.gpio[1].read(off, idr)
             }
-            _ if a >= 0xE000_0000 && a < 0xE010_0000 => {
+            _ if (0xE000_0000..0xE010_0000).contains(&a) => {
                 let (hclk, cyc) = (self.hclk(), self.cycles());
                 self.scs.read(a, t, hclk, cyc)
             }
@@ -412,9 +432,10 @@ impl Machine {
                 }
                 r
             }
-            _ if a >= 0xE000_0000 && a < 0xE010_0000 => {
+            _ if (0xE000_0000..0xE010_0000).contains(&a) => {
                 let (hclk, cyc) = (self.hclk(), self.cycles());
-                self.scs.write(exact, v >> (8 * (exact & 3)), size, t, hclk, cyc)
+                self.scs
+                    .write(exact, v >> (8 * (exact & 3)), size, t, hclk, cyc)
             }
             _ => Access::Unmodelled,
         }

@@ -15,12 +15,21 @@ impl Rtt {
     pub fn new(elf: &[u8], cb: u32) -> Option<Self> {
         let table: &'static Table = Box::leak(Box::new(Table::parse(elf).ok()??));
         let locations = table.get_locations(elf).ok();
-        Some(Self { cb, decoder: table.new_stream_decoder(), table, locations })
+        Some(Self {
+            cb,
+            decoder: table.new_stream_decoder(),
+            table,
+            locations,
+        })
     }
 
     /// Reads what the firmware wrote since the last call (`read` reads
     /// emulated memory) and prints the decoded frames; moves RdOff.
-    pub fn poll(&mut self, read: &mut dyn FnMut(u32, usize) -> Option<Vec<u8>>, write_rd: &mut dyn FnMut(u32, u32)) {
+    pub fn poll(
+        &mut self,
+        read: &mut dyn FnMut(u32, usize) -> Option<Vec<u8>>,
+        write_rd: &mut dyn FnMut(u32, u32),
+    ) {
         let up = self.cb + 24;
         let Some(h) = read(up, 24) else { return };
         let w = |i: usize| u32::from_le_bytes([h[i], h[i + 1], h[i + 2], h[i + 3]]);

@@ -200,7 +200,10 @@ impl Scs {
             return None;
         }
         let hz = self.st_hz(hclk);
-        Some(crate::clock::time_of_clk(self.st_anchor + self.st_cvr_at as u64 + 1, hz))
+        Some(crate::clock::time_of_clk(
+            self.st_anchor + self.st_cvr_at as u64 + 1,
+            hz,
+        ))
     }
     fn systick_cvr(&self, t: u64, hclk: u32) -> u32 {
         if self.st_csr & 1 == 0 {
@@ -247,7 +250,12 @@ impl Scs {
             }
             0xE000_E400..=0xE000_E46C => {
                 let i = 16 + (a - 0xE000_E400) as usize;
-                u32::from_le_bytes([self.prio[i], self.prio[i + 1], self.prio[i + 2], self.prio[i + 3]])
+                u32::from_le_bytes([
+                    self.prio[i],
+                    self.prio[i + 1],
+                    self.prio[i + 2],
+                    self.prio[i + 3],
+                ])
             }
             0xE000_ED00 => self.cpuid,
             0xE000_ED04 => {
@@ -275,7 +283,12 @@ impl Scs {
             0xE000_ED14 => self.ccr,
             0xE000_ED18 | 0xE000_ED1C | 0xE000_ED20 => {
                 let i = 4 + (a - 0xE000_ED18) as usize;
-                u32::from_le_bytes([self.prio[i], self.prio[i + 1], self.prio[i + 2], self.prio[i + 3]])
+                u32::from_le_bytes([
+                    self.prio[i],
+                    self.prio[i + 1],
+                    self.prio[i + 2],
+                    self.prio[i + 3],
+                ])
             }
             0xE000_ED24 => self.shcsr,
             0xE000_ED28 => self.cfsr,
@@ -341,10 +354,18 @@ impl Scs {
                 self.st_anchor = clk_at(t, self.st_hz(hclk));
                 self.st_csr &= !(1 << 16);
             }
-            0xE000_E100..=0xE000_E13C => Self::set_bits(&mut self.enabled, a - 0xE000_E100, v, true),
-            0xE000_E180..=0xE000_E1BC => Self::set_bits(&mut self.enabled, a - 0xE000_E180, v, false),
-            0xE000_E200..=0xE000_E23C => Self::set_bits(&mut self.pending, a - 0xE000_E200, v, true),
-            0xE000_E280..=0xE000_E2BC => Self::set_bits(&mut self.pending, a - 0xE000_E280, v, false),
+            0xE000_E100..=0xE000_E13C => {
+                Self::set_bits(&mut self.enabled, a - 0xE000_E100, v, true)
+            }
+            0xE000_E180..=0xE000_E1BC => {
+                Self::set_bits(&mut self.enabled, a - 0xE000_E180, v, false)
+            }
+            0xE000_E200..=0xE000_E23C => {
+                Self::set_bits(&mut self.pending, a - 0xE000_E200, v, true)
+            }
+            0xE000_E280..=0xE000_E2BC => {
+                Self::set_bits(&mut self.pending, a - 0xE000_E280, v, false)
+            }
             0xE000_E400..=0xE000_E46F => {
                 let i = 16 + (a - 0xE000_E400) as usize;
                 for k in 0..size {

@@ -18,7 +18,13 @@ impl StepTrace {
     }
     pub fn step(&mut self, t_ps: u64, dir: bool, width_ps: u64) {
         // rounded to the ns; the error is reported in ps nowhere else
-        let _ = writeln!(self.out, "{},{},{}", (t_ps + 500) / 1000, u8::from(dir), (width_ps + 500) / 1000);
+        let _ = writeln!(
+            self.out,
+            "{},{},{}",
+            (t_ps + 500) / 1000,
+            u8::from(dir),
+            (width_ps + 500) / 1000
+        );
         let _ = self.out.flush();
     }
 }

@@ -7,19 +7,20 @@ use super::timer::Access;
 
 #[derive(Debug)]
 pub struct Bank {
-    pub name: &'static str,
     /// (offset, value, writable mask)
     regs: Vec<(u32, u32, u32)>,
 }
 
 impl Bank {
-    fn new(name: &'static str, regs: &[(u32, u32, u32)]) -> Self {
-        Self { name, regs: regs.to_vec() }
+    fn new(regs: &[(u32, u32, u32)]) -> Self {
+        Self {
+            regs: regs.to_vec(),
+        }
     }
     pub fn pwr(g4: bool) -> Self {
         if g4 {
             let mut r = vec![
-                (0x00, 0x0000_0200, 0x0000_4607), // CR1: VOS = range 1
+                (0x00, 0x0000_0200, 0x0000_4707), // CR1: LPR, VOS (range 1), DBP, LPMS
                 (0x04, 0, 0x0000_00FF),           // CR2
                 (0x08, 0x0000_8000, 0x0000_C5FF), // CR3
                 (0x0C, 0, 0x0000_03FF),           // CR4
@@ -32,43 +33,48 @@ impl Bank {
             for o in (0x20..=0x4C).step_by(4) {
                 r.push((o, 0, 0xFFFF));
             }
-            Self::new("PWR", &r)
+            Self::new(&r)
         } else {
-            Self::new("PWR", &[(0x00, 0, 0x1FF), (0x04, 0, 0x100)])
+            Self::new(&[(0x00, 0, 0x1FF), (0x04, 0, 0x100)])
         }
     }
     pub fn syscfg(g4: bool) -> Self {
         if g4 {
-            Self::new(
-                "SYSCFG",
-                &[
-                    (0x00, 0, 0x107),
-                    (0x04, 0x7C00_0001, 0xFC3F_0300),
-                    (0x08, 0, 0xFFFF),
-                    (0x0C, 0, 0xFFFF),
-                    (0x10, 0, 0xFFFF),
-                    (0x14, 0, 0xFFFF),
-                    (0x18, 0, 1),
-                    (0x1C, 0, 0x10F),
-                    (0x20, 0, u32::MAX),
-                    (0x24, 0, 0xFF),
-                ],
-            )
+            Self::new(&[
+                (0x00, 0, 0x107),
+                (0x04, 0x7C00_0001, 0xFC3F_0300),
+                (0x08, 0, 0xFFFF),
+                (0x0C, 0, 0xFFFF),
+                (0x10, 0, 0xFFFF),
+                (0x14, 0, 0xFFFF),
+                (0x18, 0, 1),
+                (0x1C, 0, 0x10F),
+                (0x20, 0, u32::MAX),
+                (0x24, 0, 0xFF),
+            ])
         } else {
-            Self::new(
-                "AFIO",
-                &[(0x00, 0, 0xFF), (0x04, 0, 0x071F_FFFF), (0x08, 0, 0xFFFF), (0x0C, 0, 0xFFFF), (0x10, 0, 0xFFFF), (0x14, 0, 0xFFFF), (0x1C, 0, 0x7E0)],
-            )
+            Self::new(&[
+                (0x00, 0, 0xFF),
+                (0x04, 0, 0x071F_FFFF),
+                (0x08, 0, 0xFFFF),
+                (0x0C, 0, 0xFFFF),
+                (0x10, 0, 0xFFFF),
+                (0x14, 0, 0xFFFF),
+                (0x1C, 0, 0x7E0),
+            ])
         }
     }
     pub fn dbgmcu(g4: bool, idcode: u32) -> Self {
         if g4 {
-            Self::new(
-                "DBGMCU",
-                &[(0x00, idcode, 0), (0x04, 0, 0x27), (0x08, 0, u32::MAX), (0x0C, 0, u32::MAX), (0x10, 0, u32::MAX)],
-            )
+            Self::new(&[
+                (0x00, idcode, 0),
+                (0x04, 0, 0x27),
+                (0x08, 0, u32::MAX),
+                (0x0C, 0, u32::MAX),
+                (0x10, 0, u32::MAX),
+            ])
         } else {
-            Self::new("DBGMCU", &[(0x00, idcode, 0), (0x04, 0, 0x7FFF_FF27)])
+            Self::new(&[(0x00, idcode, 0), (0x04, 0, 0x7FFF_FF27)])
         }
     }
 

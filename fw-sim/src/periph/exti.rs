@@ -21,7 +21,11 @@ impl Exti {
             r[0][0] = 0x1F84_0000;
             r[1][0] = 0x0000_003C;
         }
-        Self { g4, r, exticr: [0; 4] }
+        Self {
+            g4,
+            r,
+            exticr: [0; 4],
+        }
     }
 
     pub fn port_of(&self, line: u8) -> usize {

@@ -54,7 +54,6 @@ pub struct Flash {
     pub ops_started: u64,
     pub cut_at: Option<u64>,
     pub cut: bool,
-    pub irq: usize,
 }
 
 pub enum FlashWrite {
@@ -64,7 +63,17 @@ pub enum FlashWrite {
 
 impl Flash {
     #[allow(clippy::too_many_arguments)]
-    pub fn new(g4: bool, flash_base: u32, flash_end: u32, page: u32, region_base: u32, region_len: u32, file: Option<PathBuf>, t_prog: u64, t_erase: u64) -> std::io::Result<Self> {
+    pub fn new(
+        g4: bool,
+        flash_base: u32,
+        flash_end: u32,
+        page: u32,
+        region_base: u32,
+        region_len: u32,
+        file: Option<PathBuf>,
+        t_prog: u64,
+        t_erase: u64,
+    ) -> std::io::Result<Self> {
         let mut data = vec![0xFF; region_len as usize];
         if let Some(f) = &file {
             match std::fs::read(f) {
@@ -103,7 +112,6 @@ impl Flash {
             ops_started: 0,
             cut_at: None,
             cut: false,
-            irq: crate::chip::IRQ_FLASH,
         })
     }
 
@@ -120,15 +128,14 @@ impl Flash {
             1
         }
     }
-    pub fn latency(&self) -> u32 {
-        self.acr & 0xF
-    }
 
     pub fn irq_level(&self) -> bool {
         if self.g4 {
-            (self.cr & (1 << 24) != 0 && self.sr & 1 != 0) || (self.cr & (1 << 25) != 0 && self.sr & 0x3FA != 0)
+            (self.cr & (1 << 24) != 0 && self.sr & 1 != 0)
+                || (self.cr & (1 << 25) != 0 && self.sr & 0x3FA != 0)
         } else {
-            (self.cr & (1 << 12) != 0 && self.sr & (1 << 5) != 0) || (self.cr & (1 << 10) != 0 && self.sr & 0x14 != 0)
+            (self.cr & (1 << 12) != 0 && self.sr & (1 << 5) != 0)
+                || (self.cr & (1 << 10) != 0 && self.sr & 0x14 != 0)
         }
     }
 
@@ -220,13 +227,15 @@ impl Flash {
             }
             if !self.in_region(a, 4) {
                 if a >= self.flash_base && a < self.flash_end {
-                    return FlashWrite::Fault(format!("firmware programs its own code flash at {a:#010x}"));
+                    return FlashWrite::Fault(format!(
+                        "firmware programs its own code flash at {a:#010x}"
+                    ));
                 }
                 self.sr |= WRPERR;
                 return FlashWrite::Done;
             }
             match self.half.take() {
-                None if a % 8 == 0 => self.half = Some((a, v as u32)),
+                None if a.is_multiple_of(8) => self.half = Some((a, v as u32)),
                 None => self.sr |= PGAERR,
                 Some((first, w0)) if a == first + 4 => {
                     let mut bytes = w0.to_le_bytes().to_vec();
@@ -244,7 +253,7 @@ impl Flash {
         } else {
             const PGERR: u32 = 1 << 2;
             const WRPRTERR: u32 = 1 << 4;
-            if size != 2 || a % 2 != 0 {
+            if size != 2 || !a.is_multiple_of(2) {
                 return FlashWrite::Fault(format!(
                     "{size}-byte write to flash at {a:#010x}: the F1 flash interface takes aligned half words only (bus error)"
                 ));
@@ -255,7 +264,9 @@ impl Flash {
             }
             if !self.in_region(a, 2) {
                 if a >= self.flash_base && a < self.flash_end {
-                    return FlashWrite::Fault(format!("firmware programs its own code flash at {a:#010x}"));
+                    return FlashWrite::Fault(format!(
+                        "firmware programs its own code flash at {a:#010x}"
+                    ));
                 }
                 self.sr |= WRPRTERR;
                 return FlashWrite::Done;
@@ -265,7 +276,13 @@ impl Flash {
             if !erased && v as u16 != 0 {
                 self.sr |= PGERR;
             } else {
-                self.start(Op::Program { at: a, bytes: (v as u16).to_le_bytes().to_vec() }, t);
+                self.start(
+                    Op::Program {
+                        at: a,
+                        bytes: (v as u16).to_le_bytes().to_vec(),
+                    },
+                    t,
+                );
             }
         }
         FlashWrite::Done
@@ -281,7 +298,11 @@ impl Flash {
 
     pub fn read(&mut self, off: u32, t: u64) -> Access {
         let _ = t;
-        let bsy = if self.busy.is_some() { self.bsy_bit() } else { 0 };
+        let bsy = if self.busy.is_some() {
+            self.bsy_bit()
+        } else {
+            0
+        };
         Access::Ok(if self.g4 {
             match off {
                 0x00 => self.acr,
@@ -312,7 +333,9 @@ impl Flash {
 
     fn key(&mut self, v: u32) -> Result<(), String> {
         if self.locked_for_good {
-            return Err("FLASH_KEYR written after a wrong key sequence (locked until reset)".into());
+            return Err(
+                "FLASH_KEYR written after a wrong key sequence (locked until reset)".into(),
+            );
         }
         match (self.key_stage, v) {
             (0, KEY1) => self.key_stage = 1,
@@ -366,7 +389,11 @@ impl Flash {
             }
         } else {
             match off {
-                0x00 => self.acr = (self.acr & (1 << 5)) | (v & 0x1F) | if v & (1 << 4) != 0 { 1 << 5 } else { 0 },
+                0x00 => {
+                    self.acr = (self.acr & (1 << 5))
+                        | (v & 0x1F)
+                        | if v & (1 << 4) != 0 { 1 << 5 } else { 0 }
+                }
                 0x04 => self.key(v)?,
                 0x08 => {}
                 // PGERR, WRPRTERR, EOP: write 1 to clear
@@ -380,7 +407,8 @@ impl Flash {
                         return Err("flash mass erase (MER) is not modelled".into());
                     }
                     if v & (1 << 6) != 0 && v & 2 != 0 && self.busy.is_none() {
-                        let page = (self.ar - self.flash_base) / self.page * self.page + self.flash_base;
+                        let page =
+                            (self.ar - self.flash_base) / self.page * self.page + self.flash_base;
                         self.erase_page(page, t)?;
                     }
                     self.cr &= !(1 << 6);

@@ -38,7 +38,14 @@ impl Port {
         } else {
             [0x4444_4444, 0x4444_4444, 0, 0]
         };
-        Self { g4, cfg, odr: 0, lckr: 0, afr: [0; 2], external: [None; 16] }
+        Self {
+            g4,
+            cfg,
+            odr: 0,
+            lckr: 0,
+            afr: [0; 2],
+            external: [None; 16],
+        }
     }
 
     pub fn mode(&self, pin: u8) -> Mode {
@@ -85,7 +92,9 @@ impl Port {
             Mode::Output => self.odr_bit(pin),
             Mode::Alternate => af.unwrap_or(true),
             Mode::Analog => false,
-            Mode::Input => self.external[pin as usize].or(self.pull(pin)).unwrap_or(false),
+            Mode::Input => self.external[pin as usize]
+                .or(self.pull(pin))
+                .unwrap_or(false),
         }
     }
 
@@ -114,7 +123,11 @@ impl Port {
     }
 
     pub fn write(&mut self, off: u32, v: u32) -> Access {
-        let (odr, bsrr, brr) = if self.g4 { (0x14, 0x18, 0x28) } else { (0x0C, 0x10, 0x14) };
+        let (odr, bsrr, brr) = if self.g4 {
+            (0x14, 0x18, 0x28)
+        } else {
+            (0x0C, 0x10, 0x14)
+        };
         match off {
             o if o == odr => self.odr = v & 0xFFFF,
             o if o == bsrr => self.odr = (self.odr & !(v >> 16)) | (v & 0xFFFF),

@@ -22,7 +22,17 @@ pub struct Iwdg {
 
 impl Iwdg {
     pub fn new(g4: bool, lsi: u32) -> Self {
-        Self { g4, lsi: lsi as u64, pr: 0, rlr: 0xFFF, winr: 0xFFF, unlocked: false, running: false, expires: None, busy_until: [0; 3] }
+        Self {
+            g4,
+            lsi: lsi as u64,
+            pr: 0,
+            rlr: 0xFFF,
+            winr: 0xFFF,
+            unlocked: false,
+            running: false,
+            expires: None,
+            busy_until: [0; 3],
+        }
     }
     fn tick_ps(&self) -> u64 {
         ((4u128 << self.pr.min(6)) * PS_PER_S / self.lsi as u128) as u64
@@ -41,7 +51,10 @@ impl Iwdg {
         Access::Ok(match off {
             0x04 => self.pr,
             0x08 => self.rlr,
-            0x0C => (0..3).filter(|&i| self.busy_until[i] > t).map(|i| 1 << i).sum(),
+            0x0C => (0..3)
+                .filter(|&i| self.busy_until[i] > t)
+                .map(|i| 1 << i)
+                .sum(),
             0x10 if self.g4 => self.winr,
             _ => return Access::Unmodelled,
         })

@@ -94,6 +94,10 @@ impl Rcc {
                 v = (v & !(1 << 25)) | (((v >> 24) & 1) << 25); // PLLRDY
                 v
             }
+            // LSIRDY / LSERDY / HSI48RDY (bit 1) follow LSION / LSEON /
+            // HSI48ON (bit 0): G4 CSR, BDCR, CRRCR; F1 CSR, BDCR
+            0x94 | 0x90 | 0x98 if self.g4 => (v & !2) | ((v & 1) << 1),
+            0x24 | 0x20 if !self.g4 => (v & !2) | ((v & 1) << 1),
             0x08 if self.g4 => (v & !0xC) | ((v & 3) << 2),
             0x04 if !self.g4 => (v & !0xC) | ((v & 3) << 2),
             _ => v,
@@ -122,13 +126,13 @@ impl Rcc {
         }
     }
 
-    pub fn enabled(&self, off: u32, bit: u32) -> bool {
-        self.get(off) & (1 << bit) != 0
-    }
-
     pub fn clocks(&self) -> Clocks {
         let cr = self.derived(0, self.get(0));
-        let (cfgr, hsi) = if self.g4 { (self.get(0x08), 16_000_000u64) } else { (self.get(0x04), 8_000_000u64) };
+        let (cfgr, hsi) = if self.g4 {
+            (self.get(0x08), 16_000_000u64)
+        } else {
+            (self.get(0x04), 8_000_000u64)
+        };
         let pll = if self.g4 {
             let p = self.get(0x0C);
             let src = match p & 3 {
@@ -159,7 +163,11 @@ impl Rcc {
             _ => hsi,
         };
         let hpre = (cfgr >> 4) & 0xF;
-        let hdiv = if hpre < 8 { 1 } else { [2, 4, 8, 16, 64, 128, 256, 512][(hpre - 8) as usize] };
+        let hdiv = if hpre < 8 {
+            1
+        } else {
+            [2, 4, 8, 16, 64, 128, 256, 512][(hpre - 8) as usize]
+        };
         let hclk = sysclk / hdiv;
         let apb = |bits: u32| if bits < 4 { 1 } else { 1u64 << (bits - 3) };
         let d1 = apb((cfgr >> 8) & 7);

@@ -12,7 +12,6 @@ use crate::clock::{clk_at, time_of_clk};
 
 #[derive(Debug)]
 pub struct Timer {
-    pub name: &'static str,
     pub irq: usize,
     g4: bool,
     bits32: bool,
@@ -56,10 +55,9 @@ const ARPE: u32 = 1 << 7;
 const UIFREMAP: u32 = 1 << 11;
 
 impl Timer {
-    pub fn new(name: &'static str, irq: usize, g4: bool, bits32: bool) -> Self {
+    pub fn new(irq: usize, g4: bool, bits32: bool) -> Self {
         let max = if bits32 { u32::MAX } else { 0xFFFF };
         Self {
-            name,
             irq,
             g4,
             bits32,
@@ -107,9 +105,6 @@ impl Timer {
             self.clk_hz = hz;
             self.anchor_clk = clk_at(now, hz);
         }
-    }
-    pub fn clock_hz(&self) -> u64 {
-        self.clk_hz
     }
 
     pub fn irq_level(&self) -> bool {
@@ -170,7 +165,11 @@ impl Timer {
 
     /// Ticks from the count `cnt` to the next event: (ticks, is_overflow).
     fn next_step(&self, cnt: u32) -> (u64, bool, u32) {
-        let top = if cnt <= self.arr_sh { self.arr_sh } else { self.max() };
+        let top = if cnt <= self.arr_sh {
+            self.arr_sh
+        } else {
+            self.max()
+        };
         let mut k = top as u64 - cnt as u64 + 1;
         let mut ovf = true;
         let mut chans = 0;
@@ -253,21 +252,19 @@ impl Timer {
         }
         let period = self.psc_sh as u64 + 1;
         let mut cnt = self.cnt;
-        let mut best: Option<u64> = None;
         // the first event with an enabled interrupt within this period, else
         // the period's update
         loop {
             let (k, ovf, chans) = self.next_step(cnt);
             let at_clk = self.anchor_clk + (k + (cnt - self.cnt) as u64) * period;
             let at = time_of_clk(at_clk, self.clk_hz);
-            let enabled = ovf || (chans << 1) & self.dier != 0 || (chans & 1 != 0 && self.ccer & 1 != 0);
+            let enabled =
+                ovf || (chans << 1) & self.dier != 0 || (chans & 1 != 0 && self.ccer & 1 != 0);
             if enabled || ovf {
-                best = Some(at);
-                break;
+                return Some(at);
             }
             cnt += k as u32;
         }
-        best
     }
 
     pub fn read(&mut self, off: u32, t: u64) -> Access {
@@ -283,7 +280,11 @@ impl Timer {
             0x1C => self.ccmr[1],
             0x20 => self.ccer,
             0x24 => {
-                let uifcpy = if self.g4 && self.cr1 & UIFREMAP != 0 { (self.sr & 1) << 31 } else { 0 };
+                let uifcpy = if self.g4 && self.cr1 & UIFREMAP != 0 {
+                    (self.sr & 1) << 31
+                } else {
+                    0
+                };
                 self.cnt | uifcpy
             }
             0x28 => self.psc,

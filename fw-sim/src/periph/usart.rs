@@ -2,8 +2,11 @@
 //! timeout RTOR/RTOF, TEACK/REACK, hardware driver enable CR3.DEM with
 //! DEAT/DEDT) and RM0008 §27 (F1: SR/DR, flags cleared by an SR read then a
 //! DR access). Characters take their bit times from BRR, PRESC, M, PCE and
-//! STOP at the USART's kernel clock. FIFO mode (FIFOEN), synchronous, LIN,
+//! STOP at the USART's kernel clock. Synchronous, LIN,
 //! smartcard, IrDA and half-duplex are not modelled (`Unsupported`).
+//! FIFO mode (G4 FIFOEN, RM0440 §37.5.3): eight characters each way, RXFNE
+//! / TXFNF in the RXNE / TXE places, TXFE and RXFF; the FIFO threshold
+//! interrupts are not modelled.
 
 use std::collections::VecDeque;
 
@@ -34,7 +37,8 @@ pub struct Usart {
     /// ISR (G4) / SR (F1) flags, G4 bit positions for both (F1's are the same
     /// for bits 0..9).
     isr: u32,
-    rdr: u16,
+    /// Received characters not yet read (one, or up to eight in FIFO mode).
+    rx_fifo: VecDeque<u16>,
     /// F1: flags seen by the last SR read (cleared by the next DR read).
     f1_sr_seen: u32,
     /// Characters arriving: (time the stop bit ends, character).
@@ -42,7 +46,8 @@ pub struct Usart {
     last_rx_end: Option<u64>,
     rto_armed: bool,
     idle_armed: bool,
-    tdr: Option<u8>,
+    /// Characters written and not yet in the shift register.
+    tx_fifo: VecDeque<u8>,
     /// The character in the shift register: (start bit time, end of stop
     /// bit, byte, the driver was on at its start bit).
     shift: Option<(u64, u64, u8, bool)>,
@@ -55,7 +60,8 @@ pub struct Usart {
     /// The DE pin is a GPIO at this level (F1, or G4 with the pin not in
     /// its USART alternate function); None: the USART's own DE output.
     pub gpio_de: Option<bool>,
-    pub irq: usize,
+    /// Print every character and timeout (FW_SIM_DEBUG_UART).
+    pub debug: bool,
 }
 
 // ISR bits (G4 numbering; F1 SR uses the same for PE..CTS)
@@ -69,11 +75,13 @@ const TC: u32 = 1 << 6;
 const TXE: u32 = 1 << 7;
 const RTOF: u32 = 1 << 11;
 const BUSY: u32 = 1 << 16;
+const TXFE: u32 = 1 << 23;
+const RXFF: u32 = 1 << 24;
 const TEACK: u32 = 1 << 21;
 const REACK: u32 = 1 << 22;
 
 impl Usart {
-    pub fn new(g4: bool, irq: usize) -> Self {
+    pub fn new(g4: bool) -> Self {
         Self {
             g4,
             fck: 8_000_000,
@@ -85,19 +93,19 @@ impl Usart {
             rtor: 0,
             presc: 0,
             isr: TC | TXE,
-            rdr: 0,
+            rx_fifo: VecDeque::new(),
             f1_sr_seen: 0,
             rx: VecDeque::new(),
             last_rx_end: None,
             rto_armed: false,
             idle_armed: false,
-            tdr: None,
+            tx_fifo: VecDeque::new(),
             shift: None,
             de_on: false,
             de_off_at: None,
             tx_out: Vec::new(),
             gpio_de: None,
-            irq,
+            debug: std::env::var_os("FW_SIM_DEBUG_UART").is_some(),
         }
     }
 
@@ -147,38 +155,25 @@ impl Usart {
     pub fn char_ps(&self) -> u64 {
         self.bit_ps() * self.char_bits() as u64
     }
-    pub fn baud(&self) -> u64 {
-        let b = self.bit_ps();
-        if b == 0 {
-            0
-        } else {
-            (PS_PER_S / b as u128) as u64
-        }
-    }
     /// Receiver on with its interrupt enabled: the firmware listens.
     pub fn rx_armed(&self) -> bool {
         self.re() && self.cr1 & (1 << 5) != 0
     }
-    pub fn parity_enabled(&self) -> bool {
-        self.pce()
-    }
     /// Receiver timeout in ps (G4, RTOEN set), else None.
     fn rto_ps(&self) -> Option<u64> {
-        (self.g4 && self.cr2 & (1 << 23) != 0).then(|| (self.rtor & 0xFF_FFFF) as u64 * self.bit_ps())
+        (self.g4 && self.cr2 & (1 << 23) != 0)
+            .then(|| (self.rtor & 0xFF_FFFF) as u64 * self.bit_ps())
     }
     fn dem(&self) -> bool {
         self.g4 && self.cr3 & (1 << 14) != 0
     }
     /// The level of the G4 DE output (after DEP), if DEM is on.
     pub fn de_output(&self) -> Option<bool> {
-        self.dem().then(|| self.de_on ^ (self.cr3 & (1 << 15) != 0))
-    }
-    /// Whether the transceiver drives the bus now (G4 hardware DE).
-    pub fn de_active(&self) -> bool {
-        self.de_on
+        self.dem()
+            .then_some(self.de_on ^ (self.cr3 & (1 << 15) != 0))
     }
     pub fn transmitting(&self) -> bool {
-        self.shift.is_some() || self.tdr.is_some()
+        self.shift.is_some() || !self.tx_fifo.is_empty()
     }
 
     pub fn irq_level(&self) -> bool {
@@ -187,6 +182,8 @@ impl Usart {
         (c & (1 << 5) != 0 && i & (RXNE | ORE) != 0)
             || (c & (1 << 6) != 0 && i & TC != 0)
             || (c & (1 << 7) != 0 && i & TXE != 0)
+            || (self.g4 && c & (1 << 30) != 0 && i & TXFE != 0)
+            || (self.g4 && c & (1 << 31) != 0 && i & RXFF != 0)
             || (c & (1 << 4) != 0 && i & IDLE != 0)
             || (c & (1 << 8) != 0 && i & PE != 0)
             || (self.g4 && c & (1 << 26) != 0 && i & RTOF != 0)
@@ -196,7 +193,8 @@ impl Usart {
     /// The transceiver drives the bus (DE high): its receiver is off then
     /// (/RE tied to DE on the board).
     pub fn driving(&self) -> bool {
-        self.gpio_de.unwrap_or_else(|| self.de_output().unwrap_or(false))
+        self.gpio_de
+            .unwrap_or_else(|| self.de_output().unwrap_or(false))
     }
 
     pub fn sync(&mut self, t: u64) {
@@ -226,6 +224,16 @@ impl Usart {
             match what {
                 0 => {
                     let (end, c) = self.rx.pop_front().unwrap();
+                    if self.debug {
+                        eprintln!(
+                            "usart: rx {:#04x} at {} ns (re {}, driving {}, isr {:#x})",
+                            c.byte,
+                            end / 1000,
+                            self.re(),
+                            self.driving(),
+                            self.isr
+                        );
+                    }
                     // the receiver is blind while our own driver is on
                     let _ = end;
                     if self.re() && !self.driving() {
@@ -237,8 +245,16 @@ impl Usart {
                 }
                 1 => {
                     let (s, e, b, on) = self.shift.take().unwrap();
+                    if self.debug {
+                        eprintln!(
+                            "usart: tx {b:#04x} {} ns .. {} ns, driver on {}",
+                            s / 1000,
+                            e / 1000,
+                            on && self.driving()
+                        );
+                    }
                     self.tx_out.push((s, e, b, on && self.driving()));
-                    if let Some(next) = self.tdr.take() {
+                    if let Some(next) = self.tx_fifo.pop_front() {
                         self.shift = Some((at, at + self.char_ps(), next, self.driving()));
                         self.isr |= TXE;
                     } else {
@@ -250,6 +266,9 @@ impl Usart {
                     }
                 }
                 2 => {
+                    if self.debug {
+                        eprintln!("usart: receiver timeout at {} ns", at / 1000);
+                    }
                     self.isr |= RTOF;
                     self.rto_armed = false;
                 }
@@ -266,7 +285,7 @@ impl Usart {
     }
 
     fn receive(&mut self, c: RxChar) {
-        if self.isr & RXNE != 0 {
+        if self.rx_fifo.len() >= self.depth() {
             // the previous character was not read: overrun, this one is lost
             // (G4 unless OVRDIS)
             if !(self.g4 && self.cr3 & (1 << 12) != 0) {
@@ -281,7 +300,7 @@ impl Usart {
             // the parity bit is not part of the data
             b &= (1 << (data - 1)) - 1;
         }
-        self.rdr = b;
+        self.rx_fifo.push_back(b);
         self.isr |= RXNE;
         if c.parity_error && self.pce() {
             self.isr |= PE;
@@ -331,9 +350,11 @@ impl Usart {
             self.de_off_at = None;
             self.shift = Some((start, start + self.char_ps(), b, self.driving()));
             self.isr |= TXE;
-        } else {
-            self.tdr = Some(b);
-            self.isr &= !TXE;
+        } else if self.tx_fifo.len() < self.depth() {
+            self.tx_fifo.push_back(b);
+            if self.tx_fifo.len() >= self.depth() {
+                self.isr &= !TXE;
+            }
         }
     }
 
@@ -349,6 +370,12 @@ impl Usart {
             if self.transmitting() {
                 i |= BUSY;
             }
+            if self.fifo_mode() && self.tx_fifo.is_empty() {
+                i |= TXFE;
+            }
+            if self.fifo_mode() && self.rx_fifo.len() >= 8 {
+                i |= RXFF;
+            }
         }
         i
     }
@@ -356,12 +383,32 @@ impl Usart {
     fn disable(&mut self) {
         // UE = 0: current operations discarded, status flags at reset
         self.isr = TC | TXE;
-        self.tdr = None;
+        self.tx_fifo.clear();
+        self.rx_fifo.clear();
         self.shift = None;
         self.de_on = false;
         self.de_off_at = None;
         self.rto_armed = false;
         self.idle_armed = false;
+    }
+
+    fn fifo_mode(&self) -> bool {
+        self.g4 && self.cr1 & (1 << 29) != 0
+    }
+    fn depth(&self) -> usize {
+        if self.fifo_mode() {
+            8
+        } else {
+            1
+        }
+    }
+    /// RDR read: the oldest character; RXNE (RXFNE) while any is left.
+    fn pop_rx(&mut self) -> u16 {
+        let b = self.rx_fifo.pop_front().unwrap_or(0);
+        if self.rx_fifo.is_empty() {
+            self.isr &= !RXNE;
+        }
+        b
     }
 
     pub fn read(&mut self, off: u32) -> Access {
@@ -376,10 +423,7 @@ impl Usart {
                 0x18 => 0,
                 0x1C => self.status(),
                 0x20 => 0,
-                0x24 => {
-                    self.isr &= !RXNE;
-                    self.rdr as u32
-                }
+                0x24 => self.pop_rx() as u32,
                 0x28 => 0,
                 0x2C => self.presc,
                 _ => return Access::Unmodelled,
@@ -392,9 +436,9 @@ impl Usart {
                     s
                 }
                 0x04 => {
-                    self.isr &= !(RXNE | (self.f1_sr_seen & (PE | FE | NE | ORE | IDLE)));
+                    self.isr &= !(self.f1_sr_seen & (PE | FE | NE | ORE | IDLE));
                     self.f1_sr_seen = 0;
-                    self.rdr as u32
+                    self.pop_rx() as u32
                 }
                 0x08 => self.brr,
                 0x0C => self.cr1,
@@ -412,11 +456,19 @@ impl Usart {
             match off {
                 0x00 => {
                     // M, OVER8, PCE, PS, WAKE, DEAT, DEDT, FIFOEN: only while UE = 0
-                    const LOCKED: u32 = (1 << 28) | (1 << 12) | (1 << 15) | (1 << 10) | (1 << 9) | (1 << 11) | (0x3FF << 16) | (1 << 29);
-                    let v = if ue { (v & !LOCKED) | (self.cr1 & LOCKED) } else { v };
-                    if v & (1 << 29) != 0 {
-                        return Access::Unsupported("USART FIFO mode (FIFOEN)");
-                    }
+                    const LOCKED: u32 = (1 << 28)
+                        | (1 << 12)
+                        | (1 << 15)
+                        | (1 << 10)
+                        | (1 << 9)
+                        | (1 << 11)
+                        | (0x3FF << 16)
+                        | (1 << 29);
+                    let v = if ue {
+                        (v & !LOCKED) | (self.cr1 & LOCKED)
+                    } else {
+                        v
+                    };
                     self.cr1 = v;
                     if ue && v & 1 == 0 {
                         self.disable();
@@ -426,14 +478,27 @@ impl Usart {
                     if v & (1 << 14) != 0 || v & (1 << 11) != 0 {
                         return Access::Unsupported("USART LIN / synchronous mode");
                     }
-                    self.cr2 = if ue { (v & (1 << 23)) | (self.cr2 & !(1 << 23)) } else { v };
+                    self.cr2 = if ue {
+                        (v & (1 << 23)) | (self.cr2 & !(1 << 23))
+                    } else {
+                        v
+                    };
                 }
                 0x08 => {
                     if v & ((1 << 3) | (1 << 5) | (1 << 1)) != 0 {
                         return Access::Unsupported("USART half-duplex / smartcard / IrDA");
                     }
                     const LOCKED: u32 = (1 << 14) | (1 << 15) | (1 << 12) | (1 << 11);
-                    self.cr3 = if ue { (v & !LOCKED) | (self.cr3 & LOCKED) } else { v };
+                    if v & ((1 << 28) | (1 << 23)) != 0 {
+                        return Access::Unsupported(
+                            "USART FIFO threshold interrupts (RXFTIE / TXFTIE)",
+                        );
+                    }
+                    self.cr3 = if ue {
+                        (v & !LOCKED) | (self.cr3 & LOCKED)
+                    } else {
+                        v
+                    };
                 }
                 0x0C => {
                     if !ue {
@@ -444,7 +509,7 @@ impl Usart {
                 0x14 => self.rtor = v,
                 0x18 => {
                     if v & (1 << 3) != 0 {
-                        self.isr &= !RXNE;
+                        self.pop_rx();
                     }
                 }
                 0x20 => {
@@ -467,7 +532,12 @@ impl Usart {
         } else {
             match off {
                 // rc_w0 for RXNE and TC; the error flags are read-only
-                0x00 => self.isr &= !((!v) & (RXNE | TC)),
+                0x00 => {
+                    if v & RXNE == 0 {
+                        self.rx_fifo.clear();
+                    }
+                    self.isr &= !((!v) & (RXNE | TC));
+                }
                 0x04 => {
                     if self.f1_sr_seen & TC != 0 {
                         self.isr &= !TC;
