@@ -157,7 +157,11 @@ impl Machine {
             self.tim[i].sync(t);
         }
         self.step_edges();
-        self.usart.gpio_de = self.gpio_de();
+        let de = self.gpio_de();
+        if let (Some(level), true) = (de, de != self.usart.gpio_de) {
+            self.usart.de_edges.push((t, level));
+        }
+        self.usart.gpio_de = de;
         self.usart.sync(t);
         if let Err(e) = self.flash.sync(t) {
             self.fault = Some(format!("--state file: {e}"));

@@ -29,7 +29,7 @@ use machine::Machine;
 use periph::flash::Flash;
 use periph::usart::RxChar;
 use rtt::Rtt;
-use trace::StepTrace;
+use trace::{LineTrace, StepTrace};
 
 /// The longest slice of instructions between two looks at the line and the
 /// interrupt controller.
@@ -82,6 +82,10 @@ fn run() -> Result<i32, String> {
         Some(p) => Some(StepTrace::create(p).map_err(|e| format!("{}: {e}", p.display()))?),
         None => None,
     };
+    let line_trace = match &args.trace_line {
+        Some(p) => Some(LineTrace::create(p).map_err(|e| format!("{}: {e}", p.display()))?),
+        None => None,
+    };
     let machine = Machine::new(chip, flash, args.switches, trace);
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
@@ -103,6 +107,7 @@ fn run() -> Result<i32, String> {
         rx_tail: 0,
         last_poll: Instant::now(),
         run_for: args.run_for_ps,
+        line_trace,
     };
     r.run()
 }
@@ -122,6 +127,7 @@ struct Runner {
     rx_tail: u64,
     last_poll: Instant,
     run_for: Option<u64>,
+    line_trace: Option<LineTrace>,
 }
 
 impl Runner {
@@ -322,14 +328,27 @@ impl Runner {
                         ..Default::default()
                     },
                 ));
+                if let Some(lt) = self.line_trace.as_mut() {
+                    lt.event(self.rx_tail, "rx", b as u32);
+                }
             }
         }
     }
 
     /// Characters that left the emulated TX wire while the driver was on.
     fn output(&mut self) {
-        let out: Vec<u8> = self
-            .m()
+        let m = self.uc.get_data_mut();
+        if let Some(lt) = self.line_trace.as_mut() {
+            for (t, level) in m.usart.de_edges.drain(..) {
+                lt.event(t, "de", level as u32);
+            }
+            for c in &m.usart.tx_out {
+                lt.event(c.0, "tx", c.2 as u32);
+            }
+        } else {
+            m.usart.de_edges.clear();
+        }
+        let out: Vec<u8> = m
             .usart
             .tx_out
             .drain(..)

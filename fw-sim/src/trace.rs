@@ -28,3 +28,23 @@ impl StepTrace {
         let _ = self.out.flush();
     }
 }
+
+/// `--trace-line FILE`: what happened on the RS-485 line, one CSV line per
+/// event: emulated time in ns, the event (`rx`: a character from the master
+/// ends; `tx`: a character of the firmware starts; `de`: the transceiver's
+/// driver enable changes) and its value (the byte, or the DE level).
+pub struct LineTrace {
+    out: BufWriter<File>,
+}
+
+impl LineTrace {
+    pub fn create(path: &Path) -> std::io::Result<Self> {
+        let mut out = BufWriter::new(File::create(path)?);
+        writeln!(out, "time_ns,event,value")?;
+        Ok(Self { out })
+    }
+    pub fn event(&mut self, t_ps: u64, what: &str, value: u32) {
+        let _ = writeln!(self.out, "{},{what},{value}", (t_ps + 500) / 1000);
+        let _ = self.out.flush();
+    }
+}

@@ -60,6 +60,9 @@ pub struct Usart {
     /// The DE pin is a GPIO at this level (F1, or G4 with the pin not in
     /// its USART alternate function); None: the USART's own DE output.
     pub gpio_de: Option<bool>,
+    /// Changes of the transceiver's driver enable (either the USART's own
+    /// DE output or the board's GPIO), for the line trace.
+    pub de_edges: Vec<(u64, bool)>,
     /// Print every character and timeout (FW_SIM_DEBUG_UART).
     pub debug: bool,
 }
@@ -105,6 +108,7 @@ impl Usart {
             de_off_at: None,
             tx_out: Vec::new(),
             gpio_de: None,
+            de_edges: Vec::new(),
             debug: std::env::var_os("FW_SIM_DEBUG_UART").is_some(),
         }
     }
@@ -279,6 +283,7 @@ impl Usart {
                 _ => {
                     self.de_on = false;
                     self.de_off_at = None;
+                    self.de_edges.push((at, false));
                 }
             }
         }
@@ -345,6 +350,7 @@ impl Usart {
             let mut start = t;
             if self.dem() && !self.de_on {
                 self.de_on = true;
+                self.de_edges.push((t, true));
                 start += ((self.cr1 >> 21) & 0x1F) as u64 * self.bit_ps() / 16;
             }
             self.de_off_at = None;
