@@ -158,8 +158,11 @@ impl Machine {
         }
         self.step_edges();
         let de = self.gpio_de();
+        // a GPIO DE pin: its changes (and a first rise) are edges
         if let (Some(level), true) = (de, de != self.usart.gpio_de) {
-            self.usart.de_edges.push((t, level));
+            if self.usart.gpio_de.is_some() || level {
+                self.usart.de_edges.push((t, level));
+            }
         }
         self.usart.gpio_de = de;
         self.usart.sync(t);
