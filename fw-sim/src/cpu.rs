@@ -140,7 +140,7 @@ pub fn create(image: &Image, machine: Machine) -> Result<Uc, String> {
 /// interrupt that may now be taken).
 fn stop_if_needed(uc: &mut Unicorn<'_, Machine>) {
     if uc.get_data().fault.is_some() && uc.get_data().fault_pc.is_none() {
-        let pc = uc.reg_read(R::PC).unwrap_or(0) as u32;
+        let pc = uc.get_data().access_pc;
         uc.get_data_mut().fault_pc = Some(pc);
     }
     // not emu_stop here: stopping inside an access would replay the
@@ -194,6 +194,21 @@ fn install_hooks(uc: &mut Uc, image: &Image) -> Result<(), String> {
         },
     )
     .map_err(|e| format!("hook: {e:?}"))?;
+    // the program counter of each peripheral access (unicorn keeps PC
+    // exact in memory hooks, not in MMIO callbacks), for fault reports
+    for (base, len) in [(0x4000_0000u64, 0x2000_0000u64), (0xE000_0000, 0x10_0000)] {
+        uc.add_mem_hook(
+            HookType::MEM_READ | HookType::MEM_WRITE,
+            base,
+            base + len - 1,
+            |uc: &mut Unicorn<'_, Machine>, _, _, _, _| {
+                let pc = uc.reg_read(R::PC).unwrap_or(0) as u32;
+                uc.get_data_mut().access_pc = pc;
+                true
+            },
+        )
+        .map_err(|e| format!("hook: {e:?}"))?;
+    }
     let segs = image.load_segments()?;
     for (op, wfe) in [(0xBF30u16, false), (0xBF20, true)] {
         for a in image.find_hint(op, &segs) {

@@ -45,6 +45,8 @@ pub struct Machine {
     pub fault: Option<String>,
     /// The program counter when the fault was raised.
     pub fault_pc: Option<u32>,
+    /// The program counter of the last peripheral access.
+    pub access_pc: u32,
     /// Instructions of the current slice so far (block granularity).
     pub slice_insns: u64,
     pub budget: u64,
@@ -89,6 +91,7 @@ impl Machine {
             scs: Scs::new(chip.has_fpu, chip.cpuid),
             fault: None,
             fault_pc: None,
+            access_pc: 0,
             slice_insns: 0,
             budget: 0,
             stop_soon: false,
