@@ -38,12 +38,23 @@ def test_position_move_counts_its_pulses(start_fw, board, tmp_path):
     assert m.read32(ACTUAL_POSITION) == DISTANCE
     sw = m.statusword()
     assert sw & STATE_MASK == OPERATION_ENABLED and sw & TARGET_REACHED
+    # the firmware counts a step when it loads it into the timer: the pin
+    # lags the position by up to one step period (src/firmware/steps.rs)
+    time.sleep(0.05)
     fw.alive()
     pulses = read_csv(steps)
     assert len(pulses) == DISTANCE, f"{board}: {len(pulses)} pulses for {DISTANCE} steps"
     assert {p["dir"] for p in pulses} == {"1"}, "one direction throughout"
     times = [int(p["time_ns"]) for p in pulses]
     assert times == sorted(times)
+    # the timers run from the emulated clock: the shortest period is the
+    # triangle's peak, 2000 steps at 10 r/s² (100000 steps/s²) reach
+    # sqrt(2000 * 100000) steps/s, 70.7 µs; the move lasts 2 * sqrt(2000 /
+    # 100000) s less one step period
+    shortest = min(b - a for a, b in zip(times, times[1:]))
+    assert 70_000 <= shortest <= 72_000, f"{board}: shortest period {shortest} ns"
+    assert 270e6 < times[-1] - times[0] < 283e6, f"{board}: {times[-1] - times[0]} ns"
+
     assert all(int(p["width_ns"]) > 0 for p in pulses)
     # the move back: as many pulses, the other direction
     m.write32(TARGET_POSITION, 0)
@@ -51,6 +62,7 @@ def test_position_move_counts_its_pulses(start_fw, board, tmp_path):
     m.write(CONTROLWORD, 0x000F)
     m.wait(settled, 10, "back at 0")
     assert m.read32(ACTUAL_POSITION) == 0
+    time.sleep(0.05)
     pulses = read_csv(steps)
     assert len(pulses) == 2 * DISTANCE
     assert {p["dir"] for p in pulses[DISTANCE:]} == {"0"}
