@@ -87,7 +87,8 @@ class Firmware:
         raise AssertionError(f"fw-sim {board} did not print ready:\n{self.stderr()}")
 
     def stderr(self) -> str:
-        self.err.flush()
+        if not self.err.closed:
+            self.err.flush()
         return self.err_path.read_text(errors="replace")
 
     def alive(self):
@@ -96,7 +97,11 @@ class Firmware:
         assert rc is None, f"fw-sim {self.board} exited with {rc}:\n{self.stderr()}"
 
     def stop(self) -> int | None:
-        rc = self.proc.poll()
+        """Stops the runner; returns its exit code if it had stopped by
+        itself (a fault), None if it was running."""
+        if self.err.closed:
+            return self.exited
+        rc = self.exited = self.proc.poll()
         if rc is None:
             self.proc.send_signal(signal.SIGTERM)
             try:
