@@ -3,13 +3,16 @@
 # fw-f103) run on the emulated STM32 of fw-sim/ (docs/fw-sim.md) and are
 # driven over the emulated USART by the pytest tests in tests/fw_sim (seed
 # 000 frames byte for byte, exceptions, addressing, a position move counted
-# in step pulses, DE around every reply). Run by .ci/run.
+# in step pulses, DE around every reply, a limit through GPIO/EXTI, a
+# parameter save through the flash controller, mbpoll over the pty). Run by
+# .ci/run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # unicorn-engine builds its C core with cmake; bindgen needs libclang
 missing=()
 command -v cmake >/dev/null || missing+=(cmake)
+command -v mbpoll >/dev/null || missing+=(mbpoll)
 ldconfig -p 2>/dev/null | grep -q libclang || missing+=(libclang-dev)
 command -v flip-link >/dev/null || cargo install flip-link --locked
 if [ ${#missing[@]} -gt 0 ]; then

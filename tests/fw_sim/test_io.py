@@ -3,6 +3,8 @@ emulated axis, through GPIO and EXTI (SPEC §8.7), and the parameter flash
 (`--state`): EE-Set runs through the firmware's own flash driver against the
 modelled flash controller and a saved value survives a restart (SPEC §9)."""
 
+import re
+import subprocess
 import time
 
 from conftest import (ACCELERATION, ACTUAL_POSITION, ACTUAL_VELOCITY, CCW_LIMIT, DECELERATION,
@@ -51,3 +53,16 @@ def test_a_saved_parameter_survives_a_restart(start_fw, board, tmp_path):
     m = Master(fw.client())
     assert m.read(MAX_SPEED_PA12) == 1500
     assert m.read(ACCELERATION) == 321
+
+
+def test_mbpoll_over_the_pseudo_terminal(start_fw, board, tmp_path):
+    """The --pty-link path, driven by mbpoll as a field engineer would:
+    0x6041 reads 0x0060 (switch on disabled, SPEC §8.1) at power-up."""
+    link = tmp_path / "ttyFW"
+    fw = start_fw(board, "--pty-link", str(link))
+    out = subprocess.run(["mbpoll", "-m", "rtu", "-a", "1", "-0", "-r", str(0x6041), "-c", "1",
+                          "-b", "115200", "-P", "none", "-1", str(link)],
+                         capture_output=True, text=True, timeout=20)
+    fw.alive()
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert re.search(r"\[24641\]:\s+96\b", out.stdout), out.stdout
