@@ -10,7 +10,7 @@ use crate::machine::Switches;
 
 pub const USAGE: &str = "\
 usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--pty-link PATH]
-              [--trace-steps FILE] [--trace-line FILE] [--state FILE] [--cw-limit STEPS] [--ccw-limit STEPS]
+              [--trace-steps FILE] [--trace-line FILE] [--stats FILE] [--state FILE] [--cw-limit STEPS] [--ccw-limit STEPS]
               [--home-switch FROM:TO] [--run-for SECONDS] [--quiet]
 
 Runs the unmodified firmware image of a board on an emulated STM32.
@@ -20,6 +20,8 @@ Runs the unmodified firmware image of a board on an emulated STM32.
   --pty-link    a pseudo-terminal, linked at PATH
   --trace-steps CSV of every step pulse: time_ns,dir,width_ns
   --trace-line  CSV of the line: time_ns,event (rx, tx, de),value
+  --stats       rewritten every 50 ms (wall): emulated time_ns, busy and
+                sleeping core cycles, step pulses
   --state       file holding the parameter flash pages (kept across runs)
   --cw-limit / --ccw-limit / --home-switch: switch positions in steps
   --run-for     stop after this much emulated time (exit 0)
@@ -32,6 +34,7 @@ pub struct Args {
     pub pty_link: Option<PathBuf>,
     pub trace_steps: Option<PathBuf>,
     pub trace_line: Option<PathBuf>,
+    pub stats: Option<PathBuf>,
     pub state: Option<PathBuf>,
     pub switches: Switches,
     pub run_for_ps: Option<u64>,
@@ -51,6 +54,7 @@ impl Args {
             pty_link: None,
             trace_steps: None,
             trace_line: None,
+            stats: None,
             state: None,
             switches: Switches::default(),
             run_for_ps: None,
@@ -87,6 +91,7 @@ impl Args {
                 "--pty-link" => a.pty_link = Some(v.into()),
                 "--trace-steps" => a.trace_steps = Some(v.into()),
                 "--trace-line" => a.trace_line = Some(v.into()),
+                "--stats" => a.stats = Some(v.into()),
                 "--state" => a.state = Some(v.into()),
                 "--cw-limit" => a.switches.cw_limit = Some(num(&flag, &v)?),
                 "--ccw-limit" => a.switches.ccw_limit = Some(num(&flag, &v)?),

@@ -36,6 +36,8 @@ use trace::{LineTrace, StepTrace};
 const MAX_SLICE: u64 = 20_000;
 /// How often (wall time) the line is polled while the core is busy.
 const POLL_EVERY: Duration = Duration::from_millis(1);
+/// How often (wall time) `--stats` is rewritten.
+const STATS_EVERY: Duration = Duration::from_millis(50);
 
 fn main() {
     let code = match run() {
@@ -108,6 +110,8 @@ fn run() -> Result<i32, String> {
         last_poll: Instant::now(),
         run_for: args.run_for_ps,
         line_trace,
+        stats: args.stats.clone(),
+        last_stats: Instant::now(),
     };
     r.run()
 }
@@ -128,6 +132,8 @@ struct Runner {
     last_poll: Instant,
     run_for: Option<u64>,
     line_trace: Option<LineTrace>,
+    stats: Option<std::path::PathBuf>,
+    last_stats: Instant,
 }
 
 impl Runner {
@@ -247,7 +253,30 @@ impl Runner {
         }
     }
 
+    /// `--stats`: a snapshot of the counters a measurement needs, written
+    /// whole to a new file and renamed, so a reader never sees half of it.
+    fn write_stats(&mut self) {
+        let Some(path) = &self.stats else { return };
+        if self.last_stats.elapsed() < STATS_EVERY {
+            return;
+        }
+        self.last_stats = Instant::now();
+        let m = self.uc.get_data();
+        let text = format!(
+            "time_ns {}\nbusy_cycles {}\nsleep_cycles {}\nsteps {}\n",
+            m.clock.now() / 1000,
+            m.clock.busy_cycles(),
+            m.clock.sleep_cycles(),
+            m.steps_total
+        );
+        let tmp = path.with_extension("tmp");
+        if std::fs::write(&tmp, text).is_ok() {
+            let _ = std::fs::rename(&tmp, path);
+        }
+    }
+
     fn after_slice(&mut self) {
+        self.write_stats();
         let t = self.now();
         self.m().sync(t);
         self.output();
@@ -296,6 +325,7 @@ impl Runner {
     }
 
     fn sleep_to(&mut self, t: u64) {
+        self.write_stats();
         let m = self.m();
         m.clock.sleep_until(t);
         m.sync(t);
