@@ -214,6 +214,8 @@ impl Runner {
             .clamp(1, MAX_SLICE);
         m.budget = budget;
         m.stop_soon = false;
+        m.pending_hint = m.scs.best_pending().is_some();
+        m.recheck = true;
         m.slice_insns = 0;
         m.events = Default::default();
         let res = self.uc.emu_start(self.pc as u64 | 1, 0, 0, 0);
@@ -406,11 +408,16 @@ impl Runner {
         self.poll_rtt();
         let m = self.uc.get_data();
         let pc = m.fault_pc.unwrap_or(self.pc);
+        let at = if m.fault_in_block {
+            "in the basic block at "
+        } else {
+            ""
+        };
         let lr = self.uc.reg_read(R::LR).unwrap_or(0) as u32;
         let sp = self.uc.reg_read(R::SP).unwrap_or(0) as u32;
         let t = m.clock.now();
         eprintln!("fw-sim: FAULT: {msg}");
-        eprintln!("  pc {pc:#010x} {}", self.image.symbol(pc));
+        eprintln!("  pc {at}{pc:#010x} {}", self.image.symbol(pc));
         eprintln!("  lr {lr:#010x} {}", self.image.symbol(lr));
         eprintln!(
             "  sp {sp:#010x}, emulated time {}.{:06} s",

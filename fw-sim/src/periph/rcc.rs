@@ -15,7 +15,7 @@ pub struct Rcc {
 }
 
 /// Clocks derived from the registers.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Clocks {
     pub sysclk: u32,
     pub hclk: u32,
