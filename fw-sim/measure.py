@@ -73,8 +73,9 @@ def wait_stats(path: Path, after_ns: int) -> dict[str, int]:
         time.sleep(0.02)
 
 
-def load_at(board: str, rate: int, work: Path) -> tuple[float, float]:
-    """(CPU load %, measured step rate) at a constant velocity of `rate`."""
+def load_at(board: str, rate: int, work: Path) -> tuple[float, float, float]:
+    """(CPU load %, measured step rate, emulated seconds per wall second)
+    at a constant velocity of `rate`."""
     st = work / f"{board}-{rate}.stats"
     fw = c.Firmware(work, board, ["--stats", str(st), "--quiet"])
     try:
@@ -90,12 +91,14 @@ def load_at(board: str, rate: int, work: Path) -> tuple[float, float]:
             assert time.monotonic() < deadline, "never reached the speed"
             time.sleep(0.02)
         a = stats(st)
+        w0 = time.monotonic()
         b = wait_stats(st, a["time_ns"] + 200_000_000)  # 0.2 s of emulated time
+        speed = (b["time_ns"] - a["time_ns"]) / 1e9 / (time.monotonic() - w0)
         busy = b["busy_cycles"] - a["busy_cycles"]
         asleep = b["sleep_cycles"] - a["sleep_cycles"]
         steps = (b["steps"] - a["steps"]) / ((b["time_ns"] - a["time_ns"]) / 1e9)
         fw.alive()
-        return 100 * busy / (busy + asleep), steps
+        return 100 * busy / (busy + asleep), steps, speed
     finally:
         fw.stop()
 
@@ -131,11 +134,15 @@ def main() -> int:
               "Share of core cycles not asleep over 0.2 s of emulated time, once",
               "0x606C shows the set speed. The planner caps step rates at",
               f"{MAX_STEP_RATE} steps/s (MAX_STEP_RATE in src/motion/planner.rs).", "",
-              "| board | steps/s set | steps/s measured | CPU load % |", "|---|---|---|---|"]
+              "The last column is how fast the emulator ran meanwhile: emulated",
+              "seconds per wall-clock second on the machine that ran this script",
+              "(the runner never runs ahead of wall time; below 1 it lags).", "",
+              "| board | steps/s set | steps/s measured | CPU load % | emulator speed |",
+              "|---|---|---|---|---|"]
     for board in c.BOARDS:
         for rate in RATES:
-            load, measured = load_at(board, rate, work)
-            lines.append(f"| {board} | {rate} | {measured:.0f} | {load:.1f} |")
+            load, measured, speed = load_at(board, rate, work)
+            lines.append(f"| {board} | {rate} | {measured:.0f} | {load:.1f} | {speed:.2f} |")
             print(lines[-1], flush=True)
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
