@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use unicorn_engine::RegisterARM as R;
 
 use chip::{Chip, Kind};
-use cli::Args;
+use cli::{Args, LineFault};
 use cpu::Uc;
 use elf::Image;
 use line::Line;
@@ -110,6 +110,8 @@ fn run() -> Result<i32, String> {
         last_poll: Instant::now(),
         run_for: args.run_for_ps,
         line_trace,
+        noise: args.noise.clone(),
+        rx_count: 0,
         stats: args.stats.clone(),
         last_stats: Instant::now(),
     };
@@ -132,6 +134,9 @@ struct Runner {
     last_poll: Instant,
     run_for: Option<u64>,
     line_trace: Option<LineTrace>,
+    /// `--noise`: faults by received character index, and that count.
+    noise: Vec<(u64, LineFault)>,
+    rx_count: u64,
     stats: Option<std::path::PathBuf>,
     last_stats: Instant,
 }
@@ -353,13 +358,20 @@ impl Runner {
             for b in chunk {
                 let start = self.rx_tail.max(now);
                 self.rx_tail = start + cps;
-                m.usart.rx.push_back((
-                    self.rx_tail,
-                    RxChar {
-                        byte: b,
-                        ..Default::default()
-                    },
-                ));
+                self.rx_count += 1;
+                let mut c = RxChar {
+                    byte: b,
+                    ..Default::default()
+                };
+                for &(_, f) in self.noise.iter().filter(|n| n.0 == self.rx_count) {
+                    match f {
+                        LineFault::Parity => c.parity_error = true,
+                        LineFault::Framing => c.framing_error = true,
+                        LineFault::Noise => c.noise = true,
+                        LineFault::Break => c.brk = true,
+                    }
+                }
+                m.usart.rx.push_back((self.rx_tail, c));
                 if let Some(lt) = self.line_trace.as_mut() {
                     lt.event(self.rx_tail, "rx", b as u32);
                 }
