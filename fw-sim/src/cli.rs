@@ -10,7 +10,7 @@ use crate::machine::Switches;
 
 pub const USAGE: &str = "\
 usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--pty-link PATH]
-              [--trace-steps FILE] [--trace-line FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--cw-limit STEPS] [--ccw-limit STEPS]
+              [--trace-steps FILE] [--trace-line FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
               [--home-switch FROM:TO] [--run-for SECONDS] [--quiet]
 
 Runs the unmodified firmware image of a board on an emulated STM32.
@@ -23,6 +23,8 @@ Runs the unmodified firmware image of a board on an emulated STM32.
   --noise       line faults on received characters, KIND@N[,KIND@N...]: KIND
                 parity, framing, noise or break on the N-th character from
                 the master (counted from 1 since the start)
+  --power-cut N the supply fails as the N-th flash program or erase starts:
+                the firmware restarts from the --state file (SRAM lost)
   --stats       rewritten every 50 ms (wall): emulated time_ns, busy and
                 sleeping core cycles, step pulses
   --state       file holding the parameter flash pages (kept across runs)
@@ -50,6 +52,7 @@ pub struct Args {
     pub stats: Option<PathBuf>,
     /// Line faults: (1-based index of the received character, kind).
     pub noise: Vec<(u64, LineFault)>,
+    pub power_cut: Option<u64>,
     pub state: Option<PathBuf>,
     pub switches: Switches,
     pub run_for_ps: Option<u64>,
@@ -71,6 +74,7 @@ impl Args {
             trace_line: None,
             stats: None,
             noise: Vec::new(),
+            power_cut: None,
             state: None,
             switches: Switches::default(),
             run_for_ps: None,
@@ -108,6 +112,7 @@ impl Args {
                 "--trace-steps" => a.trace_steps = Some(v.into()),
                 "--trace-line" => a.trace_line = Some(v.into()),
                 "--stats" => a.stats = Some(v.into()),
+                "--power-cut" => a.power_cut = Some(num(&flag, &v)?),
                 "--noise" => {
                     for item in v.split(',') {
                         let (kind, at) =

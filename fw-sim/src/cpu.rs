@@ -153,7 +153,7 @@ fn stop_if_needed(uc: &mut Unicorn<'_, Machine>) {
     let m = uc.get_data_mut();
     m.pending_hint = m.scs.best_pending().is_some();
     m.recheck = true;
-    if m.fault.is_some() {
+    if m.fault.is_some() || m.flash.cut {
         m.stop_soon = true;
     }
 }

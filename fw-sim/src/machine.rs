@@ -159,6 +159,7 @@ impl Machine {
         self.clock.set_sysclk(self.chip.reset_sysclk);
         self.position = position;
         self.steps_total = steps;
+        self.flash.reset();
         self.apply_clocks();
         self.apply_switches();
     }

@@ -88,7 +88,8 @@ fn run() -> Result<i32, String> {
         Some(p) => Some(LineTrace::create(p).map_err(|e| format!("{}: {e}", p.display()))?),
         None => None,
     };
-    let machine = Machine::new(chip, flash, args.switches, trace);
+    let mut machine = Machine::new(chip, flash, args.switches, trace);
+    machine.flash.cut_at = args.power_cut;
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
         None
@@ -161,6 +162,10 @@ impl Runner {
                 return Ok(self.report(&msg));
             }
             let now = self.now();
+            if self.uc.get_data().flash.cut {
+                self.power_cycle(now)?;
+                continue;
+            }
             if self.uc.get_data().scs.reset_request || self.uc.get_data().iwdg.expired(now) {
                 eprintln!("fw-sim: system reset at {} µs", now / 1_000_000);
                 self.m().reset_peripherals();
@@ -207,6 +212,28 @@ impl Runner {
             self.slice();
             self.after_slice();
         }
+    }
+
+    /// `--power-cut`: the supply failed as a flash operation started. The
+    /// chip comes back from cold: SRAM cleared, every peripheral reset, the
+    /// flash array as the file holds it; the line stays connected.
+    fn power_cycle(&mut self, now: u64) -> Result<(), String> {
+        let m = self.m();
+        let n = m.flash.ops_started;
+        m.flash.cut = false;
+        m.flash.cut_at = None;
+        eprintln!(
+            "fw-sim: power cut as flash operation {n} started ({} µs): restarting",
+            now / 1_000_000
+        );
+        m.reset_peripherals();
+        let (base, len) = (m.chip.sram_base, m.chip.sram_len);
+        self.uc
+            .mem_write(base as u64, &vec![0; len as usize])
+            .map_err(|e| format!("{e:?}"))?;
+        self.pc = cpu::reset(&mut self.uc)?;
+        self.sleeping = None;
+        Ok(())
     }
 
     /// Runs instructions until the next peripheral event (at most

@@ -66,3 +66,33 @@ def test_mbpoll_over_the_pseudo_terminal(start_fw, board, tmp_path):
     fw.alive()
     assert out.returncode == 0, out.stdout + out.stderr
     assert re.search(r"\[24641\]:\s+96\b", out.stdout), out.stdout
+
+
+def test_a_power_cut_during_a_save_keeps_the_old_or_the_new_set(start_fw, board, tmp_path):
+    """`--power-cut N`: the supply fails as the N-th flash program or erase
+    starts and the chip restarts from the flash file, as the host power-cut
+    tests do on the core's store, here through the firmware's own flash
+    driver. Whatever N, the drive comes back with the old or the new value,
+    and a save afterwards works and survives a restart."""
+    for n in (1, 3, 8):
+        state = tmp_path / f"{board}-{n}.flash"
+        fw = start_fw(board, "--state", str(state), "--power-cut", str(n))
+        m = Master(fw.client())
+        m.write(MAX_SPEED_PA12, 1500)
+        with fw.raw() as bus:
+            bus.exchange(EE_SET, timeout=0.3)  # the reply may never come
+        deadline = time.monotonic() + 5
+        while "power cut" not in fw.stderr():
+            assert time.monotonic() < deadline, f"{board}: no power cut at operation {n}"
+            time.sleep(0.05)
+        time.sleep(0.3)  # the restart
+        c = fw.client()
+        m = Master(c)
+        assert m.read(MAX_SPEED_PA12) in (3000, 1500), f"{board}, cut at {n}"
+        m.write(MAX_SPEED_PA12, 1200)
+        with fw.raw() as bus:
+            assert bus.exchange(EE_SET, timeout=3) == with_crc(hexb("01 10 00 3A 00 01"))
+        fw.stop()
+        fw = start_fw(board, "--state", str(state))
+        assert Master(fw.client()).read(MAX_SPEED_PA12) == 1200, f"{board}, cut at {n}"
+        fw.stop()
