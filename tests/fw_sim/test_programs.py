@@ -8,8 +8,10 @@ import time
 
 import pytest
 
-from conftest import (ACCELERATION, ACTUAL_POSITION, ACTUAL_VELOCITY, BIT12, CONTROLWORD,
-                      DECELERATION, MODE, PROFILE_VELOCITY, TARGET_REACHED, Master, e2e_module)
+from conftest import (ACCELERATION, ACTUAL_POSITION, ACTUAL_VELOCITY, BIT12, BIT13, CONTROLWORD,
+                      DECELERATION, HOME_OFFSET, HOME_SWITCH, HOMING_ACCELERATION,
+                      HOMING_METHOD, HOMING_SPEED, HOMING_ZERO_SPEED, MODE, MOTOR_RUNNING,
+                      PROFILE_VELOCITY, TARGET_POSITION, TARGET_REACHED, Master, e2e_module)
 
 HALT = 1 << 8
 
@@ -63,3 +65,36 @@ def test_velocity_mode_with_halt(start_fw, board, tmp_path):
     pulses = read_csv(steps)
     assert len(pulses) == p, f"{board}: {len(pulses)} pulses, position {p}"
     assert {r["dir"] for r in pulses} == {"1"}
+
+
+def test_homing_method_3_to_the_home_switch(start_fw, board):
+    """Method 3 (SPEC §8.6): left until the home switch, whose window is
+    -5000..-3000 steps of the emulated axis, read through GPIO/EXTI; the
+    origin is its edge, so afterwards 0 has the switch active (statusword
+    bit 11) and +1 has it released."""
+    m = Master(start_fw(board, "--home-switch", "-5000:-3000").client())
+    m.enable()
+    m.write(MODE, 6)
+    m.write(HOMING_METHOD, 3)
+    m.write(HOMING_ACCELERATION, 1000)
+    m.write32(HOMING_SPEED, 20, signed=False)
+    m.write32(HOMING_ZERO_SPEED, 10, signed=False)
+    m.write32(HOME_OFFSET, 0)
+    m.write(CONTROLWORD, 0x001F)
+    m.wait(lambda s: s & BIT12 and s & TARGET_REACHED, 10, "homing done (bits 12, 10)")
+    sw = m.statusword()
+    assert not sw & BIT13, "no homing error"
+    assert m.read32(ACTUAL_POSITION) == 0
+    assert sw & HOME_SWITCH, f"{board}: the origin is the switch's edge"
+    m.write(CONTROLWORD, 0x000F)
+    m.write(MODE, 1)
+    m.write32(PROFILE_VELOCITY, 10)
+    m.write(ACCELERATION, 100)
+    m.write(DECELERATION, 100)
+    for target, active in ((1, False), (0, True)):
+        m.write32(TARGET_POSITION, target)
+        m.write(CONTROLWORD, 0x001F)
+        m.write(CONTROLWORD, 0x000F)
+        m.wait(lambda s: s & TARGET_REACHED and not s & MOTOR_RUNNING, 5, f"move to {target}")
+        assert m.read32(ACTUAL_POSITION) == target
+        assert bool(m.statusword() & HOME_SWITCH) == active, f"{board}: at {target}"
