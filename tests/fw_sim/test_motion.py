@@ -144,8 +144,8 @@ def test_pulses_follow_the_hosts_step_schedule(start_fw, board, tmp_path):
         assert abs(got - want) <= 1, f"{board}: step {k} at {got} ticks, schedule {want}"
 
 
-@pytest.mark.xfail(strict=True, reason="found by fw-sim: from rest the firmware's first pulse "
-                   "leads the schedule by one idle period of the step timer (steps.rs)")
+@pytest.mark.xfail(strict=True, reason="found by fw-sim: from rest the gap between the first two "
+                   "pulses is one idle period of the step timer longer than scheduled")
 def test_the_first_interval_follows_the_hosts_step_schedule(start_fw, board, tmp_path):
     tick_ns = TICK_NS[board]
     host = host_schedule(board, DISTANCE, 50_000, 100_000, 100_000)
