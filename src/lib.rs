@@ -15,6 +15,7 @@
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod boards;
 pub mod device;
 pub mod dictionary;
 pub mod drive;

@@ -5,6 +5,8 @@ use std::fmt;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
+use modbus_drive::boards::Board;
+
 pub const HELP: &str = "\
 modbus-drive (virtual drive): the drive core running in real time on this
 machine, with a simulated axis per drive, reachable by any Modbus-RTU master.
@@ -30,7 +32,17 @@ TRANSPORTS (both may be used at once):
                              reach the drive when there is only one. Several
                              clients at once. Repeatable; port 0 as --tcp.
 
+COMMISSIONING PAGE:
+    --web ADDR:PORT          Serve a page on ADDR:PORT (only there; e.g.
+                             127.0.0.1:8080): live scope, status, dictionary
+                             and PA table, jog / move / homing, switches.
+                             Its requests go through the drive's dispatcher
+                             as a second port. Port 0 picks a free port.
+
 DRIVES AND AXES:
+    --board g431|f103        The board whose step timer the drives run on, so
+                             that its limits apply (step tick 10 MHz on the
+                             G431, 8 MHz on the F103) [default: g431].
     --drives LIST            Addresses of the drives on the bus, comma
                              separated, 1..=247, distinct [default: 1]. Each
                              drive has its own simulated axis.
@@ -96,6 +108,8 @@ pub struct Options {
     pub trace: Option<PathBuf>,
     pub plot: Option<PathBuf>,
     pub status_line: bool,
+    pub web: Option<SocketAddr>,
+    pub board: Board,
 }
 
 impl Default for Options {
@@ -112,6 +126,8 @@ impl Default for Options {
             trace: None,
             plot: None,
             status_line: true,
+            web: None,
+            board: Board::G431,
         }
     }
 }
@@ -177,7 +193,15 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             "--modbus-tcp" => o
                 .modbus_tcp
                 .push(parse_socket("--modbus-tcp", &value("--modbus-tcp")?)?),
+            "--web" => o.web = Some(parse_socket("--web", &value("--web")?)?),
             "--drives" => o.drives = parse_drives(&value("--drives")?)?,
+            "--board" => {
+                let v = value("--board")?;
+                o.board = match Board::from_short_name(&v) {
+                    Some(b) => b,
+                    None => return err(format!("--board {v}: expected g431 or f103")),
+                };
+            }
             "--cw-limit" => {
                 o.axis.cw_limit_steps = Some(parse_steps("--cw-limit", &value("--cw-limit")?)?)
             }
@@ -300,8 +324,13 @@ mod tests {
             "--plot",
             "p.svg",
             "--no-status",
+            "--web",
+            "127.0.0.1:8080",
+            "--board=F103",
         ])
         .unwrap();
+        assert_eq!(o.web, Some("127.0.0.1:8080".parse().unwrap()));
+        assert_eq!(o.board, Board::F103);
         assert_eq!(o.pty_link, Some(PathBuf::from("/tmp/x")));
         assert_eq!(o.tcp.len(), 2);
         assert_eq!(o.modbus_tcp, vec!["127.0.0.1:5502".parse().unwrap()]);
@@ -345,6 +374,7 @@ mod tests {
             (&["--modbus-tcp"], "--modbus-tcp needs a value"),
             (&["--no-pty=yes"], "--no-pty takes no value"),
             (&["--standard-exceptions=1"], "takes no value"),
+            (&["--web", "8080"], "--web 8080: expected ADDR:PORT"),
             (&["--drives", "0"], "1..=247"),
             (&["--drives", "248"], "1..=247"),
             (&["--drives", "1,x"], "`x`"),
@@ -352,6 +382,8 @@ mod tests {
             (&["--cw-limit", "ten"], "--cw-limit"),
             (&["--cw-limit", "5", "--ccw-limit", "5"], "below"),
             (&["--home-switch", "5"], "FROM:TO"),
+            (&["--board", "g474"], "g431 or f103"),
+            (&["--board"], "--board needs a value"),
             (&["--home-switch", "5:4"], "FROM must not exceed"),
             (&["--no-pty"], "no transport"),
             (
@@ -374,6 +406,7 @@ mod tests {
             "--standard-exceptions",
             "--allow-limit-overlap",
             "--drives",
+            "--board",
             "--cw-limit",
             "--ccw-limit",
             "--home-switch",
@@ -381,6 +414,7 @@ mod tests {
             "--trace",
             "--plot",
             "--no-status",
+            "--web",
             "--help",
             "--version",
         ] {

@@ -20,6 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
+use modbus_drive::boards::Board;
 use modbus_drive::device::{Identity, Response};
 use modbus_drive::dictionary::DriveLayer;
 use modbus_drive::drive::DriveEvent;
@@ -36,6 +37,7 @@ use super::console::Console;
 use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
 use super::transport::{Listener, Pty, ReadOutcome, Stream};
+use super::web::{self, ExceptionLog, Forced, WebPort};
 
 mod modbus_tcp;
 
@@ -73,6 +75,10 @@ struct DriveSlot {
     next_control_us: u64,
     last_statusword: u16,
     last_mode: i16,
+    /// Switches forced from the page (`--web`).
+    forced: Forced,
+    /// The last exceptions answered, for the page.
+    exceptions: ExceptionLog,
 }
 
 impl DriveSlot {
@@ -85,6 +91,7 @@ impl DriveSlot {
         index: usize,
         state: Option<&Path>,
         layout: AxisLayout,
+        board: Board,
     ) -> Result<Self, String> {
         let flash = match state {
             Some(path) => FileFlash::open(path, index)
@@ -94,6 +101,13 @@ impl DriveSlot {
         let mut store = ParamStore::new(flash, 0..REGION_BYTES as u32)
             .map_err(|e| format!("parameter store: {e:?}"))?;
         let mut device = Device::new(Identity::new("virtual"));
+        // steps timed in the chosen board's timer ticks, as its firmware
+        // does: the same limits (`--board`)
+        let planner = PlannerConfig {
+            tick_hz: board.step_tick_hz(),
+            ..PlannerConfig::default()
+        };
+        device.drive.set_planner_config(planner);
         let boot = store.boot();
         device.apply_boot(&boot);
         if !matches!(boot.outcome, BootOutcome::Loaded { .. }) {
@@ -112,10 +126,12 @@ impl DriveSlot {
             device,
             store,
             schedule: Box::new(StepSchedule::new()),
-            axis: sim_axis(layout),
+            axis: sim_axis(layout, planner.tick_hz),
             next_control_us: 0,
             last_statusword,
             last_mode,
+            forced: Forced::default(),
+            exceptions: ExceptionLog::new(),
         })
     }
 
@@ -144,12 +160,12 @@ impl DriveSlot {
         self.axis.set_limit_enable(self.device.pa.limit_enable());
         while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
             let at = self.axis.now_us();
-            self.device
-                .control(at, self.axis.switches(), &self.schedule);
+            let switches = self.forced.apply(self.axis.switches());
+            self.device.control(at, switches, &self.schedule);
             self.axis.kick(&self.schedule);
         }
-        self.device
-            .control(t_us, self.axis.switches(), &self.schedule);
+        let switches = self.forced.apply(self.axis.switches());
+        self.device.control(t_us, switches, &self.schedule);
         self.axis.kick(&self.schedule);
     }
 
@@ -160,10 +176,10 @@ impl DriveSlot {
 
 /// The simulated axis with the `--cw-limit` / `--ccw-limit` /
 /// `--home-switch` switches, at the step timer frequency the planner uses.
-fn sim_axis(layout: AxisLayout) -> SimAxis {
+fn sim_axis(layout: AxisLayout, tick_hz: u32) -> SimAxis {
     // with the limit-switch interrupt: the step interrupt brakes at the
     // edge step, as on the board (SPEC §8.7)
-    let mut axis = SimAxis::new(PlannerConfig::default().tick_hz).with_limit_interrupt();
+    let mut axis = SimAxis::new(tick_hz).with_limit_interrupt();
     if let Some(edge) = layout.cw_limit_steps {
         axis = axis.with_cw_limit(i64::from(edge));
     }
@@ -230,6 +246,7 @@ pub struct VirtualDrive {
     trace: Trace,
     /// `--modbus-tcp` (`run/modbus_tcp.rs`).
     mbap: modbus_tcp::ModbusTcp,
+    web: Option<WebPort>,
 }
 
 /// Startup failure, reported with exit status 1.
@@ -242,7 +259,8 @@ impl VirtualDrive {
         let mut drives = Vec::new();
         for (i, &address) in opts.drives.iter().enumerate() {
             drives.push(
-                DriveSlot::new(address, i, opts.state.as_deref(), opts.axis).map_err(StartError)?,
+                DriveSlot::new(address, i, opts.state.as_deref(), opts.axis, opts.board)
+                    .map_err(StartError)?,
             );
         }
         let mut lines = Vec::new();
@@ -273,6 +291,15 @@ impl VirtualDrive {
             ));
             mbap.listeners.push(l);
         }
+        let web = match opts.web {
+            Some(addr) => {
+                let w = WebPort::start(addr, drives.len())
+                    .map_err(|e| StartError(format!("cannot serve the page on {addr}: {e}")))?;
+                console.log(&format!("web: page on http://{}/", w.addr));
+                Some(w)
+            }
+            None => None,
+        };
         for d in &mut drives {
             if opts.standard_exceptions {
                 const PA55: usize = 55;
@@ -303,6 +330,7 @@ impl VirtualDrive {
             console,
             trace,
             mbap,
+            web,
         })
     }
 
@@ -315,6 +343,7 @@ impl VirtualDrive {
                 // what the control loop reports belongs to no line
                 self.log_events(di, None);
             }
+            self.serve_web(now);
             self.close_frames(now);
             self.send_due_replies(now);
             self.modbus_tcp_send_due(now);
@@ -331,6 +360,25 @@ impl VirtualDrive {
                 Ok(())
             }
             Err(e) => Err(e),
+        }
+    }
+
+    /// The page's commands, between two frames of any line (`web/`).
+    fn serve_web(&mut self, now: u64) {
+        let Some(web) = &mut self.web else {
+            return;
+        };
+        for di in web.serve(now, &mut self.drives) {
+            log_events(&mut self.console, &mut self.drives[di], Some("web"));
+            // A bus reply still queued for this drive applies a deferred
+            // address or line change when it leaves; else it applies now.
+            let queued = self
+                .lines
+                .iter()
+                .any(|l| l.pending.iter().any(|p| p.drive == di));
+            if !queued {
+                self.reply_done(di);
+            }
         }
     }
 
@@ -697,6 +745,17 @@ fn handle_due(
 /// flash operation, which the core only knows as "flash failed").
 fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
     while let Some(ev) = slot.device.take_event() {
+        if let Event::Exception {
+            function,
+            exception,
+            answered,
+        } = ev
+        {
+            let standard = slot.device.pa.standard_exceptions();
+            let code = exception.code(standard).unwrap_or(exception.vendor_code());
+            let port = line.unwrap_or("-");
+            slot.exceptions.record(port, function, code, answered);
+        }
         let on = line.map_or(String::new(), |l| format!(" on {l}"));
         let failed = matches!(
             ev,
@@ -770,6 +829,45 @@ fn describe(ev: &Event) -> String {
         Event::EeDone { op, error: None } => format!("EE operation {op:?} done"),
         Event::EeDone { op, error: Some(e) } => format!("EE operation {op:?} failed ({e:?})"),
         other => format!("{other:?}"),
+    }
+}
+
+/// The page reaches a drive through its dispatcher only (`web/modbus.rs`).
+impl web::Dispatch for DriveSlot {
+    fn device(&mut self) -> &mut Device {
+        &mut self.device
+    }
+
+    fn run_storage(&mut self, reply: &mut [u8; MAX_FRAME]) -> Option<Response> {
+        let r = self.device.poll_storage(&mut self.store, reply);
+        // The page's answer waits for nothing: the flash's time is not
+        // simulated for it, so its tally starts afresh.
+        self.store.flash().take_busy_us();
+        r
+    }
+
+    fn advance(&mut self, now_us: u64) {
+        DriveSlot::advance(self, now_us);
+    }
+
+    fn control_at(&mut self, now_us: u64) {
+        DriveSlot::control_at(self, now_us);
+    }
+}
+
+impl web::Target for DriveSlot {
+    fn view<'a>(&'a self, port: &'a modbus_drive::slave::Slave) -> web::View<'a> {
+        web::View {
+            device: &self.device,
+            port,
+            axis_switches: self.axis.switches(),
+            forced: self.forced,
+            exceptions: &self.exceptions,
+        }
+    }
+
+    fn force(&mut self, switch: web::Switch, state: Option<bool>) {
+        self.forced.set(switch, state);
     }
 }
 
