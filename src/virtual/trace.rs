@@ -59,15 +59,25 @@ pub struct Trace {
 }
 
 impl Trace {
-    pub fn new(csv: Option<&Path>, plot: Option<&Path>, drives: usize) -> io::Result<Self> {
+    /// Creates both files now, so a path that cannot be written is
+    /// reported at start-up, not after the session; the message names the
+    /// flag.
+    pub fn new(csv: Option<&Path>, plot: Option<&Path>, drives: usize) -> Result<Self, String> {
         let csv = match csv {
             Some(p) => {
-                let mut w = BufWriter::new(File::create(p)?);
-                writeln!(w, "{CSV_HEADER}")?;
+                let open = || -> io::Result<BufWriter<File>> {
+                    let mut w = BufWriter::new(File::create(p)?);
+                    writeln!(w, "{CSV_HEADER}")?;
+                    Ok(w)
+                };
+                let w = open().map_err(|e| format!("--trace {}: {e}", p.display()))?;
                 Some((p.to_path_buf(), w))
             }
             None => None,
         };
+        if let Some(p) = plot {
+            File::create(p).map_err(|e| format!("--plot {}: {e}", p.display()))?;
+        }
         Ok(Self {
             csv,
             plot: plot.map(Path::to_path_buf),

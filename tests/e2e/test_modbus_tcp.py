@@ -96,6 +96,36 @@ def test_mbpoll_reads_the_statusword_over_modbus_tcp(start_drive):
     assert r.stdout.strip() == f"-- Polling slave 1...\n[{STATUSWORD + 1}]: \t96", r.stdout
 
 
+def test_mbpoll_as_the_issue_gives_it_polls_while_pymodbus_writes(start_drive):
+    """`mbpoll -m tcp -a 1 -r 24642 -c 1 127.0.0.1 -p PORT` exactly (1-based
+    reference 24642 = 0x6041; it polls once a second until stopped), while
+    pymodbus' default TCP client works on its own connection."""
+    d = start(start_drive)
+    # stdbuf: mbpoll's stdout is a pipe here, unbuffered so lines come as polled
+    p = subprocess.Popen(["stdbuf", "-o0", "mbpoll", "-m", "tcp", "-a", "1", "-r", "24642",
+                          "-c", "1", "127.0.0.1", "-p", str(d.modbus_tcp_port)],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        m = Master(client(d))
+        polls = []
+        deadline = time.monotonic() + 10
+        while len(polls) < 2:
+            assert time.monotonic() < deadline, polls
+            r, _, _ = select.select([p.stdout], [], [], 0.5)
+            if not r:
+                continue
+            line = p.stdout.readline()
+            assert line, f"mbpoll ended: {p.wait()}"
+            if line.startswith("[24642]:"):
+                polls.append(line.split()[1])
+                m.write(ACCELERATION, 100 + len(polls))  # between two polls
+        assert polls == ["96", "96"], polls  # 0x0060, switch on disabled
+        assert m.read(ACCELERATION) == 102
+    finally:
+        p.terminate()
+        p.wait(5)
+
+
 def test_pymodbus_tcp_client_reads_and_writes(start_drive):
     d = start(start_drive)
     m = Master(client(d))
@@ -195,6 +225,17 @@ def test_malformed_mbap_headers_are_dropped_per_the_guide_and_counted(start_driv
     wait_for_log(d, "9 bytes of an unfinished request dropped")
     assert bad_adus(d) == 8
 
+    # a length field larger than what follows, the client waiting: the
+    # rest never comes; after the ADU timeout the connection is closed
+    # (whatever came next would be read as the missing bytes)
+    raw = Raw(d)
+    t0 = time.monotonic()
+    assert raw.ask(mbap(7, 1, READ_SW, length=9), timeout=3) is None
+    assert 0.9 < time.monotonic() - t0 < 2.5
+    wait_for_log(d, "(the rest of a request did not come within 1000 ms), "
+                    "12 bytes of an unfinished request dropped")
+    assert bad_adus(d) == 9
+
     # the server never stopped serving
     r = bystander.read_holding_registers(STATUSWORD, count=1, device_id=1)
     assert r.registers == [SWITCH_ON_DISABLED_SW]
@@ -215,6 +256,15 @@ def test_a_request_split_across_segments_and_a_bad_pdu(start_drive):
     assert raw.ask(mbap(9, 1, READ_SW[:-1])) == struct.pack(">HHHBBB", 9, 0, 3, 1, 0x83, 8)
     # an unknown function: exception 1
     assert raw.ask(mbap(10, 1, b"\x41")) == struct.pack(">HHHBBB", 10, 0, 3, 1, 0xC1, 1)
+    # length 2, a function code without its data; length 8, a whole request
+    # and two bytes more: the MBAP header is sound, the PDU is not, so the
+    # drive answers as to the same PDU on the serial line (byte count)
+    assert raw.ask(mbap(11, 1, b"\x03")) == struct.pack(">HHHBBB", 11, 0, 3, 1, 0x83, 8)
+    assert raw.ask(mbap(12, 1, READ_SW + b"\x00\x00")) == \
+        struct.pack(">HHHBBB", 12, 0, 3, 1, 0x83, 8)
+    # none of these is a bad ADU
+    assert bad_adus(d) == 0
+    assert raw.ask(mbap(13, 1, READ_SW)) == sw_response(13, 1)
 
 
 def test_standard_exceptions_flag_sets_pa55(start_drive):
