@@ -60,6 +60,9 @@ DRIVES AND AXES:
     --standard-exceptions    Answer with the standard Modbus exception codes
                              only (PA55 = 1 on every drive at start-up):
                              vendor codes 5, 7, 11 become 2, code 8 becomes 3.
+                             For generic masters and SCADA, which read 5 as
+                             'acknowledge' and 11 as 'gateway target failed
+                             to respond' (the drive offline).
 
 FILES:
     --state FILE             The drives' parameter flash lives in FILE (created

@@ -744,6 +744,8 @@ fn handle_due(
 /// flash operation, which the core only knows as "flash failed").
 fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
     while let Some(ev) = slot.device.take_event() {
+        // the vendor code names the cause; say what went on the wire
+        let mut sent_as = String::new();
         if let Event::Exception {
             function,
             exception,
@@ -754,6 +756,9 @@ fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
             let code = exception.code(standard).unwrap_or(exception.vendor_code());
             let port = line.unwrap_or("-");
             slot.exceptions.record(port, function, code, answered);
+            if answered && code != exception.vendor_code() {
+                sent_as = format!(", sent as {code} (PA55 = 1)");
+            }
         }
         let on = line.map_or(String::new(), |l| format!(" on {l}"));
         let failed = matches!(
@@ -764,7 +769,11 @@ fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
             Some(e) if failed => format!(": {e}"),
             _ => String::new(),
         };
-        console.log(&format!("{}{on}: {}{cause}", slot.label(), describe(&ev)));
+        console.log(&format!(
+            "{}{on}: {}{sent_as}{cause}",
+            slot.label(),
+            describe(&ev)
+        ));
     }
 }
 

@@ -267,12 +267,34 @@ def test_a_request_split_across_segments_and_a_bad_pdu(start_drive):
     assert raw.ask(mbap(13, 1, READ_SW)) == sw_response(13, 1)
 
 
+READ_MISSING = bytes([0x03]) + struct.pack(">HH", STATUSWORD + 1, 1)  # 0x6042: no entry
+
+
+def test_without_the_flag_a_missing_register_looks_like_an_unreachable_drive(start_drive):
+    """Vendor code 11 (register does not exist, SPEC §5.2) is, on Modbus TCP,
+    the byte a gateway sends for "target device failed to respond": a SCADA
+    marks the drive offline. Why --standard-exceptions exists."""
+    d = start(start_drive)
+    raw = Raw(d)
+    missing = raw.ask(mbap(1, 1, READ_MISSING))
+    unreachable = raw.ask(mbap(2, 9, READ_SW))  # no drive 9: the gateway's 0x0B
+    assert missing[7:] == unreachable[7:] == bytes([0x83, 0x0B])
+
+
 def test_standard_exceptions_flag_sets_pa55(start_drive):
     d = start(start_drive, "--standard-exceptions")
     raw = Raw(d)
     # the byte count exception 8 becomes 3 (SPEC §5.2, PA55 = 1)
     assert raw.ask(mbap(9, 1, READ_SW[:-1])) == struct.pack(">HHHBBB", 9, 0, 3, 1, 0x83, 3)
+    # a missing register: 2, no longer the gateway's 0x0B
+    assert raw.ask(mbap(10, 1, READ_MISSING)) == struct.pack(">HHHBBB", 10, 0, 3, 1, 0x83, 2)
+    # writing the read-only statusword: 2, not 5 (a generic master's "acknowledge")
+    write_sw = bytes([0x06]) + struct.pack(">HH", STATUSWORD, 7)
+    assert raw.ask(mbap(11, 1, write_sw)) == struct.pack(">HHHBBB", 11, 0, 3, 1, 0x86, 2)
     assert Master(client(d)).read(0x0064 + 55) == 1  # PA55 reads 1
+    # the log names the cause and what was sent
+    wait_for_log(d, "exception 8 (ByteCountMismatch), sent as 3 (PA55 = 1)")
+    wait_for_log(d, "exception 5 (WriteReadOnly), sent as 2 (PA55 = 1)")
 
 
 def test_unit_ids_route_to_the_drive_with_that_address(start_drive):
