@@ -342,3 +342,20 @@ def test_a_client_that_leaves_mid_ee_operation_does_not_leave_the_drive_busy(sta
     time.sleep(0.3)
     r = Master(client(d)).read(STATUSWORD)
     assert r == SWITCH_ON_DISABLED_SW  # not exception 6 (busy)
+
+
+def test_device_identification_over_modbus_tcp(start_drive):
+    """What a SCADA asks first of a new device: function 0x2B / MEI 0x0E,
+    basic objects (vendor, product code, revision), in one MBAP response."""
+    d = start(start_drive)
+    r = Raw(d).ask(mbap(0x0102, 1, bytes([0x2B, 0x0E, 0x01, 0x00])))
+    tid, proto, length, unit = struct.unpack(">HHHB", r[:7])
+    assert (tid, proto, unit, length) == (0x0102, 0, 1, len(r) - 6)
+    pdu = r[7:]
+    assert pdu[:3] == bytes([0x2B, 0x0E, 0x01]) and pdu[3] == 0x81, pdu.hex()
+    assert pdu[4:7] == bytes([0, 0, 3]), "all in one response, three objects"
+    objs, i = {}, 7
+    while i < len(pdu):
+        objs[pdu[i]] = pdu[i + 2:i + 2 + pdu[i + 1]]
+        i += 2 + pdu[i + 1]
+    assert sorted(objs) == [0, 1, 2] and all(objs.values()), objs
