@@ -115,7 +115,8 @@ impl Default for Options {
 /// What the command line asks for.
 #[derive(Debug, PartialEq, Eq)]
 pub enum Command {
-    Run(Options),
+    /// Boxed: the options are far larger than the other variants.
+    Run(Box<Options>),
     Help,
     Version,
 }
@@ -172,7 +173,11 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
                 let v = value("--web")?;
                 match v.parse::<SocketAddr>() {
                     Ok(a) => o.web = Some(a),
-                    Err(_) => return err(format!("--web {v}: expected ADDR:PORT, e.g. 127.0.0.1:8080")),
+                    Err(_) => {
+                        return err(format!(
+                            "--web {v}: expected ADDR:PORT, e.g. 127.0.0.1:8080"
+                        ))
+                    }
                 }
             }
             "--drives" => o.drives = parse_drives(&value("--drives")?)?,
@@ -203,7 +208,7 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             ));
         }
     }
-    Ok(Command::Run(o))
+    Ok(Command::Run(Box::new(o)))
 }
 
 fn parse_drives(v: &str) -> Result<Vec<u8>, UsageError> {
@@ -252,7 +257,7 @@ mod tests {
 
     fn run(args: &[&str]) -> Result<Options, UsageError> {
         match parse(args.iter().map(|s| s.to_string()))? {
-            Command::Run(o) => Ok(o),
+            Command::Run(o) => Ok(*o),
             c => panic!("{c:?}"),
         }
     }

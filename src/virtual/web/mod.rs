@@ -232,7 +232,10 @@ fn lock(shared: &Shared) -> std::sync::MutexGuard<'_, Published> {
 }
 
 fn error_json(why: &str) -> String {
-    format!("{{\"ok\":false,\"error\":{},\"steps\":[]}}", state::quote(why))
+    format!(
+        "{{\"ok\":false,\"error\":{},\"steps\":[]}}",
+        state::quote(why)
+    )
 }
 
 fn hex(bytes: &[u8]) -> String {
