@@ -20,6 +20,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
+use modbus_drive::boards::Board;
 use modbus_drive::device::{Identity, Response};
 use modbus_drive::dictionary::DriveLayer;
 use modbus_drive::drive::DriveEvent;
@@ -37,6 +38,8 @@ use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
 use super::transport::{Listener, Pty, ReadOutcome, Stream};
 use super::web::{self, ExceptionLog, Forced, WebPort};
+
+mod modbus_tcp;
 
 /// Longest sleep of the loop: the status line and trace keep ticking.
 const IDLE_WAKE_US: u64 = 20_000;
@@ -88,6 +91,7 @@ impl DriveSlot {
         index: usize,
         state: Option<&Path>,
         layout: AxisLayout,
+        board: Board,
     ) -> Result<Self, String> {
         let flash = match state {
             Some(path) => FileFlash::open(path, index)
@@ -97,6 +101,13 @@ impl DriveSlot {
         let mut store = ParamStore::new(flash, 0..REGION_BYTES as u32)
             .map_err(|e| format!("parameter store: {e:?}"))?;
         let mut device = Device::new(Identity::new("virtual"));
+        // steps timed in the chosen board's timer ticks, as its firmware
+        // does: the same limits (`--board`)
+        let planner = PlannerConfig {
+            tick_hz: board.step_tick_hz(),
+            ..PlannerConfig::default()
+        };
+        device.drive.set_planner_config(planner);
         let boot = store.boot();
         device.apply_boot(&boot);
         if !matches!(boot.outcome, BootOutcome::Loaded { .. }) {
@@ -115,7 +126,7 @@ impl DriveSlot {
             device,
             store,
             schedule: Box::new(StepSchedule::new()),
-            axis: sim_axis(layout),
+            axis: sim_axis(layout, planner.tick_hz),
             next_control_us: 0,
             last_statusword,
             last_mode,
@@ -145,6 +156,8 @@ impl DriveSlot {
     /// the axis made every step up to then.
     fn control_at(&mut self, t_us: u64) {
         let until = self.axis.us_to_ticks(t_us);
+        // the simulated limit-switch interrupt applies PA14 as the board's
+        self.axis.set_limit_enable(self.device.pa.limit_enable());
         while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
             let at = self.axis.now_us();
             let switches = self.forced.apply(self.axis.switches());
@@ -163,8 +176,10 @@ impl DriveSlot {
 
 /// The simulated axis with the `--cw-limit` / `--ccw-limit` /
 /// `--home-switch` switches, at the step timer frequency the planner uses.
-fn sim_axis(layout: AxisLayout) -> SimAxis {
-    let mut axis = SimAxis::new(PlannerConfig::default().tick_hz);
+fn sim_axis(layout: AxisLayout, tick_hz: u32) -> SimAxis {
+    // with the limit-switch interrupt: the step interrupt brakes at the
+    // edge step, as on the board (SPEC §8.7)
+    let mut axis = SimAxis::new(tick_hz).with_limit_interrupt();
     if let Some(edge) = layout.cw_limit_steps {
         axis = axis.with_cw_limit(i64::from(edge));
     }
@@ -229,6 +244,8 @@ pub struct VirtualDrive {
     listeners: Vec<Listener>,
     console: Console,
     trace: Trace,
+    /// `--modbus-tcp` (`run/modbus_tcp.rs`).
+    mbap: modbus_tcp::ModbusTcp,
     web: Option<WebPort>,
 }
 
@@ -242,7 +259,8 @@ impl VirtualDrive {
         let mut drives = Vec::new();
         for (i, &address) in opts.drives.iter().enumerate() {
             drives.push(
-                DriveSlot::new(address, i, opts.state.as_deref(), opts.axis).map_err(StartError)?,
+                DriveSlot::new(address, i, opts.state.as_deref(), opts.axis, opts.board)
+                    .map_err(StartError)?,
             );
         }
         let mut lines = Vec::new();
@@ -263,6 +281,16 @@ impl VirtualDrive {
             console.log(&format!("tcp: listening on {} (RTU framing)", l.addr));
             listeners.push(l);
         }
+        let mut mbap = modbus_tcp::ModbusTcp::default();
+        for &addr in &opts.modbus_tcp {
+            let l = Listener::bind(addr)
+                .map_err(|e| StartError(format!("--modbus-tcp {addr}: cannot listen: {e}")))?;
+            console.log(&format!(
+                "modbus-tcp: listening on {} (MBAP framing)",
+                l.addr
+            ));
+            mbap.listeners.push(l);
+        }
         let web = match opts.web {
             Some(addr) => {
                 let w = WebPort::start(addr, drives.len())
@@ -273,6 +301,13 @@ impl VirtualDrive {
             None => None,
         };
         for d in &mut drives {
+            if opts.standard_exceptions {
+                const PA55: usize = 55;
+                d.device.pa.set_unchecked(PA55, 1);
+            }
+            // The first control call: a fault the drive starts in (both
+            // limits active) is reported now, not with the first frame.
+            d.advance(0);
             log_events(&mut console, d, None);
         }
         let trace = Trace::new(opts.trace.as_deref(), opts.plot.as_deref(), drives.len())
@@ -294,6 +329,7 @@ impl VirtualDrive {
             listeners,
             console,
             trace,
+            mbap,
             web,
         })
     }
@@ -302,12 +338,15 @@ impl VirtualDrive {
     pub fn run(mut self, stop: &Arc<AtomicBool>) -> Result<(), String> {
         while !stop.load(Ordering::SeqCst) {
             let now = self.clock.now_us();
-            for d in &mut self.drives {
-                d.advance(now);
+            for di in 0..self.drives.len() {
+                self.drives[di].advance(now);
+                // what the control loop reports belongs to no line
+                self.log_events(di, None);
             }
             self.serve_web(now);
             self.close_frames(now);
             self.send_due_replies(now);
+            self.modbus_tcp_send_due(now);
             self.observe(now);
             let timeout = self.next_deadline(now).saturating_sub(self.clock.now_us());
             self.wait_and_read(timeout)?;
@@ -467,8 +506,21 @@ impl VirtualDrive {
             .iter()
             .filter(|l| matches!(l.stream, Stream::Tcp(_)))
             .count();
-        self.console
-            .status(format!("{} | tcp conns {conns}", status.join(" | ")));
+        let mb = &self.mbap;
+        let modbus_tcp = if mb.listeners.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " | modbus-tcp conns {} requests {} bad ADUs {}",
+                mb.connections(),
+                mb.stats.requests,
+                mb.stats.bad_adus()
+            )
+        };
+        self.console.status(format!(
+            "{} | tcp conns {conns}{modbus_tcp}",
+            status.join(" | ")
+        ));
     }
 
     /// The next time the loop must run even without input.
@@ -491,12 +543,15 @@ impl VirtualDrive {
         if self.trace.is_active() {
             at = at.min(now + super::trace::SAMPLE_PERIOD_US);
         }
+        if let Some(due) = self.mbap.next_due() {
+            at = at.min(due);
+        }
         at
     }
 
     /// Waits up to `timeout_us` for input, then reads and frames it.
     fn wait_and_read(&mut self, timeout_us: u64) -> Result<(), String> {
-        let (readable, writable, accept) = {
+        let (readable, writable, accept, modbus_tcp) = {
             let mut fds: Vec<PollFd> = Vec::new();
             for line in &self.lines {
                 let mut ev = PollFlags::POLLIN;
@@ -509,6 +564,8 @@ impl VirtualDrive {
                 let fd: BorrowedFd<'_> = std::os::fd::AsFd::as_fd(&l.socket);
                 fds.push(PollFd::new(fd, PollFlags::POLLIN));
             }
+            let m = fds.len();
+            fds.extend(self.mbap.poll_fds());
             // Round up so a deadline is never missed by sleeping too little.
             let ms = timeout_us.div_ceil(1000).min(u64::from(u16::MAX)) as u16;
             match poll(&mut fds, PollTimeout::from(ms)) {
@@ -528,10 +585,11 @@ impl VirtualDrive {
                     .iter()
                     .map(|f| ready(f, PollFlags::POLLOUT))
                     .collect::<Vec<_>>(),
-                fds[n..]
+                fds[n..m]
                     .iter()
                     .map(|f| ready(f, PollFlags::POLLIN))
                     .collect::<Vec<_>>(),
+                fds[m..].iter().map(|f| f.revents()).collect::<Vec<_>>(),
             )
         };
 
@@ -558,6 +616,7 @@ impl VirtualDrive {
                 self.accept(i);
             }
         }
+        self.modbus_tcp_ready(&modbus_tcp);
         Ok(())
     }
 
@@ -638,11 +697,24 @@ fn handle(
     now_us: u64,
     pending: &mut VecDeque<PendingReply>,
 ) -> bool {
+    let due_us = last_rx_us + u64::from(slot.device.reply_delay_us());
+    handle_due(slot, di, ev, due_us, now_us, pending)
+}
+
+/// [`handle`] with the reply's earliest time given (Modbus TCP has no
+/// serial-line reply delay).
+fn handle_due(
+    slot: &mut DriveSlot,
+    di: usize,
+    ev: RxEvent<'_>,
+    mut due_us: u64,
+    now_us: u64,
+    pending: &mut VecDeque<PendingReply>,
+) -> bool {
     // The drive acts on a frame at the time it closed (SPEC §8: control
     // after each handled frame), with its axis up to date.
     slot.advance(now_us);
     let mut reply = [0u8; MAX_FRAME];
-    let mut due_us = last_rx_us + u64::from(slot.device.reply_delay_us());
     let mut response = slot.device.handle_rx(ev, &mut reply);
     let mut ee = false;
     if let Some(r) = slot.device.poll_storage(&mut slot.store, &mut reply) {
