@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# web stage (issue 20): the commissioning page of the release binary
-# (`--web`) in headless Chromium driven by Selenium, while a pymodbus
-# master works the same drive over TCP. Run by .ci/run.
+# web stage: the commissioning page of the release binary (`--web`) in
+# headless Chromium driven by Selenium, while pymodbus masters work the same
+# drive over its RTU-over-TCP line and its Modbus TCP port. Writes
+# docs/web.png, a screenshot of the page taken during a move.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -9,7 +10,8 @@ if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then
   sudo=""
   [ "$(id -u)" -ne 0 ] && sudo="sudo"
   $sudo apt-get update
-  $sudo apt-get install -y chromium chromium-driver
+  $sudo DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+    chromium chromium-driver python3-venv
 fi
 
 venv=.venv/web
@@ -20,6 +22,7 @@ cargo build --release --bin modbus-drive
 
 set +e
 CHROMIUM=/usr/bin/chromium CHROMEDRIVER=/usr/bin/chromedriver \
+  WEB_SCREENSHOT="${WEB_SCREENSHOT:-docs/web.png}" \
   "$venv/bin/python" -m pytest tests/web -p no:cacheprovider -v "$@"
 rc=$?
 set -e
