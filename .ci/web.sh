@@ -10,7 +10,7 @@ if [ ! -x /usr/bin/chromium ] || [ ! -x /usr/bin/chromedriver ]; then
   sudo=""
   [ "$(id -u)" -ne 0 ] && sudo="sudo"
   $sudo apt-get update
-  $sudo DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
+  $sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends \
     chromium chromium-driver python3-venv
 fi
 
@@ -19,6 +19,14 @@ venv=.venv/web
 "$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/web/requirements.txt
 
 cargo build --release --bin modbus-drive
+# The binary is where cargo put it: CARGO_TARGET_DIR or .cargo/config.toml
+# may move the target directory away from ./target.
+if [ -z "${MODBUS_DRIVE_BIN:-}" ]; then
+  target_dir=$(cargo metadata --format-version 1 --no-deps |
+    python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+  export MODBUS_DRIVE_BIN="$target_dir/release/modbus-drive"
+fi
+[ -x "$MODBUS_DRIVE_BIN" ] || { echo "web: no binary at $MODBUS_DRIVE_BIN" >&2; exit 1; }
 
 set +e
 CHROMIUM=/usr/bin/chromium CHROMEDRIVER=/usr/bin/chromedriver \
