@@ -138,6 +138,7 @@ impl Default for Options {
 /// What the command line asks for.
 #[derive(Debug, PartialEq, Eq)]
 pub enum Command {
+    /// Boxed: the options are far larger than the other variants.
     Run(Box<Options>),
     Help,
     Version,

@@ -545,6 +545,9 @@ impl VirtualDrive {
         if let Some(due) = self.mbap.next_due() {
             at = at.min(due);
         }
+        if let Some(web) = &self.web {
+            at = at.min(web.next_due_us());
+        }
         at
     }
 

@@ -141,7 +141,12 @@ pub trait Dispatch {
 /// Sends `request` to the drive through `port` (the page's own slave
 /// state) and returns the answer. The caller applies a deferred address or
 /// line change afterwards ([`Device::reply_sent`]), as after a bus reply.
-pub fn transact<D: Dispatch>(drive: &mut D, port: &mut Slave, request: &Pdu, now_us: u64) -> Answer {
+pub fn transact<D: Dispatch>(
+    drive: &mut D,
+    port: &mut Slave,
+    request: &Pdu,
+    now_us: u64,
+) -> Answer {
     drive.advance(now_us);
     let address = drive.device().address();
     let frame = request.frame(address);
@@ -243,7 +248,11 @@ mod tests {
             (Pdu::write_single(0x0064 + 51, 300), 3),
         ];
         for (pdu, code) in &cases {
-            assert_eq!(transact(&mut b, &mut port, pdu, 0), Answer::Exception(*code), "{pdu:?}");
+            assert_eq!(
+                transact(&mut b, &mut port, pdu, 0),
+                Answer::Exception(*code),
+                "{pdu:?}"
+            );
         }
         // PA55 = 1: the standard profile maps 11 → 2 and 5 → 2 (SPEC §5.2).
         let ok = transact(&mut b, &mut port, &Pdu::write_single(0x0064 + 55, 1), 0);
@@ -324,7 +333,10 @@ mod tests {
         let req = Pdu::read(0x6041, 1);
         assert_eq!(parse_reply(1, &req, &[]), Answer::Silent);
         let mut ok = Pdu(vec![0x03, 0x02, 0x00, 0x37]).frame(1);
-        assert_eq!(parse_reply(1, &req, &ok), Answer::Ok(vec![0x03, 0x02, 0x00, 0x37]));
+        assert_eq!(
+            parse_reply(1, &req, &ok),
+            Answer::Ok(vec![0x03, 0x02, 0x00, 0x37])
+        );
         assert!(matches!(parse_reply(2, &req, &ok), Answer::Malformed(_)));
         ok[3] ^= 1;
         assert!(matches!(parse_reply(1, &req, &ok), Answer::Malformed(_)));
