@@ -6,13 +6,19 @@ Reads each ELF with the toolchain's llvm-size (sections) and llvm-nm
 crate, and writes one Markdown file with the totals, the per-crate table and
 the largest functions and tables of each board.
 
-Flash = every section placed in flash plus the .data image, the same sum the
-firmware stage checks against its budget. Symbols carry the bytes of their
-own code or table; what no symbol covers (alignment padding, the few
-assembly symbols without a size) is listed as "unattributed", so each
-board's crate column adds up to its flash total.
+Flash = every section placed in flash (0x0800_0000..) plus the .data image
+(its initial values are stored in flash and copied at boot); static RAM =
+every section placed in RAM (.data, .bss, .uninit). The stack is not a
+section (flip-link puts it below them) and is not counted. This script is
+the one place these sums are made and compared with the budgets: the
+firmware stage fails when it exits non-zero.
+
+Symbols carry the bytes of their own code or table; what no symbol covers
+is listed per kind (unnamed constants in .rodata; padding elsewhere), so
+each board's crate column adds up to its flash total.
 
 Usage: size_report.py OUT.md BOARD=ELF [BOARD=ELF ...]
+BOARD is a key of BUDGETS.
 """
 import os
 import re
@@ -23,6 +29,14 @@ from collections import defaultdict
 FLASH = (0x0800_0000, 0x0810_0000)
 RAM = (0x2000_0000, 0x2010_0000)
 TOP_FUNCTIONS = 40
+# board: (flash budget, static RAM budget) in bytes; the firmware stage fails
+# above either
+BUDGETS = {
+    "STM32G431CB": (64 * 1024, 16 * 1024),
+    "STM32F103C8": (56 * 1024, 12 * 1024),
+}
+UNNAMED = "unnamed constants in .rodata (literals, switch and lookup tables)"
+PADDING = "alignment padding, unsized symbols"
 
 # legacy Rust mangling escapes that llvm-nm -C leaves in place
 ESCAPES = [("$LT$", "<"), ("$GT$", ">"), ("$C$", ","), ("$u7b$", "{"),
@@ -49,22 +63,36 @@ def readable(sym):
     return sym
 
 
+TASKS = "async tasks (src/firmware with what they inlined; embassy TaskStorage::poll)"
+PRIMITIVES = ("u8", "u16", "u32", "u64", "u128", "i8", "i16", "i32", "i64", "i128",
+              "usize", "isize", "bool", "char", "str")
+
+
 def crate_of(name):
     """The crate whose code a symbol is: the first path segment, or the
-    implementing type's crate for `<T as Trait>::f`; unmangled symbols by
-    what defines them."""
+    implementing type's crate for `<T as Trait>::f` (the trait's crate when
+    T is a primitive, slice or tuple); unmangled symbols by what defines
+    them."""
+    if name.startswith("embassy_executor::raw::TaskStorage<F>::poll"):
+        # F is the task's future: the firmware's own async fn bodies
+        return TASKS
     s = name
     while s.startswith("<") or s.startswith("&") or s.startswith("*"):
         s = s.lstrip("<&*").removeprefix("mut ").removeprefix("const ")
+    if s.startswith("[") or s.startswith("("):
+        trait = re.search(r" as ([A-Za-z_][A-Za-z0-9_]*)::", s)
+        return trait.group(1) if trait else "core"
     m = re.match(r"[A-Za-z_][A-Za-z0-9_]*", s)
     head = m.group(0) if m else s
-    if "::" in s[: len(head) + 2]:
-        if head in ("u8", "u16", "u32", "u64", "u128", "i8", "i16", "i32", "i64",
-                    "i128", "usize", "isize", "bool", "char", "str"):
-            return "core"
-        return head
-    if s.startswith("[") or s.startswith("("):
+    if head in PRIMITIVES:
+        trait = re.search(r" as ([A-Za-z_][A-Za-z0-9_]*)::", s)
+        return trait.group(1) if trait else "core"
+    if head == "__rustc":  # the panic entry point core calls
         return "core"
+    if "::" in s[: len(head) + 2]:
+        return head
+    if "embassy_time" in head:
+        return "embassy_time"
     if re.match(r"__aeabi_|__(u|)(div|mod)|__mul|__ash|__lsh|mem(cpy|set|move|cmp)$|__udiv|__umod", s):
         return "compiler_builtins"
     if head in ("Reset", "DefaultHandler", "DefaultHandler_", "HardFault", "HardFault_",
@@ -87,6 +115,10 @@ def sections(elf):
         if len(parts) == 3 and parts[1].isdigit() and parts[2].isdigit():
             rows.append((parts[0], int(parts[1]), int(parts[2])))
     return rows
+
+
+def ram_total(secs):
+    return sum(size for _, size, addr in secs if RAM[0] <= addr < RAM[1])
 
 
 def flash_total(secs):
@@ -113,60 +145,90 @@ def symbols(elf):
         # identical code folding leaves several names on one body: count it once
         if size and (in_flash or is_data) and addr not in seen:
             seen.add(addr)
-            syms.append((size, kind, readable(name)))
+            syms.append((size, kind, readable(name), addr))
     return syms
 
 
-def board_report(board, elf):
+def board_report(elf):
     secs = sections(elf)
     total = flash_total(secs)
+    ram = ram_total(secs)
     syms = symbols(elf)
     per_crate = defaultdict(int)
-    for size, _, name in syms:
+    for size, _, name, _ in syms:
         per_crate[crate_of(name)] += size
-    attributed = sum(per_crate.values())
-    per_crate["unattributed (padding, symbols without a size)"] = total - attributed
-    return total, secs, per_crate, sorted(syms, reverse=True)
+    # what no symbol covers, by section: .rodata's are the compiler's unnamed
+    # constants, elsewhere it is alignment padding and unsized symbols
+    for name, size, addr in secs:
+        if not (FLASH[0] <= addr < FLASH[1] or name == ".data") or not size:
+            continue
+        covered = sum(s for s, _, _, a in syms if addr <= a < addr + size)
+        key = UNNAMED if name == ".rodata" else PADDING
+        per_crate[key] += size - covered
+    return total, ram, secs, per_crate, sorted(syms, reverse=True)
 
 
 def main():
     out_path, pairs = sys.argv[1], sys.argv[2:]
-    reports = [(b, e, board_report(b, e)) for b, e in (p.split("=", 1) for p in pairs)]
+    reports = [(b, e, board_report(e)) for b, e in (p.split("=", 1) for p in pairs)]
+    rustc = subprocess.check_output(["rustc", "-V"], text=True).strip()
     lines = [
         "# Firmware size (generated)",
         "",
-        "Written by `.ci/size.sh` (`.ci/size_report.py` over the `fw` profile ELFs);",
-        "do not edit. How it is measured and the budgets: `docs/firmware-size.md`.",
+        "Written by `.ci/firmware.sh` (`.ci/size_report.py` over the profile `fw`",
+        f"ELFs, {rustc}); do not edit. What is counted and the history of",
+        "size changes: [../firmware-size.md](../firmware-size.md).",
         "",
-        "| board | flash, B | .text | .rodata | .vector_table | .data |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| board | flash, B | budget, B | left, B | .vector_table | .text | .rodata | .data "
+        "| static RAM, B | budget, B |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for board, _, (total, secs, _, _) in reports:
+    bad = []
+    for board, _, (total, ram, secs, _, _) in reports:
+        flash_budget, ram_budget = BUDGETS[board]
         by = {n: s for n, s, _ in secs}
-        lines.append(f"| {board} | {total} | {by.get('.text', 0)} | {by.get('.rodata', 0)} | "
-                     f"{by.get('.vector_table', 0)} | {by.get('.data', 0)} |")
+        lines.append(f"| {board} | {total} | {flash_budget} | {flash_budget - total} | "
+                     f"{by.get('.vector_table', 0)} | {by.get('.text', 0)} | "
+                     f"{by.get('.rodata', 0)} | {by.get('.data', 0)} | {ram} | {ram_budget} |")
+        if total > flash_budget:
+            bad.append(f"{board}: FLASH BUDGET EXCEEDED ({total} B > {flash_budget} B)")
+        if ram > ram_budget:
+            bad.append(f"{board}: RAM BUDGET EXCEEDED ({ram} B > {ram_budget} B)")
     lines.append("")
-    for board, elf, (total, _, per_crate, syms) in reports:
+    for board, elf, (total, _, _, per_crate, syms) in reports:
         lines += [f"## {board}", "", f"`{elf}`: {total} B of flash.", "",
                   "| crate | B | % |", "|---|---:|---:|"]
-        for crate, size in sorted(per_crate.items(), key=lambda kv: -kv[1]):
+        for crate, size in sorted(per_crate.items(), key=lambda kv: (-kv[1], kv[0])):
             lines.append(f"| {crate} | {size} | {100 * size / total:.1f} |")
-        lines += ["", f"Largest {TOP_FUNCTIONS} symbols (code `t`, tables `r`, .data `d`);",
-                  "inlined functions count in their caller (the async tasks' `poll`",
-                  "holds what the task inlined):", "",
+        per_module = defaultdict(int)
+        for size, _, name, _ in syms:
+            if crate_of(name) == "modbus_drive":
+                m = re.search(r"modbus_drive::([a-z_0-9]+)", name)
+                per_module[m.group(1) if m else "(other)"] += size
+        lines += ["", "The crate `modbus_drive` by module (its own symbols, not what the tasks "
+                  "inlined):", "", "| module | B |", "|---|---:|"]
+        for module, size in sorted(per_module.items(), key=lambda kv: (-kv[1], kv[0])):
+            lines.append(f"| {module} | {size} |")
+        lines += ["", f"Largest {TOP_FUNCTIONS} symbols (code `t`/`T`, tables `r`/`R`, "
+                  ".data `d`); inlined functions count in their caller:", "",
                   "| B | kind | symbol |", "|---:|---|---|"]
-        for size, kind, name in syms[:TOP_FUNCTIONS]:
+        for size, kind, name, _ in syms[:TOP_FUNCTIONS]:
             shown = name if len(name) <= 110 else name[:107] + "..."
             lines.append(f"| {size} | {kind} | `{shown}` |")
         lines.append("")
     os.makedirs(os.path.dirname(out_path) or ".", exist_ok=True)
     with open(out_path, "w") as f:
         f.write("\n".join(lines))
-    for board, _, (total, _, per_crate, _) in reports:
+    for board, _, (total, ram, _, per_crate, _) in reports:
+        flash_budget, ram_budget = BUDGETS[board]
         top = ", ".join(f"{c} {s}" for c, s in
-                        sorted(per_crate.items(), key=lambda kv: -kv[1])[:5])
-        print(f"{board}: flash {total} B ({top})")
+                        sorted(per_crate.items(), key=lambda kv: -kv[1])[:4])
+        print(f"{board}: flash {total} B of {flash_budget} B ({flash_budget - total} left), "
+              f"static RAM {ram} B of {ram_budget} B; largest: {top}")
+    for line in bad:
+        print(line)
+    return 1 if bad else 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
