@@ -149,6 +149,65 @@ def symbols(elf):
     return syms
 
 
+SOURCE_LINE = re.compile(r"^; (/.*):\d+$")
+INSN = re.compile(r"^\s*([0-9a-f]{7,8}):")
+FUNC = re.compile(r"^([0-9a-f]{8}) <")
+REGISTRY = re.compile(r"/registry/src/[^/]+/([A-Za-z0-9_\-]+?)-\d+\.\d+[^/]*/")
+
+
+def source_of(path, package_src):
+    """Who wrote the source line `path`: a file of this crate, another
+    crate (by its registry directory) or Rust's own library."""
+    if path.startswith(package_src):
+        return "src/" + path[len(package_src):]
+    m = REGISTRY.search(path)
+    if m:
+        return m.group(1).replace("-", "_")
+    if "compiler-builtins" in path:
+        return "compiler_builtins"
+    if "/library/" in path or path.startswith("/rustc/"):
+        return LIBRARY
+    if "/out/" in path:
+        return "embassy_stm32 (generated)"
+    return "other"
+
+
+LIBRARY = "core library"
+
+
+def by_source(elf):
+    """Bytes of .text per source the line table names: an inlined function's
+    instructions count for the file they came from, not for their caller.
+    Rust's own library (integer methods, slices, `Option`, `Cell`...) is
+    nearly always inlined; its lines count for the last source line before
+    them in the same function that is not the library, i.e. the code that
+    used it."""
+    out = subprocess.check_output(
+        [tool("llvm-objdump"), "-d", "-l", "--no-show-raw-insn", elf], text=True)
+    package_src = os.path.abspath("src") + "/"
+    per, cur, prev = defaultdict(int), "no line information", None
+    user = None
+    for line in out.splitlines():
+        if FUNC.match(line):
+            cur, user = "no line information", None
+            continue
+        m = SOURCE_LINE.match(line)
+        if m:
+            cur = source_of(m.group(1), package_src)
+            if cur == LIBRARY and user:
+                cur = user
+            elif cur != LIBRARY:
+                user = cur
+            continue
+        m = INSN.match(line)
+        if m:
+            addr = int(m.group(1), 16)
+            if prev is not None and 0 < addr - prev[0] <= 8:
+                per[prev[1]] += addr - prev[0]
+            prev = (addr, cur)
+    return per
+
+
 def board_report(elf):
     secs = sections(elf)
     total = flash_total(secs)
@@ -209,6 +268,15 @@ def main():
                   "inlined):", "", "| module | B |", "|---|---:|"]
         for module, size in sorted(per_module.items(), key=lambda kv: (-kv[1], kv[0])):
             lines.append(f"| {module} | {size} |")
+        lines += ["", "Code (`.text`) by the source it was written in, inlining resolved "
+                  "through the debug line table: what the async tasks hold is spread "
+                  "over the files it came from, and Rust's library code inlined into a "
+                  "function counts for the source that used it (`core library` is what "
+                  "was not inlined). The last instruction of each function is not "
+                  "counted:", "",
+                  "| source | B |", "|---|---:|"]
+        for src, size in sorted(by_source(elf).items(), key=lambda kv: (-kv[1], kv[0])):
+            lines.append(f"| {src} | {size} |")
         lines += ["", f"Largest {TOP_FUNCTIONS} symbols (code `t`/`T`, tables `r`/`R`, "
                   ".data `d`); inlined functions count in their caller:", "",
                   "| B | kind | symbol |", "|---:|---|---|"]
