@@ -72,11 +72,12 @@
 //!   (`head_backward`, stored before `head`), so that the markers it
 //!   skipped cannot leave the interrupt in the wrong direction.
 //!
-//! Host builds (the simulated axis of the tests, the virtual drive, the
-//! fuzz targets) also keep each step's carried fraction beside its delay
-//! (`exact_frac`), so that the simulation can report the exact time every
-//! step was scheduled for ([`StepSource::rounding_q32`]); the target has no
-//! such ring.
+//! With the `sim` feature (the simulated axis of the tests, the virtual
+//! drive, the fuzz targets) the schedule also keeps each step's carried
+//! fraction beside its delay (`exact_frac`), so that the simulation can
+//! report the exact time every step was scheduled for
+//! ([`StepSource::rounding_q32`]). The firmware and the benchmarks build
+//! without it: one layout on every target, the one the firmware runs.
 //!
 //! # Worst-case interrupt cost
 //!
@@ -318,9 +319,9 @@ pub struct StepSchedule {
     brake_rate: AtomicU32,
     /// The limit brake's state (`BRAKE_*`).
     brake: AtomicU8,
-    /// Host builds: each entry's carried fraction, as `frac` after that
+    /// Feature `sim`: each entry's carried fraction, as `frac` after that
     /// step (module docs).
-    #[cfg(not(target_os = "none"))]
+    #[cfg(feature = "sim")]
     exact_frac: [AtomicU32; SCHEDULE_STEPS],
 }
 
@@ -514,7 +515,7 @@ impl StepSchedule {
             limits: AtomicU8::new(0),
             brake_rate: AtomicU32::new(0),
             brake: AtomicU8::new(BRAKE_NONE),
-            #[cfg(not(target_os = "none"))]
+            #[cfg(feature = "sim")]
             exact_frac: [const { AtomicU32::new(0) }; SCHEDULE_STEPS],
         }
     }
@@ -647,7 +648,7 @@ impl StepSchedule {
     /// (excluded, at least one): writes all but the first, which it
     /// returns, so that the caller can write it last.
     fn expand(&self, seg: &mut Segment, carry: &mut (u32, u32), from: u32, to: u32) -> u32 {
-        #[cfg(not(target_os = "none"))]
+        #[cfg(feature = "sim")]
         {
             let mut shadow = Expansion::of(seg, *carry);
             let mut i = from;
@@ -1027,8 +1028,8 @@ impl StepSource {
 
     /// Exact time of the pending step minus the tick it is announced at
     /// (Q32.32, signed, within ±½ tick): the rounding its delay carries.
-    /// Host builds only (module docs), for the simulation's step records.
-    #[cfg(not(target_os = "none"))]
+    /// Feature `sim` only (module docs), for the simulation's step records.
+    #[cfg(feature = "sim")]
     pub fn rounding_q32(&self, sched: &StepSchedule) -> i64 {
         let frac = if self.braking != 0 {
             self.frac
@@ -1379,8 +1380,9 @@ mod tests {
         assert_eq!(sched.position(), 6);
     }
 
-    /// Host builds: the exact time of each step is its tick plus the
-    /// rounding its delay carried, within ±½ tick.
+    /// The exact time of each step is its tick plus the rounding its
+    /// delay carried, within ±½ tick.
+    #[cfg(feature = "sim")]
     #[test]
     fn rounding_gives_the_exact_times() {
         let sched = StepSchedule::new();
