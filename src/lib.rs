@@ -15,10 +15,12 @@
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod boards;
 pub mod device;
 pub mod dictionary;
 pub mod drive;
 pub mod event;
+pub mod mbap;
 pub mod motion;
 pub mod params;
 pub mod rtu;

@@ -85,9 +85,14 @@ impl Slave {
     }
 
     /// An exception reply produced after the request (a failed EE
-    /// operation's exception 4, `Device::poll_storage`) is counted (§6).
-    pub fn count_deferred_exception(&mut self) {
-        self.counters.exceptions = self.counters.exceptions.wrapping_add(1);
+    /// operation's exception 4, or 6 for one refused under a moving axis,
+    /// `Device::poll_storage`) is counted (§6).
+    pub fn count_deferred_exception(&mut self, exception: Exception) {
+        let c = &mut self.counters;
+        c.exceptions = c.exceptions.wrapping_add(1);
+        if exception == Exception::Busy {
+            c.busy = c.busy.wrapping_add(1);
+        }
     }
 
     /// Listen-only mode (diagnostics 0x04) is on.

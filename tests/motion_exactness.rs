@@ -208,13 +208,17 @@ fn goal_changes(targets: &[(i64, u64)], v: f64, a: f64, d: f64) -> PlannerRun {
         // the steps that keep the old profile: those queued when the
         // goal arrived (set_goal drops what was fitted but not yet
         // handed to the interrupt)
+        let queued = run.planner.planned_steps;
+        // a goal from rest starts at the first fill after it, if that fill
+        // finds the interrupt idle (else after the last queued step)
+        run.tick();
         changes.push(GoalChange {
-            queued: run.planner.planned_steps,
+            queued,
             idle_fill_us: run.idle_fill_us,
             target,
         });
         last = target;
-        for _ in 0..after_ms {
+        for _ in 1..after_ms {
             run.tick();
         }
     }

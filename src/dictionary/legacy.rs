@@ -71,6 +71,12 @@ impl Block {
         }
     }
 
+    /// An accepted write of this block is an EE operation (the only
+    /// writable address of [`Self::Monitor`] is the old EE command).
+    pub const fn runs_ee_operation(self) -> bool {
+        matches!(self, Self::Monitor | Self::EeCommand)
+    }
+
     /// A read of `address` gets exception 7 (§5.2 step 7).
     pub const fn write_only(self, _address: u16) -> bool {
         match self {

@@ -77,6 +77,11 @@ pub struct Config<'a> {
 pub trait DriveLayer {
     /// 0x6041 (§8.2).
     fn statusword(&self) -> u16;
+    /// Steps are being generated (statusword bit 9): EE operations are
+    /// refused with exception 6 (SPEC §9).
+    fn generating_steps(&self) -> bool {
+        self.statusword() & STATUS_STEPS_RUNNING != 0
+    }
     /// 0x6061: the mode in force.
     fn mode_display(&self) -> i16;
     /// 0x6064, steps.
@@ -98,6 +103,10 @@ pub trait DriveLayer {
     /// 0x6040 was written.
     fn controlword_written(&mut self, controlword: u16, cfg: Config<'_>);
 }
+
+/// Statusword bit 9: the motor is running, steps are being generated
+/// (SPEC §8.2).
+pub const STATUS_STEPS_RUNNING: u16 = 1 << 9;
 
 /// Strings of 0x1008 / 0x1009 / 0x100A (SPEC §5), 16 ASCII bytes at most
 /// (longer ones are cut).
@@ -381,6 +390,11 @@ impl<D: DriveLayer> Registers<'_, D> {
             return Err(Exception::IllegalDataValue);
         }
         if self.busy {
+            return Err(Exception::Busy);
+        }
+        // SPEC §9: an EE operation under a moving axis is refused (step 9)
+        // and changes nothing; the check at the run is Device::poll_storage.
+        if block.runs_ee_operation() && self.drive.generating_steps() {
             return Err(Exception::Busy);
         }
         for (a, v) in (start..=last).zip(words()) {

@@ -34,13 +34,15 @@ use embassy_stm32::timer::Ch1;
 use embassy_stm32::usart::{self, Uart};
 use embassy_stm32::{bind_interrupts, interrupt, pac, Config, Peripherals};
 
+use modbus_drive::boards::Board;
+
 use super::flash::FlashRegion;
 use super::switches::SwitchInputs;
 
-pub const NAME: &str = "STM32F103C8";
+pub const NAME: &str = Board::F103.chip();
 
-/// Step timer tick: 72 MHz / 9 (72 / 10 MHz is not a whole divider).
-pub const STEP_TICK_HZ: u32 = 8_000_000;
+/// Step timer tick (`modbus_drive::boards`, shared with the virtual drive).
+pub const STEP_TICK_HZ: u32 = Board::F103.step_tick_hz();
 
 /// The parameter pages: the last four 1 KiB pages (offsets from
 /// 0x0800_0000), which `memory-f103.x` leaves out of FLASH.

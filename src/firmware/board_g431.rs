@@ -32,13 +32,15 @@ use embassy_stm32::timer::Ch1;
 use embassy_stm32::usart::{self, Uart};
 use embassy_stm32::{bind_interrupts, interrupt, pac, Config, Peripherals};
 
+use modbus_drive::boards::Board;
+
 use super::flash::FlashRegion;
 use super::switches::SwitchInputs;
 
-pub const NAME: &str = "STM32G431CB";
+pub const NAME: &str = Board::G431.chip();
 
-/// Free-running step timer tick: 170 MHz / 17.
-pub const STEP_TICK_HZ: u32 = 10_000_000;
+/// Step timer tick (`modbus_drive::boards`, shared with the virtual drive).
+pub const STEP_TICK_HZ: u32 = Board::G431.step_tick_hz();
 
 /// The parameter pages: the last two 2 KiB pages (offsets from 0x0800_0000),
 /// which `memory-g431.x` leaves out of FLASH.

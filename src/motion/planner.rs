@@ -133,7 +133,8 @@ pub struct PlannerConfig {
 impl Default for PlannerConfig {
     fn default() -> Self {
         Self {
-            tick_hz: 10_000_000,
+            // the primary board's
+            tick_hz: crate::boards::Board::G431.step_tick_hz(),
             horizon_us: 3_000,
             max_segment_us: 100_000,
         }
@@ -590,6 +591,16 @@ impl Planner {
                     p.delay(dt);
                 }
             } else {
+                // A profile planned from rest since the last fill (a goal
+                // given between fills) started at the old end time, which
+                // may be a control period or more ago: from there its first
+                // step (√(2/a) from rest: a control period at the maximum
+                // acceleration) could fall before now and wrap into a
+                // delay of minutes. It starts from now instead.
+                let dt = now.wrapping_sub(self.t_ideal);
+                if let Some(p) = self.profile.as_mut() {
+                    p.delay(dt);
+                }
                 self.t_ideal = now;
             }
             self.t_isr = now;

@@ -22,7 +22,8 @@ use crate::dictionary::{OdValues, Params};
 use super::record::ParamSet;
 use super::storage::{ParamStore, Slot, StorageError};
 
-/// Why an EE operation failed (the master sees exception 4).
+/// Why an EE operation failed (the master sees exception 4, or 6 for
+/// [`EeError::StepsRunning`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum EeError {
@@ -30,6 +31,9 @@ pub enum EeError {
     Storage(StorageError),
     /// EE-rS without a backup ever made with EE-bA.
     NoBackup,
+    /// Refused, nothing changed: steps were being generated when it was to
+    /// run (SPEC §9; flash work would stall the step interrupt).
+    StepsRunning,
 }
 
 impl From<StorageError> for EeError {

@@ -18,9 +18,9 @@ pub struct PlannerRun {
     pub period_us: u64,
     pub goals: std::collections::VecDeque<Goal>,
     /// `now_us` of the last control call if the schedule was idle (empty,
-    /// interrupt stopped) when it filled and it planned no step: the
-    /// planner then restarted its clock there, so a move planned from rest
-    /// next starts at that time (otherwise at its last planned step).
+    /// interrupt stopped) when it filled: the planner then restarts its
+    /// clock there, so a goal given before that call starts at that time
+    /// (otherwise after its last planned step).
     pub idle_fill_us: Option<u64>,
 }
 
@@ -50,7 +50,6 @@ impl PlannerRun {
     /// a motion ends, then start the interrupt.
     pub fn control(&mut self) {
         let idle = !self.sched.is_running() && self.sched.is_empty();
-        let planned = self.planner.planned_steps;
         for _ in 0..16 {
             match self.planner.fill(self.now_us, &self.sched) {
                 Fill::Ended => {
@@ -61,7 +60,7 @@ impl PlannerRun {
                 _ => break,
             }
         }
-        self.idle_fill_us = (idle && self.planner.planned_steps == planned).then_some(self.now_us);
+        self.idle_fill_us = idle.then_some(self.now_us);
         self.axis.kick(&self.sched);
     }
 
@@ -362,8 +361,8 @@ pub struct GoalChange {
     /// Steps the planner had queued ([`Planner::planned_steps`]): they keep
     /// the old profile, the new one continues from the last of them.
     pub queued: u64,
-    /// [`PlannerRun::idle_fill_us`] then: the planner restarted from rest at
-    /// that time.
+    /// [`PlannerRun::idle_fill_us`] of the first control call after the
+    /// goal: the planner restarted from rest at that time.
     pub idle_fill_us: Option<u64>,
     pub target: i64,
 }
@@ -460,6 +459,7 @@ pub fn check_times(steps: &[StepRecord], tick_hz: u32, t0_tick: u64, ideal: impl
 }
 
 use super::{hex, Bus};
+use modbus_drive::boards::Board;
 use modbus_drive::motion::PlannerConfig as Cfg;
 
 /// The whole device behind the frame path, with a control loop over a
@@ -480,13 +480,32 @@ impl Rig {
         Self::with_bus(Bus::new(), axis)
     }
 
-    pub fn with_bus(mut bus: Bus, axis: SimAxis) -> Self {
-        let tick_hz = 10_000_000;
-        bus.device.drive.set_planner_config(Cfg {
+    pub fn with_bus(bus: Bus, axis: SimAxis) -> Self {
+        Self::with_config(
+            bus,
+            axis,
+            Cfg {
+                tick_hz: 10_000_000,
+                horizon_us: 3000,
+                max_segment_us: 1000,
+            },
+        )
+    }
+
+    /// The planner as `board`'s firmware configures it (its step tick, the
+    /// default horizon and segment length), on an axis at that tick.
+    pub fn on_board(board: Board, axis: impl FnOnce(SimAxis) -> SimAxis) -> Self {
+        let tick_hz = board.step_tick_hz();
+        let cfg = Cfg {
             tick_hz,
-            horizon_us: 3000,
-            max_segment_us: 1000,
-        });
+            ..Cfg::default()
+        };
+        Self::with_config(Bus::new(), axis(SimAxis::new(tick_hz)), cfg)
+    }
+
+    fn with_config(mut bus: Bus, axis: SimAxis, cfg: Cfg) -> Self {
+        let tick_hz = cfg.tick_hz;
+        bus.device.drive.set_planner_config(cfg);
         let mut rig = Self {
             bus,
             sched: Box::new(StepSchedule::new()),

@@ -1,0 +1,52 @@
+//! Facts about the boards the firmware runs on that the core's users must
+//! agree on, without any HAL: the firmware takes its step tick from here,
+//! the virtual drive (`--board`) and the tests run the core at the same
+//! tick, so that every board's limits can be seen and tested on a host.
+
+/// A board the firmware is built for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Board {
+    /// STM32G431CB (Cortex-M4F, 170 MHz).
+    G431,
+    /// STM32F103C8 (Cortex-M3, 72 MHz, "blue pill").
+    F103,
+}
+
+impl Board {
+    /// Every board, the primary one first.
+    pub const ALL: [Board; 2] = [Board::G431, Board::F103];
+
+    /// Step timer tick, Hz: the unit the planner times steps in
+    /// (`motion::PlannerConfig::tick_hz`). The timer's prescaler must
+    /// divide the timer clock exactly into it: 170 MHz / 17 on the G431,
+    /// 72 MHz / 9 on the F103 (72 / 10 MHz is not a whole divider).
+    pub const fn step_tick_hz(self) -> u32 {
+        match self {
+            Board::G431 => 10_000_000,
+            Board::F103 => 8_000_000,
+        }
+    }
+
+    /// The chip, as the firmware reports it in 0x1009.
+    pub const fn chip(self) -> &'static str {
+        match self {
+            Board::G431 => "STM32G431CB",
+            Board::F103 => "STM32F103C8",
+        }
+    }
+
+    /// The short name the virtual drive's `--board` takes.
+    pub const fn short_name(self) -> &'static str {
+        match self {
+            Board::G431 => "g431",
+            Board::F103 => "f103",
+        }
+    }
+
+    /// The board whose [`Board::short_name`] is `name` (case-insensitive).
+    pub fn from_short_name(name: &str) -> Option<Board> {
+        Self::ALL
+            .into_iter()
+            .find(|b| b.short_name().eq_ignore_ascii_case(name))
+    }
+}
