@@ -127,7 +127,7 @@ fn steps_counted_equal_schedule_and_intervals_are_exact() {
 
 /// The position is derived (no per-step store): after every call it
 /// counts exactly the steps made, across segment ends, reversals, a
-/// flush and a stop (issue 3: steps counted equal the schedule).
+/// flush and a stop (steps counted equal the schedule).
 #[test]
 fn derived_position_counts_the_steps_made() {
     let sched = StepSchedule::new();
@@ -365,7 +365,7 @@ fn cancel_forgets_the_announced_step() {
     assert_eq!(sched.position(), -1);
 }
 
-// ---- limit brake (SPEC §8.7, issue 6) ----
+// ---- limit brake (SPEC §8.7) ----
 
 const HZ: u32 = 10_000_000;
 
