@@ -2,6 +2,7 @@
 //! goal each phase hands the planner.
 
 use super::{Drive, DriveEvent};
+use crate::dictionary::OdValues;
 use crate::motion::{Goal, Homing, HomingError, HomingMethod, HomingStep, SwitchEdges};
 
 /// Largest homing speed register value (SPEC §5, §8.6).
@@ -21,21 +22,21 @@ pub(super) enum HomingState {
 }
 
 impl Drive {
-    pub(super) fn homing_goal(&self) -> Option<Goal> {
-        let accel = self.s.steps(u64::from(self.s.od.homing_acceleration));
+    pub(super) fn homing_goal(&self, od: &OdValues) -> Option<Goal> {
+        let accel = self.s.steps(u64::from(od.homing_acceleration));
         match self.homing {
             HomingState::Searching(h) => {
                 let p = h.phase();
                 Some(Goal::Run {
                     forward: !p.left,
-                    ramp: self.s.homing_ramp(h.method(), p.slow),
+                    ramp: self.s.homing_ramp(od, h.method(), p.slow),
                 })
             }
             HomingState::Offset { target } => {
-                let method = HomingMethod::from_register(self.s.od.homing_method)?;
+                let method = HomingMethod::from_register(od.homing_method)?;
                 Some(Goal::Move {
                     target,
-                    ramp: self.s.homing_ramp(method, true),
+                    ramp: self.s.homing_ramp(od, method, true),
                     end_velocity: 0,
                 })
             }
@@ -43,7 +44,7 @@ impl Drive {
         }
     }
 
-    pub(super) fn run_homing(&mut self, edges: SwitchEdges) {
+    pub(super) fn run_homing(&mut self, edges: SwitchEdges, od: &OdValues) {
         let HomingState::Searching(mut h) = self.homing else {
             return;
         };
@@ -57,7 +58,7 @@ impl Drive {
                 self.replan = true;
             }
             HomingStep::Origin(origin) => {
-                let target = origin + i64::from(self.s.od.home_offset);
+                let target = origin + i64::from(od.home_offset);
                 self.homing = HomingState::Offset { target };
                 self.event(DriveEvent::HomingAttained {
                     origin: origin as i32,
@@ -67,7 +68,7 @@ impl Drive {
             HomingStep::Failed(e) => {
                 self.homing = HomingState::Failed;
                 self.event(DriveEvent::HomingFailed(e));
-                let accel = self.s.steps(u64::from(self.s.od.homing_acceleration));
+                let accel = self.s.steps(u64::from(od.homing_acceleration));
                 self.stop_with(accel);
             }
         }
@@ -76,8 +77,7 @@ impl Drive {
         }
     }
 
-    pub(super) fn start_homing(&mut self) {
-        let od = &self.s.od;
+    pub(super) fn start_homing(&mut self, od: &OdValues) {
         let error = match HomingMethod::from_register(od.homing_method) {
             None => Some(HomingError::NoMethod),
             Some(_)

@@ -328,18 +328,18 @@ impl Drive {
             self.last_frame_us = now_us;
         }
 
-        self.limit_brake(sched);
+        self.limit_brake(sched, cfg.od);
 
         // §8.7 faults
         if self.fault.is_none() {
             if sw.cw_limit && sw.ccw_limit {
-                self.enter_fault(FaultCause::BothLimits);
+                self.enter_fault(FaultCause::BothLimits, cfg.od);
             } else if self.state == PowerState::OperationEnabled
                 && self.s.comm_loss_ms > 0
                 && now_us.saturating_sub(self.last_frame_us)
                     >= u64::from(self.s.comm_loss_ms) * 1000
             {
-                self.enter_fault(FaultCause::CommunicationLoss);
+                self.enter_fault(FaultCause::CommunicationLoss, cfg.od);
             }
         }
 
@@ -347,9 +347,9 @@ impl Drive {
             if self.mode == MODE_HOMING {
                 // A disabled limit's edge is never used: the limit never
                 // meets a condition (Homing::update).
-                self.run_homing(edges);
+                self.run_homing(edges, cfg.od);
             } else {
-                self.check_limits();
+                self.check_limits(cfg.od);
             }
         }
 
@@ -359,16 +359,16 @@ impl Drive {
         }
         if self.replan {
             self.replan = false;
-            self.apply_goal(sched);
+            self.apply_goal(sched, cfg.od);
         }
-        let underruns = self.planner.underruns;
+        let underruns = self.planner.underruns();
         for _ in 0..8 {
             match self.planner.fill(now_us, sched) {
                 Fill::Ended => self.motion_ended(),
                 _ => break,
             }
         }
-        if self.planner.underruns != underruns {
+        if self.planner.underruns() != underruns {
             self.event(DriveEvent::ScheduleUnderrun);
         }
 
@@ -422,14 +422,14 @@ impl Drive {
     }
 
     /// The goal the current mode asks for, handed to the planner.
-    fn apply_goal(&mut self, sched: &StepSchedule) {
+    fn apply_goal(&mut self, sched: &StepSchedule, od: &OdValues) {
         if self.state != PowerState::OperationEnabled {
             return;
         }
         if self.halted {
             // §8.1: halt decelerates with 0x6084 in every mode (at once
             // when it is 0) and holds; the mode's goal comes back on resume.
-            match self.s.decel() {
+            match self.s.decel(od) {
                 0 => self.planner.stop_at_once(sched),
                 decel => {
                     self.planner.set_goal(Goal::Stop { decel });
@@ -439,8 +439,8 @@ impl Drive {
         }
         let goal = match self.mode {
             MODE_POSITION => self.active.map(|sp| self.move_goal(sp)),
-            MODE_VELOCITY => Some(self.velocity_goal()),
-            MODE_HOMING => self.homing_goal(),
+            MODE_VELOCITY => Some(self.velocity_goal(od)),
+            MODE_HOMING => self.homing_goal(od),
             _ => None,
         };
         if let Some(goal) = goal {
@@ -495,7 +495,7 @@ impl DriveLayer for Drive {
             .or(self.last_target)
             .unwrap_or(self.user_position());
         let speed_command = match self.mode {
-            MODE_VELOCITY => i64::from(self.s.od.profile_velocity) * 60 / 10,
+            MODE_VELOCITY => i64::from(self.s.profile_velocity) * 60 / 10,
             _ => self.active.map_or(0, |a| a.ramp.velocity as i64 * 6 / spr),
         };
         let out = self.outputs();
@@ -520,7 +520,7 @@ impl DriveLayer for Drive {
 
     // `values_written` ran just before with the same values (the
     // dispatcher's order, `DriveLayer`): `self.s` is current.
-    fn mode_written(&mut self, mode: i16, _cfg: Config<'_>) {
+    fn mode_written(&mut self, mode: i16, cfg: Config<'_>) {
         if mode == self.mode {
             return;
         }
@@ -532,14 +532,14 @@ impl DriveLayer for Drive {
         self.mode = mode;
         self.last_target = None;
         if self.state == PowerState::OperationEnabled {
-            let decel = self.s.decel();
+            let decel = self.s.decel(cfg.od);
             self.stop_with(decel);
             self.replan = mode == MODE_VELOCITY;
         }
     }
 
     // As for `mode_written`: `self.s` is current.
-    fn controlword_written(&mut self, controlword: u16, _cfg: Config<'_>) {
-        self.apply_controlword(controlword);
+    fn controlword_written(&mut self, controlword: u16, cfg: Config<'_>) {
+        self.apply_controlword(controlword, cfg.od);
     }
 }

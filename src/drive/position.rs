@@ -3,6 +3,7 @@
 
 use super::homing::HomingState;
 use super::{cw, Drive, DriveEvent};
+use crate::dictionary::OdValues;
 use crate::motion::profile::isqrt;
 use crate::motion::{Goal, Ramp};
 
@@ -37,17 +38,16 @@ impl Drive {
     }
 
     /// Position mode, rising edge of bit 4 (SPEC §8.4).
-    pub(super) fn latch_set_point(&mut self, controlword: u16) {
+    pub(super) fn latch_set_point(&mut self, controlword: u16, od: &OdValues) {
         let Some(base) = self.relative_base().filter(|_| self.set_point_slot_free()) else {
             return; // bit 12 = 0: ignored
         };
-        let od = &self.s.od;
         let target = if controlword & cw::RELATIVE != 0 {
             base + i64::from(od.target_position)
         } else {
             i64::from(od.target_position)
         };
-        let ramp = self.s.profile_ramp();
+        let ramp = self.s.profile_ramp(od);
         let current = self.active.map_or(self.user_position(), |a| a.target);
         let towards_limit = (target < current && self.switches.cw_limit)
             || (target > current && self.switches.ccw_limit);

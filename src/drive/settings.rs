@@ -6,16 +6,19 @@ use crate::motion::planner::MAX_STEP_RATE;
 use crate::motion::{HomingMethod, Ramp};
 use crate::params::Params;
 
-/// The configuration the drive works with: a copy of the values the
-/// master writes, and what PA10..PA20 mean in steps.
+/// What PA10..PA20 mean in steps, and the one OD value the drive shows
+/// between calls (0x6081 in the statusword and the monitor); the other OD
+/// values are read where they are used, from the dictionary's table
+/// ([`Config`]), never copied.
 ///
 /// Kept current by [`Settings::update`] on every accepted write and every
-/// control call. A write stores the OD values (a 40-byte copy); the derived
-/// step figures are recomputed only when their PA registers changed, so a
-/// frame that writes the profile values pays no 64-bit maths.
+/// control call. The derived step figures are recomputed only when their
+/// PA registers changed, so a frame that writes the profile values pays no
+/// 64-bit maths.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Settings {
-    pub(super) od: OdValues,
+    /// 0x6081 as last written.
+    pub(super) profile_velocity: i32,
     /// PA10 and PA12 as last seen (raw registers): the derived figures
     /// below are recomputed when they change.
     pub(super) steps_per_rev_reg: u16,
@@ -42,7 +45,7 @@ impl Settings {
     /// those registers changed.
     pub(super) fn update(&mut self, cfg: Config<'_>) {
         let pa: &Params = cfg.pa;
-        self.od.clone_from(cfg.od);
+        self.profile_velocity = cfg.od.profile_velocity;
         self.limit_enable = pa.limit_enable();
         self.comm_loss_ms = pa.comm_loss_ms();
         let (spr_reg, rpm_reg) = (pa.steps_per_rev(), pa.max_speed_rpm());
@@ -61,24 +64,24 @@ impl Settings {
     }
 
     /// The profile ramp of 0x6081/0x6083/0x6084, clamped (SPEC §8.4).
-    pub(super) fn profile_ramp(&self) -> Ramp {
+    pub(super) fn profile_ramp(&self, od: &OdValues) -> Ramp {
         Ramp {
-            velocity: self.steps(u64::from(self.od.profile_velocity.unsigned_abs())),
-            accel: self.steps(u64::from(self.od.acceleration)),
-            decel: self.steps(u64::from(self.od.deceleration)),
+            velocity: self.steps(u64::from(od.profile_velocity.unsigned_abs())),
+            accel: self.steps(u64::from(od.acceleration)),
+            decel: self.steps(u64::from(od.deceleration)),
         }
         .clamped(self.max_velocity)
     }
 
     /// Homing ramp at 0x6099 (fast) or 0x609B (slow) with 0x609A, capped
     /// per method (SPEC §8.6).
-    pub(super) fn homing_ramp(&self, method: HomingMethod, slow: bool) -> Ramp {
+    pub(super) fn homing_ramp(&self, od: &OdValues, method: HomingMethod, slow: bool) -> Ramp {
         let reg = if slow {
-            self.od.homing_zero_speed
+            od.homing_zero_speed
         } else {
-            self.od.homing_speed
+            od.homing_speed
         };
-        let accel = self.steps(u64::from(self.od.homing_acceleration));
+        let accel = self.steps(u64::from(od.homing_acceleration));
         let cap = rpm_to_velocity(u64::from(method.max_rpm()), self.steps_per_rev);
         Ramp {
             velocity: self.steps(u64::from(reg)),
@@ -88,12 +91,12 @@ impl Settings {
         .clamped(self.max_velocity.min(cap))
     }
 
-    pub(super) fn decel(&self) -> u64 {
-        self.steps(u64::from(self.od.deceleration))
+    pub(super) fn decel(&self, od: &OdValues) -> u64 {
+        self.steps(u64::from(od.deceleration))
     }
 
-    pub(super) fn quick_stop_decel(&self) -> u64 {
-        self.steps(u64::from(self.od.quick_stop_deceleration))
+    pub(super) fn quick_stop_decel(&self, od: &OdValues) -> u64 {
+        self.steps(u64::from(od.quick_stop_deceleration))
     }
 
     pub(super) fn cw_limit_enabled(&self) -> bool {
@@ -119,7 +122,7 @@ mod tests {
         // SPEC §7 PA10 (steps/rev) and PA12 (max speed) are derived only
         // when they change (Settings::update); each change must show.
         let od = OdValues {
-            acceleration: 7,
+            profile_velocity: -7,
             ..OdValues::default()
         };
         let mut pa = Params::defaults();
@@ -138,7 +141,7 @@ mod tests {
             assert_eq!(s.steps_per_rev, spr);
             let v = (u64::from(rpm) * spr / 6).min(u64::from(MAX_STEP_RATE) * 10);
             assert_eq!(s.max_velocity, v, "PA10 {spr} PA12 {rpm}");
-            assert_eq!(s.od, od);
+            assert_eq!(s.profile_velocity, od.profile_velocity);
         }
     }
 }

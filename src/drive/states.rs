@@ -4,10 +4,11 @@
 use super::homing::HomingState;
 use super::{cw, sw, Drive, DriveEvent, FaultCause, PowerState};
 use super::{MODE_HOMING, MODE_POSITION, MODE_VELOCITY};
+use crate::dictionary::OdValues;
 use crate::motion::HomingError;
 
 impl Drive {
-    pub(super) fn enter_fault(&mut self, cause: FaultCause) {
+    pub(super) fn enter_fault(&mut self, cause: FaultCause, od: &OdValues) {
         self.fault = Some(cause);
         self.error_register |= cause.error_register_bit();
         self.event(DriveEvent::Fault(cause));
@@ -23,7 +24,7 @@ impl Drive {
         if self.state.moving_allowed() {
             // Fault reaction: the quick stop ramp, or at once without one.
             self.set_state(PowerState::FaultReactionActive);
-            self.stop_with(self.s.quick_stop_decel());
+            self.stop_with(self.s.quick_stop_decel(od));
         } else {
             self.set_state(PowerState::Fault);
             self.flush = true;
@@ -39,12 +40,12 @@ impl Drive {
         self.drop_set_points();
     }
 
-    pub(super) fn quick_stop(&mut self) {
+    pub(super) fn quick_stop(&mut self, od: &OdValues) {
         self.set_state(PowerState::QuickStopActive);
         self.drop_set_points();
-        let decel = match self.s.od.quick_stop_option {
-            1 => self.s.decel(),
-            2 => self.s.quick_stop_decel(),
+        let decel = match od.quick_stop_option {
+            1 => self.s.decel(od),
+            2 => self.s.quick_stop_decel(od),
             _ => 0, // 0, 3..=32767: at once
         };
         self.stop_with(decel);
@@ -85,7 +86,7 @@ impl Drive {
                 let target = if self.halted || self.state != PowerState::OperationEnabled {
                     0
                 } else {
-                    i64::from(self.s.od.profile_velocity)
+                    i64::from(self.s.profile_velocity)
                 };
                 let reached = if target == 0 {
                     at_rest
@@ -148,7 +149,7 @@ impl Drive {
 
     /// A controlword write (SPEC §8.1): the transition it asks for, halt,
     /// and the mode's new set-point bit.
-    pub(super) fn apply_controlword(&mut self, controlword: u16) {
+    pub(super) fn apply_controlword(&mut self, controlword: u16, od: &OdValues) {
         use PowerState::*;
         let prev = self.controlword;
         self.controlword = controlword;
@@ -205,7 +206,7 @@ impl Drive {
 
         match (was, next) {
             (OperationEnabled, QuickStopActive) => {
-                self.quick_stop();
+                self.quick_stop(od);
                 return;
             }
             (QuickStopActive, OperationEnabled) => {
@@ -237,8 +238,8 @@ impl Drive {
             self.replan = true;
         }
         match self.mode {
-            MODE_POSITION if rising(cw::NEW_SET_POINT) => self.latch_set_point(controlword),
-            MODE_HOMING if rising(cw::NEW_SET_POINT) => self.start_homing(),
+            MODE_POSITION if rising(cw::NEW_SET_POINT) => self.latch_set_point(controlword, od),
+            MODE_HOMING if rising(cw::NEW_SET_POINT) => self.start_homing(od),
             _ => {}
         }
     }

@@ -81,7 +81,7 @@ async fn main(spawner: Spawner) {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks
         // (calc::step_prescaler).
-        device.drive.set_planner_config(PlannerConfig {
+        device.set_planner_config(PlannerConfig {
             tick_hz: board::STEP_TICK_HZ,
             ..PlannerConfig::default()
         });

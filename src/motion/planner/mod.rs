@@ -179,10 +179,10 @@ pub struct Planner {
     /// moved on in [`Planner::fill`]).
     oldest: u32,
     /// The schedule ran dry while the motor was moving.
-    pub underruns: u32,
+    underruns: u32,
     /// Segments whose first step was already due when they were queued
     /// (the control loop ran late); never expected.
-    pub late_segments: u32,
+    late_segments: u32,
     /// `now` of the current fill (Q32.32 ticks).
     now: u64,
     /// The last fill returned [`Fill::Full`] with more to plan, and no
@@ -193,10 +193,10 @@ pub struct Planner {
     tick_per_us: u64,
     /// Steps queued since start (wrapping; a stop at once drops some of
     /// them unmade): lets a test tell which profile timed a step.
-    pub planned_steps: u64,
+    planned_steps: u64,
     /// Segments fitted since start (wrapping; each is pushed in one or
     /// more parts, [`Planner::segments_pushed`]).
-    pub segments_fitted: u32,
+    segments_fitted: u32,
     budget: SegmentBudget,
     pending: Pending,
     /// `horizon_us` in Q32.32 ticks.
@@ -272,7 +272,7 @@ impl Planner {
     /// Direction of the motion being planned, if any.
     pub fn heading(&self) -> Option<bool> {
         match &self.profile {
-            Some(p) => Some(p.forward),
+            Some(p) => Some(p.forward()),
             None if self.w > 0 => Some(self.forward),
             None => None,
         }
@@ -289,7 +289,9 @@ impl Planner {
         }
         match &self.profile {
             // a finite profile ending at rest (an endless run has no steps)
-            Some(p) if p.w_end() == 0 => Some(self.pos + signed(p.forward, p.steps? - p.done())),
+            Some(p) if p.w_end() == 0 => {
+                Some(self.pos + signed(p.forward(), p.steps()? - p.done()))
+            }
             Some(_) => None,
             // a profile ended at speed: fill stops it with the last ramp
             None if self.w > 0 => {
@@ -329,6 +331,29 @@ impl Planner {
     /// deceleration.
     pub fn ramping(&self, sched: &StepSchedule) -> bool {
         self.current_slot(sched).is_some_and(|s| s.ramping)
+    }
+
+    /// Times the schedule ran dry while the motor was moving (wrapping).
+    pub fn underruns(&self) -> u32 {
+        self.underruns
+    }
+
+    /// Segments whose first step was already due when they were queued
+    /// (the control loop ran late; wrapping); never expected.
+    pub fn late_segments(&self) -> u32 {
+        self.late_segments
+    }
+
+    /// Steps queued since start (wrapping; a stop at once drops some of
+    /// them unmade): lets a test tell which profile timed a step.
+    pub fn planned_steps(&self) -> u64 {
+        self.planned_steps
+    }
+
+    /// Segments fitted since start (wrapping; each is pushed in one or
+    /// more parts, [`Planner::segments_pushed`]).
+    pub fn segments_fitted(&self) -> u32 {
+        self.segments_fitted
     }
 
     /// Segments pushed so far (wrapping).

@@ -81,9 +81,9 @@ impl Planner {
         self.t_ideal = t_last;
         self.planned_steps = self.planned_steps.wrapping_add(n);
         self.segments_fitted = self.segments_fitted.wrapping_add(1);
-        self.pos += signed(profile.forward, n);
+        self.pos += signed(profile.forward(), n);
         self.w = profile.w();
-        self.forward = profile.forward;
+        self.forward = profile.forward();
         (self.s_end, self.c_end, self.s_end_w) = (s1.unwrap_or(0), c1, self.w);
         let seg = Segment {
             interval,
@@ -92,7 +92,7 @@ impl Planner {
             add3: add3 as i64,
             add4: add4 as i64,
             count: n as u32,
-            forward: profile.forward,
+            forward: profile.forward(),
         };
         self.pending = Pending {
             rest: seg,
@@ -110,8 +110,8 @@ impl Planner {
                 last_index: 0,
                 to_end: 0,
                 count: n as u32,
-                v_start: signed(profile.forward, v_start) as i32,
-                v_end: signed(profile.forward, profile.velocity()) as i32,
+                v_start: signed(profile.forward(), v_start) as i32,
+                v_end: signed(profile.forward(), profile.velocity()) as i32,
                 ramping: profile.ramping() || profile.remaining() == 0,
             },
         };

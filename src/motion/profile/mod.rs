@@ -89,9 +89,9 @@ const MAX_TICKS_PER_V: u128 = 1 << 24;
 /// See the module docs.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Profile {
-    pub forward: bool,
+    forward: bool,
     /// Whole steps to the end; `None` runs forever (velocity mode).
-    pub steps: Option<u64>,
+    steps: Option<u64>,
     pieces: [Piece; 3],
     n_pieces: usize,
     idx: usize,
@@ -234,6 +234,17 @@ impl Profile {
             per_v,
         };
         self.n_pieces += 1;
+    }
+
+    /// The motion goes in the positive direction.
+    pub fn forward(&self) -> bool {
+        self.forward
+    }
+
+    /// Whole steps from the origin to the end; `None` runs forever
+    /// (velocity mode).
+    pub fn steps(&self) -> Option<u64> {
+        self.steps
     }
 
     /// Steps timed so far.

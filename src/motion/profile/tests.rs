@@ -118,7 +118,7 @@ fn stop_ends_on_a_whole_step_at_rest() {
     let sd = slope_of(10_000); // 1000 steps/s²: 125 steps to stop
     assert_eq!(stop_steps(w0, sd), 125);
     let mut p = Profile::new_stop(false, w0, sd, 0, F);
-    assert_eq!(p.steps, Some(125));
+    assert_eq!(p.steps(), Some(125));
     let budget = SegmentBudget::new(F, 100_000);
     let mut segments = 0;
     while p.remaining() > 0 {

@@ -187,11 +187,11 @@ impl WebPort {
             let _ = write!(
                 line,
                 ",[{},{},{},{}]",
-                dev.drive.actual_position(),
-                dev.drive.actual_velocity_rpm(),
+                dev.drive().actual_position(),
+                dev.drive().actual_velocity_rpm(),
                 state::entry_value(dev, state::FOLLOWING_ERROR)
                     .map_or("null".into(), |v| v.to_string()),
-                dev.drive.statusword()
+                dev.drive().statusword()
             );
         }
         line.push(']');
@@ -232,7 +232,10 @@ fn lock(shared: &Shared) -> std::sync::MutexGuard<'_, Published> {
 }
 
 fn error_json(why: &str) -> String {
-    format!("{{\"ok\":false,\"error\":{},\"steps\":[]}}", state::quote(why))
+    format!(
+        "{{\"ok\":false,\"error\":{},\"steps\":[]}}",
+        state::quote(why)
+    )
 }
 
 fn hex(bytes: &[u8]) -> String {
