@@ -18,8 +18,8 @@ check() {
   local board=$1 chip=$2 target=$3 feature=$4
   local elf="target/$target/fw/modbus-drive"
   echo "---- $board ($target, --features $feature)"
-  cargo clippy --profile fw --bin modbus-drive --target "$target" --features "$feature" -- -D warnings || return 1
-  cargo build --profile fw --bin modbus-drive --target "$target" --features "$feature" || return 1
+  cargo clippy --profile fw --bin modbus-drive --target "$target" --no-default-features --features "$feature" -- -D warnings || return 1
+  cargo build --profile fw --bin modbus-drive --target "$target" --no-default-features --features "$feature" || return 1
   # every section and symbol inside the chip's memories (datasheet figures)
   python3 .ci/memory_map.py "$chip" "$elf" || return 1
 }

@@ -21,6 +21,9 @@ compile_error!("choose one board feature: board-g431 or board-f103");
 #[cfg(not(any(feature = "board-g431", feature = "board-f103")))]
 compile_error!("choose a board: `cargo fw` (STM32G431CB) or `cargo fw-f103` (STM32F103C8)");
 
+#[cfg(feature = "sim")]
+compile_error!("the firmware is built without the simulation: `--no-default-features` (as `cargo fw` and `cargo fw-f103` do)");
+
 #[cfg(feature = "board-f103")]
 #[path = "board_f103.rs"]
 mod board;
@@ -80,7 +83,7 @@ async fn main(spawner: Spawner) {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks
         // (calc::step_prescaler).
-        device.drive.set_planner_config(PlannerConfig {
+        device.set_planner_config(PlannerConfig {
             tick_hz: board::STEP_TICK_HZ,
             ..PlannerConfig::default()
         });

@@ -107,21 +107,16 @@ impl DriveSlot {
             tick_hz: board.step_tick_hz(),
             ..PlannerConfig::default()
         };
-        device.drive.set_planner_config(planner);
+        device.set_planner_config(planner);
         let boot = store.boot();
         device.apply_boot(&boot);
         if !matches!(boot.outcome, BootOutcome::Loaded { .. }) {
-            set_address(&mut device, address);
-            // The address a drive starts with is not a change worth logging.
-            let events: Vec<Event> = std::iter::from_fn(|| device.take_event()).collect();
-            for ev in events {
-                if !matches!(ev, Event::AddressChanged { .. }) {
-                    device.push_event(ev);
-                }
-            }
+            // `--drives` gives each drive its address (PA51, SPEC §7), in
+            // force at once: no change worth logging
+            device.configure(|pa, _| pa.set_address(address));
         }
-        let last_statusword = device.drive.statusword();
-        let last_mode = device.drive.mode_display();
+        let last_statusword = device.drive().statusword();
+        let last_mode = device.drive().mode_display();
         Ok(Self {
             device,
             store,
@@ -157,7 +152,8 @@ impl DriveSlot {
     fn control_at(&mut self, t_us: u64) {
         let until = self.axis.us_to_ticks(t_us);
         // the simulated limit-switch interrupt applies PA14 as the board's
-        self.axis.set_limit_enable(self.device.pa.limit_enable());
+        self.axis
+            .set_limit_enable(self.device.params().limit_enable());
         while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
             let at = self.axis.now_us();
             let switches = self.forced.apply(self.axis.switches());
@@ -190,14 +186,6 @@ fn sim_axis(layout: AxisLayout, tick_hz: u32) -> SimAxis {
         axis = axis.with_home(i64::from(w.from_steps), i64::from(w.to_steps));
     }
     axis
-}
-
-/// `--drives` gives each drive its address: PA51 (SPEC §7), put in force
-/// the way the core applies a new PA51 (as after a reply).
-fn set_address(device: &mut Device, address: u8) {
-    const PA51: usize = 51;
-    device.pa.set_unchecked(PA51, u16::from(address));
-    device.reply_sent();
 }
 
 struct PendingReply {
@@ -301,8 +289,7 @@ impl VirtualDrive {
         };
         for d in &mut drives {
             if opts.standard_exceptions {
-                const PA55: usize = 55;
-                d.device.pa.set_unchecked(PA55, 1);
+                d.device.configure(|pa, _| pa.set_standard_exceptions(true));
             }
             // The first control call: a fault the drive starts in (both
             // limits active) is reported now, not with the first frame.
@@ -448,7 +435,7 @@ impl VirtualDrive {
         }
         for (di, ee) in done {
             if ee {
-                self.drives[di].device.storage_busy = false;
+                self.drives[di].device.set_storage_busy(false);
             }
             self.reply_done(di);
         }
@@ -458,7 +445,7 @@ impl VirtualDrive {
     fn observe(&mut self, now: u64) {
         let mut status = Vec::new();
         for (di, d) in self.drives.iter_mut().enumerate() {
-            let drive = &d.device.drive;
+            let drive = d.device.drive();
             let sample = Sample {
                 time_us: now,
                 drive: di,
@@ -487,7 +474,7 @@ impl VirtualDrive {
             if let Err(e) = self.trace.offer(sample) {
                 self.console.log(&format!("trace: {e}"));
             }
-            let counters = d.device.slave.counters();
+            let counters = d.device.slave().counters();
             status.push(format!(
                 "@{} {:?} sw 0x{:04X} mode {} pos {} vel {} r/min frames {} errors {}",
                 sample.address,
@@ -723,7 +710,7 @@ fn handle_due(
         response = r;
         ee = true;
         due_us = due_us.max(now_us + slot.store.flash().take_busy_us());
-        slot.device.storage_busy = true;
+        slot.device.set_storage_busy(true);
     }
     let bytes = match response {
         Response::Reply(n) => reply[..n.min(MAX_FRAME)].to_vec(),
@@ -755,7 +742,7 @@ fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
             answered,
         } = ev
         {
-            let standard = slot.device.pa.standard_exceptions();
+            let standard = slot.device.params().standard_exceptions();
             let code = exception.code(standard).unwrap_or(exception.vendor_code());
             let port = line.unwrap_or("-");
             slot.exceptions.record(port, function, code, answered);

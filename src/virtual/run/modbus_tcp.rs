@@ -435,7 +435,7 @@ impl VirtualDrive {
     fn finish_replies(&mut self, done: Vec<(usize, bool)>) {
         for (di, ee) in done {
             if ee {
-                self.drives[di].device.storage_busy = false;
+                self.drives[di].device.set_storage_busy(false);
             }
             self.reply_done(di);
         }

@@ -115,8 +115,8 @@ fn profile(p: Profile, signed_speed: i32, low_word_first: bool) -> Step {
 /// The requests of `cmd` on `device` as it is now, or why the page does
 /// not send it (nothing sent then). `Force` has no requests.
 pub fn requests(cmd: &Command, device: &Device) -> Result<Vec<Step>, String> {
-    let state = device.drive.state();
-    let low_first = device.od.word_order == 1;
+    let state = device.drive().state();
+    let low_first = device.od().word_order == 1;
     let enabled = state == PowerState::OperationEnabled;
     let need_enabled = || {
         if enabled {
@@ -279,7 +279,7 @@ mod tests {
                 0x10, 0x60, 0x7A, 0x00, 0x02, 0x04, 0x00, 0x03, 0x0D, 0x40
             ]]
         );
-        d.od.word_order = 1;
+        d.configure(|_, od| od.word_order = 1);
         assert_eq!(
             w(&d, 0x607A, 200_000),
             [vec![

@@ -192,11 +192,11 @@ impl WebPort {
             let _ = write!(
                 line,
                 ",[{},{},{},{}]",
-                dev.drive.actual_position(),
-                dev.drive.actual_velocity_rpm(),
+                dev.drive().actual_position(),
+                dev.drive().actual_velocity_rpm(),
                 state::entry_value(dev, state::FOLLOWING_ERROR)
                     .map_or("null".into(), |v| v.to_string()),
-                dev.drive.statusword()
+                dev.drive().statusword()
             );
         }
         line.push(']');

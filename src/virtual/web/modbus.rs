@@ -152,7 +152,7 @@ pub fn transact<D: Dispatch>(
     let frame = request.frame(address);
     let mut reply = [0u8; MAX_FRAME];
     let device = drive.device();
-    std::mem::swap(&mut device.slave, port);
+    device.swap_slave(port);
     let mut response = device.handle_rx(
         RxEvent::Frame {
             bytes: &frame,
@@ -167,7 +167,7 @@ pub fn transact<D: Dispatch>(
     }
     // The exception 4 of a failed EE operation is counted on the port that
     // asked (`poll_storage` counts it on the slave in place).
-    std::mem::swap(&mut drive.device().slave, port);
+    drive.device().swap_slave(port);
     drive.control_at(now_us);
     let bytes = match response {
         Response::Reply(n) => &reply[..n.min(MAX_FRAME)],
@@ -262,8 +262,8 @@ mod tests {
         let a = transact(&mut b, &mut port, &Pdu::write_single(0x6041, 1), 0);
         assert_eq!(a, Answer::Exception(2));
         // The drive still refused nothing it should have stored.
-        assert_eq!(b.device.od.mode, 0);
-        assert_eq!(b.device.pa.address(), 1);
+        assert_eq!(b.device.od().mode, 0);
+        assert_eq!(b.device.params().address(), 1);
     }
 
     #[test]
@@ -272,7 +272,7 @@ mod tests {
         let mut port = Slave::new();
         let w = Pdu::write_multiple(0x607A, &Pdu::words32(-1234i32 as u32, false));
         assert!(matches!(transact(&mut b, &mut port, &w, 0), Answer::Ok(_)));
-        assert_eq!(b.device.od.target_position, -1234);
+        assert_eq!(b.device.od().target_position, -1234);
         let Answer::Ok(pdu) = transact(&mut b, &mut port, &Pdu::read(0x607A, 2), 0) else {
             panic!("read refused");
         };
@@ -282,7 +282,7 @@ mod tests {
             let a = transact(&mut b, &mut port, &Pdu::write_single(0x6040, cw), 0);
             assert!(matches!(a, Answer::Ok(_)), "{cw:#x}: {a:?}");
         }
-        assert_eq!(b.device.drive.statusword() & 0x6F, 0x27);
+        assert_eq!(b.device.drive().statusword() & 0x6F, 0x27);
         // Each request is followed by a control call, as on the bus path.
         assert_eq!(b.controls, 5);
     }
@@ -293,8 +293,8 @@ mod tests {
         let mut port = Slave::new();
         transact(&mut b, &mut port, &Pdu::read(0x6041, 1), 0);
         transact(&mut b, &mut port, &Pdu::write_single(0x6060, 2), 0);
-        assert_eq!(b.device.slave.counters().bus_messages, 0);
-        assert_eq!(b.device.slave.counters().exceptions, 0);
+        assert_eq!(b.device.slave().counters().bus_messages, 0);
+        assert_eq!(b.device.slave().counters().exceptions, 0);
         assert_eq!(port.counters().bus_messages, 2);
         assert_eq!(port.counters().slave_messages, 2);
         assert_eq!(port.counters().exceptions, 1);
@@ -304,10 +304,10 @@ mod tests {
     fn a_busy_drive_refuses_the_page_as_it_refuses_the_bus() {
         let mut b = Bench::new();
         let mut port = Slave::new();
-        b.device.storage_busy = true;
+        b.device.set_storage_busy(true);
         let a = transact(&mut b, &mut port, &Pdu::write_single(0x6060, 1), 0);
         assert_eq!(a, Answer::Exception(6));
-        assert_eq!(b.device.od.mode, 0);
+        assert_eq!(b.device.od().mode, 0);
     }
 
     #[test]
@@ -325,7 +325,7 @@ mod tests {
         // Saved: a fresh drive on the same flash boots with PA12 = 1500.
         let mut d = Device::new(Identity::new("test"));
         d.apply_boot(&b.store.boot());
-        assert_eq!(d.pa.max_speed_rpm(), 1500);
+        assert_eq!(d.params().max_speed_rpm(), 1500);
     }
 
     #[test]
