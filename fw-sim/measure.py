@@ -8,7 +8,7 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
 - reply latency: from the end of a request's last stop bit to the start bit
   of the reply's first character (`--trace-line`), at 115200 and 19200 baud;
 - CPU load while stepping in velocity mode at 50k, 100k steps/s and the
-  planner's ceiling (MAX_STEP_RATE in src/motion/planner.rs):
+  planner's ceiling (MAX_STEP_RATE in src/motion/):
   the share of core cycles not spent asleep in WFI/WFE (`--stats`), under the
   runner's one-cycle-per-instruction assumption (docs/fw-sim.md, "Time").
 """
@@ -31,8 +31,15 @@ OUT = ROOT / "docs" / "generated" / "fw-sim.md"
 BAUD_PA52 = c.PA_BASE + 52
 REQUESTS = 20
 # the planner's ceiling, read from the source it lives in
-MAX_STEP_RATE = int(re.search(r"pub const MAX_STEP_RATE: u32 = ([0-9_]+);",
-                              (ROOT / "src" / "motion" / "planner.rs").read_text())[1])
+def _max_step_rate() -> int:
+    for path in sorted((ROOT / "src" / "motion").rglob("*.rs")):
+        m = re.search(r"pub const MAX_STEP_RATE: u32 = ([0-9_]+);", path.read_text())
+        if m:
+            return int(m[1])
+    raise RuntimeError("MAX_STEP_RATE not found under src/motion")
+
+
+MAX_STEP_RATE = _max_step_rate()
 RATES = sorted({50_000, 100_000, MAX_STEP_RATE})
 STEPS_PER_REV = 10_000  # PA10 default (SPEC §7)
 
@@ -133,7 +140,7 @@ def main() -> int:
     lines += ["", "## CPU load while stepping (velocity mode, constant speed)", "",
               "Share of core cycles not asleep over 0.2 s of emulated time, once",
               "0x606C shows the set speed. The planner caps step rates at",
-              f"{MAX_STEP_RATE} steps/s (MAX_STEP_RATE in src/motion/planner.rs).", "",
+              f"{MAX_STEP_RATE} steps/s (MAX_STEP_RATE in src/motion/).", "",
               "The last column is how fast the emulator ran meanwhile: emulated",
               "seconds per wall-clock second on the machine that ran this script",
               "(the runner never runs ahead of wall time; below 1 it lags).", "",
