@@ -43,5 +43,7 @@ check() {
 # not act inside a function called with ||: hence the explicit returns)
 bad=0
 check STM32G431CB stm32g431cb thumbv7em-none-eabihf board-g431 64 16 || bad=1
-check STM32F103C8 stm32f103c8 thumbv7m-none-eabi board-f103 56 12 || bad=1
+# F103 flash: 57 of the 60 KiB below its parameter pages; the fault path,
+# watchdog and lock-free RS-485 hand-over took the last KiB of 56
+check STM32F103C8 stm32f103c8 thumbv7m-none-eabi board-f103 57 12 || bad=1
 exit $bad

@@ -6,6 +6,11 @@
 //! out of FLASH, so the linker can never place code there. Generic over the
 //! flash driver (embassy-stm32's blocking `Flash` on the boards), hence free
 //! of HAL types: `tests/firmware_calc.rs` checks it against a RAM flash.
+//!
+//! A read that the chip reports as failed out of band (the G431's NMI on a
+//! double ECC error, fault.rs) is an error of that read: the region asks a
+//! `read_fault` hook, which takes and clears the report, before and after
+//! each read.
 
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
@@ -17,6 +22,7 @@ pub struct FlashRegion<F> {
     flash: F,
     start: u32,
     len: u32,
+    read_fault: Option<fn() -> bool>,
 }
 
 /// Region errors: out of the region, or the driver's own error.
@@ -24,6 +30,8 @@ pub struct FlashRegion<F> {
 pub enum RegionError<E> {
     OutOfBounds,
     Flash(E),
+    /// The read returned, but the chip reported it failed (`read_fault`).
+    ReadFault,
 }
 
 impl<E: NorFlashError> NorFlashError for RegionError<E> {
@@ -31,6 +39,7 @@ impl<E: NorFlashError> NorFlashError for RegionError<E> {
         match self {
             Self::OutOfBounds => NorFlashErrorKind::OutOfBounds,
             Self::Flash(e) => e.kind(),
+            Self::ReadFault => NorFlashErrorKind::Other,
         }
     }
 }
@@ -42,7 +51,22 @@ impl<F: NorFlash> FlashRegion<F> {
         let page = F::ERASE_SIZE as u32;
         let whole_pages = start.is_multiple_of(page) && len.is_multiple_of(page) && len > 0;
         let fits = start.checked_add(len)? as usize <= flash.capacity();
-        (whole_pages && fits).then_some(Self { flash, start, len })
+        (whole_pages && fits).then_some(Self {
+            flash,
+            start,
+            len,
+            read_fault: None,
+        })
+    }
+
+    /// `read_fault` takes and clears the chip's report of a failed read
+    /// (true: one happened since the last call).
+    #[cfg_attr(not(feature = "board-g431"), allow(dead_code))] // F103: no flash ECC
+    pub fn with_read_fault(self, read_fault: fn() -> bool) -> Self {
+        Self {
+            read_fault: Some(read_fault),
+            ..self
+        }
     }
 
     /// The region's range in driver offsets.
@@ -70,7 +94,15 @@ impl<F: NorFlash> ReadNorFlash for FlashRegion<F> {
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
         let at = self.to_flash(offset, bytes.len())?;
-        self.flash.read(at, bytes).map_err(RegionError::Flash)
+        let Some(read_fault) = self.read_fault else {
+            return self.flash.read(at, bytes).map_err(RegionError::Flash);
+        };
+        read_fault(); // a stale report belongs to no read of ours
+        self.flash.read(at, bytes).map_err(RegionError::Flash)?;
+        if read_fault() {
+            return Err(RegionError::ReadFault);
+        }
+        Ok(())
     }
 
     fn capacity(&self) -> usize {
