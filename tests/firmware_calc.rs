@@ -18,6 +18,7 @@ use flash::{FlashRegion, RegionError};
 use modbus_drive::motion::schedule::brake_rate;
 use modbus_drive::motion::{Segment, StepSchedule, StepSource};
 use modbus_drive::rtu::{CharFormat, LineConfig};
+use std::sync::atomic::{AtomicU32, Ordering};
 
 const G431_TICK_HZ: u32 = 10_000_000;
 const F103_TICK_HZ: u32 = 8_000_000;
@@ -524,19 +525,22 @@ fn the_region_refuses_what_is_outside_it() {
 }
 
 /// The chip's out-of-band report of a failed read (the G431's ECC NMI sets
-/// it in the firmware); taken and cleared by the region's hook.
-static ECC_REPORT: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+/// it in the firmware): the failed address, taken and cleared by the
+/// region's hook. `u32::MAX`: none.
+static ECC_REPORT: AtomicU32 = AtomicU32::new(u32::MAX);
 
-fn take_ecc_report() -> bool {
-    ECC_REPORT.swap(false, std::sync::atomic::Ordering::Relaxed)
+fn take_ecc_report() -> Option<u32> {
+    let at = ECC_REPORT.swap(u32::MAX, Ordering::Relaxed);
+    (at != u32::MAX).then_some(at)
 }
 
-/// RAM flash with one double word whose reads raise the ECC report, as the
-/// NMI handler would while the read instruction completes with garbage.
-struct EccFlash(RamFlash);
-
 /// Offset of the double word of [`EccFlash`] that fails (none: `u32::MAX`).
-static ECC_BAD_AT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(u32::MAX);
+static ECC_BAD_AT: AtomicU32 = AtomicU32::new(u32::MAX);
+
+/// RAM flash with one double word whose reads raise the ECC report, as the
+/// NMI handler would while the read instruction completes with garbage; an
+/// erase of its page makes it good again (as on the chip).
+struct EccFlash(RamFlash);
 
 impl ErrorType for EccFlash {
     type Error = RamFlashError;
@@ -546,11 +550,11 @@ impl ReadNorFlash for EccFlash {
     const READ_SIZE: usize = 1;
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), RamFlashError> {
         self.0.read(offset, bytes)?;
-        let bad = ECC_BAD_AT.load(std::sync::atomic::Ordering::Relaxed);
+        let bad = ECC_BAD_AT.load(Ordering::Relaxed);
         let end = offset + bytes.len() as u32;
         if offset < bad.saturating_add(8) && bad < end {
             bytes.fill(0x5A);
-            ECC_REPORT.store(true, std::sync::atomic::Ordering::Relaxed);
+            ECC_REPORT.store(bad, Ordering::Relaxed);
         }
         Ok(())
     }
@@ -563,6 +567,10 @@ impl NorFlash for EccFlash {
     const WRITE_SIZE: usize = 8;
     const ERASE_SIZE: usize = 2048;
     fn erase(&mut self, from: u32, to: u32) -> Result<(), RamFlashError> {
+        let bad = ECC_BAD_AT.load(Ordering::Relaxed);
+        if (from..to).contains(&bad) {
+            ECC_BAD_AT.store(u32::MAX, Ordering::Relaxed);
+        }
         self.0.erase(from, to)
     }
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), RamFlashError> {
@@ -571,10 +579,11 @@ impl NorFlash for EccFlash {
 }
 
 #[test]
-fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_the_drive_boots_on_defaults() {
+fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_its_page_is_repaired() {
     use modbus_drive::params::{BootOutcome, ParamSet, ParamStore, Slot, StorageError};
-    let flash = EccFlash(RamFlash(vec![0xFF; 8192]));
-    let region = FlashRegion::new(flash, 4096, 4096)
+    // the region is the second half of an 8 KiB flash, like the parameter
+    // pages at the end of the chip's
+    let region = FlashRegion::new(EccFlash(RamFlash(vec![0xFF; 8192])), 4096, 4096)
         .unwrap()
         .with_read_fault(take_ecc_report);
     let mut store = ParamStore::new(region, 0..4096).unwrap();
@@ -582,16 +591,21 @@ fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_the_drive_boots_on_de
     set.pa.set_unchecked(11, 1);
     store.save(Slot::Saved, &set).unwrap();
     assert_eq!(store.load(Slot::Saved).unwrap().unwrap().0, set);
+    assert_eq!(
+        store.flash().erase_faulted_page(),
+        Ok(None),
+        "nothing failed"
+    );
 
     // a stale report (another read of the chip) fails no read of ours
-    ECC_REPORT.store(true, std::sync::atomic::Ordering::Relaxed);
+    ECC_REPORT.store(0x10, Ordering::Relaxed);
     let mut b = [0; 8];
     store.flash().read(0, &mut b).unwrap();
 
-    // a power cut left a double word unreadable in the first page
-    ECC_BAD_AT.store(4096 + 8, std::sync::atomic::Ordering::Relaxed);
+    // a power cut left a double word of the first page unreadable
+    ECC_BAD_AT.store(4096 + 16, Ordering::Relaxed);
     assert_eq!(
-        store.flash().read(8, &mut b),
+        store.flash().read(16, &mut b),
         Err(RegionError::ReadFault),
         "the garbage is not returned as data"
     );
@@ -605,6 +619,21 @@ fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_the_drive_boots_on_de
         boot.outcome
     );
     assert_eq!(boot.set, ParamSet::defaults());
+    // a save still appends, but the word fails every load until repaired
+    store.save(Slot::Saved, &set).unwrap();
+    assert!(
+        store.load(Slot::Saved).is_err(),
+        "unreadable until repaired"
+    );
+
+    // the repair: that page erased, the store usable again
+    assert_eq!(store.flash().erase_faulted_page(), Ok(Some(0)));
+    assert_eq!(store.flash().erase_faulted_page(), Ok(None), "once");
+    assert_eq!(store.boot().outcome, BootOutcome::Blank);
+    store.save(Slot::Saved, &set).unwrap();
+    let boot = store.boot();
+    assert!(matches!(boot.outcome, BootOutcome::Loaded { .. }));
+    assert_eq!(boot.set, set);
 }
 
 #[test]

@@ -120,8 +120,9 @@ pub fn safe_outputs() {
 }
 
 /// For the NMI: a double ECC error in the parameter pages? If so its flag is
-/// cleared (the read that hit it fails instead, fault.rs).
-pub fn take_parameter_ecc_error() -> bool {
+/// cleared and its flash offset returned (the read that hit it fails
+/// instead, fault.rs).
+pub fn take_parameter_ecc_error() -> Option<u32> {
     let eccr = pac::FLASH.eccr().read();
     let ours = super::calc::ecc_error_is_parameter_read(
         eccr.eccd(),
@@ -129,10 +130,11 @@ pub fn take_parameter_ecc_error() -> bool {
         eccr.addr_ecc(),
         PARAM_FLASH_START..PARAM_FLASH_START + PARAM_FLASH_LEN,
     );
-    if ours {
-        pac::FLASH.eccr().modify(|w| w.set_eccd(true)); // write 1 to clear
+    if !ours {
+        return None;
     }
-    ours
+    pac::FLASH.eccr().modify(|w| w.set_eccd(true)); // write 1 to clear
+    Some(eccr.addr_ecc())
 }
 
 /// Everything the firmware drives, configured.

@@ -35,13 +35,17 @@
 //! G431 flash ECC: a double-word cut short by a power loss in the middle of
 //! programming can read back with a double ECC error, which raises the NMI.
 //! In the parameter pages that is the parameter store's read failing, not
-//! a fault: the NMI clears the flag and notes it ([`take_flash_read_fault`]),
-//! the read returns, and the flash region reports the read as failed
-//! (flash.rs), so the boot loads the defaults and says why instead of
-//! faulting at every power-up. Anywhere else (code, constants) it is the
-//! fault path.
+//! a fault: the NMI clears the flag and notes the address
+//! ([`take_flash_read_fault`]), the read returns, and the flash region
+//! reports the read as failed (flash.rs), so the boot loads the defaults
+//! and says why instead of faulting at every power-up; `main` then erases
+//! that page and boots the store again. The sets on that page are lost
+//! (the drive runs on the defaults, or on what the other page still holds,
+//! and reports it), but the store works again: a word with an ECC error
+//! fails every read until its page is erased. Anywhere else (code,
+//! constants) it is the fault path.
 
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use embassy_stm32::pac;
 
@@ -86,15 +90,18 @@ impl Watchdog {
     }
 }
 
-/// A double ECC error in the parameter pages since the last
-/// [`take_flash_read_fault`] (set by the NMI).
-static FLASH_READ_FAULT: AtomicBool = AtomicBool::new(false);
+/// No ECC error noted in [`FLASH_READ_FAULT`].
+const NO_FAULT: u32 = u32::MAX;
+/// The flash offset of a double ECC error in the parameter pages since the
+/// last [`take_flash_read_fault`] (set by the NMI).
+static FLASH_READ_FAULT: AtomicU32 = AtomicU32::new(NO_FAULT);
 
-/// The flash region's read-fault hook (flash.rs): was a parameter-page read
-/// reported failed since the last call?
+/// The flash region's read-fault hook (flash.rs): the offset of a
+/// parameter-page read reported failed since the last call.
 #[cfg_attr(not(feature = "board-g431"), allow(dead_code))] // F103: no ECC
-pub fn take_flash_read_fault() -> bool {
-    FLASH_READ_FAULT.swap(false, Ordering::Relaxed)
+pub fn take_flash_read_fault() -> Option<u32> {
+    let at = FLASH_READ_FAULT.swap(NO_FAULT, Ordering::Relaxed);
+    (at != NO_FAULT).then_some(at)
 }
 
 /// Set at the first entry into [`stop`]: a fault inside the fault path
@@ -155,8 +162,8 @@ extern "C" fn hard_fault_entry() -> ! {
 #[cortex_m_rt::exception]
 unsafe fn NonMaskableInt() {
     #[cfg(feature = "board-g431")]
-    if board::take_parameter_ecc_error() {
-        FLASH_READ_FAULT.store(true, Ordering::Relaxed);
+    if let Some(at) = board::take_parameter_ecc_error() {
+        FLASH_READ_FAULT.store(at, Ordering::Relaxed);
         return; // the read that hit it reports it (flash.rs)
     }
     stop(Fault::Nmi)

@@ -76,7 +76,19 @@ async fn main(spawner: Spawner) {
             tick_hz: board::STEP_TICK_HZ,
             ..PlannerConfig::default()
         });
-        device.apply_boot(&store.boot());
+        #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
+        let mut boot = store.boot();
+        // A page the G431 cannot read (flash ECC after a power cut, fault.rs)
+        // is erased and the store read again, before the step timer runs.
+        #[cfg(feature = "board-g431")]
+        if let Ok(Some(page)) = store.flash().erase_faulted_page() {
+            defmt::warn!(
+                "parameter page at offset {:#x} unreadable (flash ECC): erased",
+                page
+            );
+            boot = store.boot();
+        }
+        device.apply_boot(&boot);
         let at = (
             device.line(),
             device.address(),
