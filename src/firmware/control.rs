@@ -41,6 +41,7 @@ pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule, watchdog:
     let mut log = EventLog::new();
     let mut last_shape = None;
     let mut pins_ok = true;
+    let mut worst_late = 0;
     loop {
         ticker.next().await;
         watchdog.feed();
@@ -77,5 +78,13 @@ pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule, watchdog:
             last_shape = Some(shape);
         }
         log.drain(); // state transitions, faults, limit stops, homing
+        let late = steps::worst_entry_ticks();
+        if late > worst_late {
+            worst_late = late;
+            defmt::info!(
+                "step interrupt: worst latency {=u32} ns",
+                (u64::from(late) * 1_000_000_000 / u64::from(board::STEP_TICK_HZ)) as u32
+            );
+        }
     }
 }

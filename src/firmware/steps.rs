@@ -139,16 +139,29 @@ pub fn idle() -> bool {
     SCHEDULE.is_empty() && !SCHEDULE.is_running()
 }
 
+/// The latest this interrupt has started after its update event, in timer
+/// ticks (the counter at entry): its measured worst-case latency, which the
+/// DIR set-up stretch assumes below `calc::ISR_LATENCY_NS`.
+static WORST_ENTRY_TICKS: AtomicU32 = AtomicU32::new(0);
+
+/// [`WORST_ENTRY_TICKS`] (for the control loop's log).
+pub fn worst_entry_ticks() -> u32 {
+    WORST_ENTRY_TICKS.load(Ordering::Relaxed)
+}
+
 /// The step timer's update interrupt (priority: `PRIO_STEP`).
 pub struct StepHandler;
 
 impl Handler<board::StepIrq> for StepHandler {
     unsafe fn on_interrupt() {
         let t = board::STEP_TIMER;
+        // the counter restarted at the update event: it is how late we are
+        let late = u32::from(t.cnt().read().cnt());
         if !t.sr().read().uif() {
             return;
         }
         t.sr().modify(|w| w.set_uif(false));
+        WORST_ENTRY_TICKS.fetch_max(late, Ordering::Relaxed);
         // SAFETY: this interrupt is the stepper's only user once enabled.
         on_update(unsafe { STEPPER.get() });
     }
