@@ -129,7 +129,9 @@ pub fn stop(fault: Fault) -> ! {
         );
     }
     loop {
-        core::hint::spin_loop();
+        // NOP rather than `spin_loop`'s YIELD hint: the same wait, and an
+        // instruction every Cortex-M model knows (fw-sim's does not YIELD)
+        cortex_m::asm::nop();
     }
 }
 

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+from pymodbus.exceptions import ModbusIOException
 from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, ELF, MODE,
                       MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY, ROOT, STATE_MASK,
                       SWITCH_ON_DISABLED, TARGET_POSITION, TARGET_REACHED, Master, with_crc)
@@ -105,7 +106,16 @@ def test_every_pulse_is_kept_at_the_top_rate_while_frames_flood_the_bus(start_fw
     stop.set()
     flooder.join()
     time.sleep(0.1)  # the last flood frame closes before the master speaks
-    m.wait(settled, 10, "target reached")
+    # a runner behind the wall clock (a loaded host) can miss the client's
+    # one-second timeout once; the drive must answer within three tries
+    for attempt in range(3):
+        try:
+            m.wait(settled, 10, "target reached")
+            break
+        except ModbusIOException:
+            if attempt == 2:
+                raise
+            time.sleep(0.5)
     fw.alive()
     assert m.read32(ACTUAL_POSITION) == DISTANCE, "0x6064 = distance"
     flooded = read_csv(steps)
