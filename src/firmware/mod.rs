@@ -97,7 +97,7 @@ async fn main(spawner: Spawner) {
         let at = (
             device.line(),
             device.address(),
-            device.pa.direction_inverted(),
+            device.params().direction_inverted(),
         );
         dispatch::install(device);
         at
