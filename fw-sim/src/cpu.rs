@@ -260,6 +260,8 @@ fn reg(uc: &Uc, r: R) -> u32 {
 }
 
 const BASIC: [R; 5] = [R::R0, R::R1, R::R2, R::R3, R::R12];
+/// The IT/ICI bits of EPSR (at the same places in CPSR).
+const IT_BITS: u32 = 0x0600_FC00;
 /// xPSR bits restored from a frame: N Z C V Q, IT[1:0], GE, IT[7:2].
 const PSR_RESTORE: u32 = 0xF800_0000 | 0x0600_0000 | 0x000F_0000 | 0x0000_FC00;
 
@@ -303,7 +305,7 @@ pub fn enter(uc: &mut Uc, e: usize, pc: u32) -> Result<u32, String> {
     let cpsr = reg(uc, R::CPSR);
     let apsr = reg(uc, R::XPSR) & 0xF80F_0000;
     // the IT bits sit at the same places in CPSR and xPSR
-    let xpsr = apsr | (cpsr & 0x0600_FC00) | (1 << 24) | ((align as u32) << 9) | ipsr;
+    let xpsr = apsr | (cpsr & IT_BITS) | (1 << 24) | ((align as u32) << 9) | ipsr;
     let vals = [
         reg(uc, R::R0),
         reg(uc, R::R1),
@@ -336,6 +338,12 @@ pub fn enter(uc: &mut Uc, e: usize, pc: u32) -> Result<u32, String> {
         exc_return &= !0x10;
     }
     uc.reg_write(R::SP, frame as u64)
+        .map_err(|e| format!("{e:?}"))?;
+    // the handler starts outside any IT block (EPSR.IT = 0, B1.5.6): the
+    // interrupted block's remaining conditions are in the stacked xPSR
+    // only. unicorn keeps them in its own state and would otherwise apply
+    // them to the handler's first instructions
+    uc.reg_write(R::CPSR, (cpsr & !IT_BITS) as u64)
         .map_err(|e| format!("{e:?}"))?;
     uc.reg_write(R::LR, exc_return as u64)
         .map_err(|e| format!("{e:?}"))?;
