@@ -88,6 +88,8 @@ pub struct Machine {
     pub position: i64,
     pub steps_total: u64,
     pub trace: Option<StepTrace>,
+    /// The step timer's missed update interrupts already reported.
+    missed_reported: u64,
     pending_rise: Option<(u64, bool)>,
     /// Event register (WFE/SEV).
     pub event: bool,
@@ -132,6 +134,7 @@ impl Machine {
             position: 0,
             steps_total: 0,
             trace,
+            missed_reported: 0,
             pending_rise: None,
             event: false,
             events: Default::default(),
@@ -224,6 +227,18 @@ impl Machine {
     }
 
     fn step_edges(&mut self) {
+        // a step interrupt that missed an update event let the timer repeat
+        // the period it had preloaded: a STEP pulse the firmware never
+        // counted (reported at the first and then at every doubling)
+        let missed = self.tim[1].missed_updates;
+        let reported = self.missed_reported;
+        if missed > reported && (reported == 0 || missed.ilog2() > reported.ilog2()) {
+            eprintln!(
+                "fw-sim: step timer: {missed} update event(s) with UIF still set (the step interrupt missed a period; its preloaded period ran again) at {} µs",
+                self.clock.now() / 1_000_000
+            );
+        }
+        self.missed_reported = missed;
         let edges = std::mem::take(&mut self.tim[1].edges1);
         let (sp, spin) = pins::STEP;
         for (t, level) in edges {

@@ -38,6 +38,10 @@ pub struct Timer {
     /// Channel 1 output level (after polarity), and its changes.
     out1: bool,
     pub edges1: Vec<(u64, bool)>,
+    /// Update events that came with UIF still set and its interrupt
+    /// enabled: an update interrupt that did not run between two of them
+    /// (with preloads, the period before ran again unchanged).
+    pub missed_updates: u64,
 }
 
 pub enum Access {
@@ -81,6 +85,7 @@ impl Timer {
             anchor_clk: 0,
             out1: false,
             edges1: Vec::new(),
+            missed_updates: 0,
         }
     }
 
@@ -217,6 +222,9 @@ impl Timer {
             if ovf {
                 self.cnt = 0;
                 if self.cr1 & UDIS == 0 {
+                    if self.sr & self.dier & 1 != 0 {
+                        self.missed_updates += 1;
+                    }
                     self.sr |= 1;
                     self.update_event();
                 }
