@@ -11,7 +11,7 @@ use crate::machine::Switches;
 pub const USAGE: &str = "\
 usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--pty-link PATH]
               [--trace-steps FILE] [--trace-line FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
-              [--home-switch FROM:TO] [--run-for SECONDS] [--quiet]
+              [--home-switch FROM:TO] [--write-protect] [--run-for SECONDS] [--quiet]
 
 Runs the unmodified firmware image of a board on an emulated STM32.
   --board       g431 (STM32G431CB, default) or f103 (STM32F103C8)
@@ -29,6 +29,8 @@ Runs the unmodified firmware image of a board on an emulated STM32.
                 sleeping core cycles, step pulses
   --state       file holding the parameter flash pages (kept across runs)
   --cw-limit / --ccw-limit / --home-switch: switch positions in steps
+  --write-protect the parameter pages are write-protected (as by the option
+                bytes): erase and program set WRPERR / WRPRTERR, change nothing
   --run-for     stop after this much emulated time (exit 0)
   --quiet       do not print the firmware's defmt log";
 
@@ -53,6 +55,7 @@ pub struct Args {
     /// Line faults: (1-based index of the received character, kind).
     pub noise: Vec<(u64, LineFault)>,
     pub power_cut: Option<u64>,
+    pub write_protect: bool,
     pub state: Option<PathBuf>,
     pub switches: Switches,
     pub run_for_ps: Option<u64>,
@@ -75,6 +78,7 @@ impl Args {
             stats: None,
             noise: Vec::new(),
             power_cut: None,
+            write_protect: false,
             state: None,
             switches: Switches::default(),
             run_for_ps: None,
@@ -90,6 +94,10 @@ impl Args {
             }
             if flag == "--quiet" {
                 a.quiet = true;
+                continue;
+            }
+            if flag == "--write-protect" {
+                a.write_protect = true;
                 continue;
             }
             let v = it

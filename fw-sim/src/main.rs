@@ -90,6 +90,7 @@ fn run() -> Result<i32, String> {
     };
     let mut machine = Machine::new(chip, flash, args.switches, trace);
     machine.flash.cut_at = args.power_cut;
+    machine.flash.write_protected = args.write_protect;
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
         None
