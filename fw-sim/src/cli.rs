@@ -9,7 +9,8 @@ use crate::chip::Kind;
 use crate::machine::Switches;
 
 pub const USAGE: &str = "\
-usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--pty-link PATH]
+usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--modbus-tcp HOST:PORT]...
+              [--pty-link PATH]
               [--trace-steps FILE] [--trace-line FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
               [--home-switch FROM:TO] [--write-protect] [--run-for SECONDS] [--quiet]
 
@@ -17,6 +18,8 @@ Runs the unmodified firmware image of a board on an emulated STM32.
   --board       g431 (STM32G431CB, default) or f103 (STM32F103C8)
   --elf         firmware ELF to run; default: build it (cargo fw / cargo fw-f103)
   --tcp         raw RTU bytes over TCP (as the virtual drive's --tcp)
+  --modbus-tcp  Modbus TCP (MBAP) masters, through a TCP-to-RTU gateway: the
+                unit identifier is the slave address (repeatable)
   --pty-link    a pseudo-terminal, linked at PATH
   --trace-steps CSV of every step pulse: time_ns,dir,width_ns
   --trace-line  CSV of the line: time_ns,event (rx, tx, de),value
@@ -48,6 +51,7 @@ pub struct Args {
     pub board: Kind,
     pub elf: Option<PathBuf>,
     pub tcp: Vec<SocketAddr>,
+    pub modbus_tcp: Vec<SocketAddr>,
     pub pty_link: Option<PathBuf>,
     pub trace_steps: Option<PathBuf>,
     pub trace_line: Option<PathBuf>,
@@ -72,6 +76,7 @@ impl Args {
             board: Kind::G431,
             elf: None,
             tcp: Vec::new(),
+            modbus_tcp: Vec::new(),
             pty_link: None,
             trace_steps: None,
             trace_line: None,
@@ -115,6 +120,10 @@ impl Args {
                 "--tcp" => a.tcp.push(
                     v.parse()
                         .map_err(|_| format!("--tcp: not HOST:PORT: {v}"))?,
+                ),
+                "--modbus-tcp" => a.modbus_tcp.push(
+                    v.parse()
+                        .map_err(|_| format!("--modbus-tcp: not HOST:PORT: {v}"))?,
                 ),
                 "--pty-link" => a.pty_link = Some(v.into()),
                 "--trace-steps" => a.trace_steps = Some(v.into()),
