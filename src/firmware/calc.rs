@@ -186,6 +186,12 @@ pub struct StepShaper {
     remaining: u32,
     pending_forward: bool,
     last_forward: bool,
+    /// Ticks of the idle period returned by the last call because no step
+    /// was due (0 if that call returned anything else). The timer has
+    /// preloaded it and it starts as this call's period is computed, so a
+    /// step found now — whose interval counts from now, the update event
+    /// of the last edge or of an idle period — is that much closer.
+    idle_ahead: u32,
 }
 
 impl StepShaper {
@@ -195,6 +201,7 @@ impl StepShaper {
             remaining: 0,
             pending_forward: true,
             last_forward: true,
+            idle_ahead: 0,
         }
     }
 
@@ -216,6 +223,7 @@ impl StepShaper {
     pub fn next_period(&mut self, next_step: impl FnOnce() -> Option<Step>) -> Period {
         if self.remaining == 0 {
             let Some(step) = next_step() else {
+                self.idle_ahead = self.shape.idle_ticks;
                 return Self::idle(self.shape.idle_ticks);
             };
             let min = if step.forward != self.last_forward {
@@ -223,7 +231,9 @@ impl StepShaper {
             } else {
                 self.shape.min_period()
             };
-            self.remaining = step.interval_ticks.max(min);
+            // the preloaded idle period runs first: count it in the interval
+            let ahead = core::mem::take(&mut self.idle_ahead);
+            self.remaining = step.interval_ticks.saturating_sub(ahead).max(min);
             self.pending_forward = step.forward;
         }
         if self.remaining > MAX_PERIOD_TICKS {
