@@ -83,14 +83,6 @@ def flood(port: int, line_csv: Path, stop: threading.Event):
 
 def test_every_pulse_is_kept_at_the_top_rate_while_frames_flood_the_bus(start_fw, board,
                                                                         tmp_path):
-    if board == "g431":
-        # fw-sim stops about one run in two here with a HardFault at pc 0
-        # on returning into the USART handler (lr USART1 after
-        # FrameAssembler::push_slow) or the step handler (lr
-        # Flex::set_low), only when the step interrupt preempts the USART
-        # interrupt; the F103 image never shows it, nor this test's other
-        # runs on the G431 (which pass). Not run until the runner is fixed.
-        pytest.skip("fw-sim: intermittent HardFault on nested exception return (G431)")
     steps, line = tmp_path / "steps.csv", tmp_path / "line.csv"
     fw = start_fw(board, "--trace-steps", str(steps), "--trace-line", str(line))
     m = Master(fw.client())
