@@ -98,6 +98,11 @@ pub fn set_params(polarity: u16, limit_enable: u16) {
 fn read(i: &mut Inputs) -> Switches {
     let polarity = POLARITY.load(Ordering::Relaxed);
     let s = i.pins.read(polarity);
+    let schedule = steps::schedule();
+    // the position at this reading of the pins, before the confirmation
+    // wait: the step interrupt may step meanwhile, and the origin is the
+    // edge, not where the axis is once the limit is believed
+    let position = schedule.position();
     let (mut cw, mut ccw) = (s.cw_limit, s.ccw_limit);
     if cw || ccw {
         cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000 * CONFIRM_US);
@@ -106,9 +111,7 @@ fn read(i: &mut Inputs) -> Switches {
         ccw &= again.ccw_limit;
     }
     let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
-    let schedule = steps::schedule();
     schedule.set_limits(cw && enabled & 1 != 0, ccw && enabled & 2 != 0);
-    let position = schedule.position();
     i.cw.edge(s.cw_limit, position);
     i.ccw.edge(s.ccw_limit, position);
     i.home.edge(s.home, position);

@@ -24,13 +24,6 @@ programs = e2e_module("test_programs")
 
 
 def test_homing_method_1_to_the_cw_limit(start_drive, board, request):
-    if board == "g431":
-        # Since the real-time rework of the firmware (limits confirmed by a
-        # second read, the step state owned by its interrupt) the G431 image
-        # takes the origin one step off in every run here: at -999 the CW
-        # limit reads active. Seen, reported, not fixed yet.
-        request.applymarker(pytest.mark.xfail(reason="G431 homing origin one step off "
-                                              "(firmware)", strict=True))
     if board == "f103":
         # Seen here and reported, not hidden: in some runs the F103 image
         # takes the origin one step off (-999 finds the CW limit active).
