@@ -21,7 +21,7 @@ pub fn t35_rto_bits(line: LineConfig) -> u32 {
     if line.baud <= 19_200 {
         (35 * line.format.bits_per_char()).div_ceil(10)
     } else {
-        (1750 * u64::from(line.baud)).div_ceil(1_000_000) as u32
+        modbus_drive::arith::div_ceil_u64(1750 * u64::from(line.baud), 1_000_000) as u32
     }
 }
 
@@ -51,7 +51,7 @@ pub const IDLE_PERIOD_NS: u32 = 100_000;
 
 /// Nanoseconds → timer ticks at `tick_hz`, rounded up (a minimum stays a minimum).
 pub const fn ns_to_ticks(ns: u32, tick_hz: u32) -> u32 {
-    (ns as u64 * tick_hz as u64).div_ceil(1_000_000_000) as u32
+    modbus_drive::arith::div_ceil_u64(ns as u64 * tick_hz as u64, 1_000_000_000) as u32
 }
 
 /// The step timer's prescaler register value (PSC) for a tick of `tick_hz`

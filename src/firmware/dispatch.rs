@@ -9,6 +9,7 @@
 
 use core::cell::RefCell;
 use core::sync::atomic::Ordering;
+use modbus_drive::arith::div_u64;
 
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
 use embassy_stm32::mode::Blocking;
@@ -64,7 +65,7 @@ impl EventLog {
 
     pub fn drain(&mut self) {
         while let Some(Some(event)) = with_device(|d| d.take_event()) {
-            let now_ms = embassy_time::Instant::now().as_millis() as u32;
+            let now_ms = div_u64(embassy_time::Instant::now().as_micros(), 1000) as u32;
             match event {
                 Event::FrameError { .. } => {
                     if let Some(suppressed) = self.frame_errors.allow(now_ms) {
