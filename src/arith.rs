@@ -34,21 +34,19 @@ pub fn div_i64(n: i64, d: i64) -> i64 {
 }
 
 /// `⌊√x⌋`: the 32-bit root of the top bits, one Newton step with a
-/// 64-by-64 division, then corrected to the exact floor.
+/// 64-by-64 division, then corrected down to the exact floor.
 pub fn isqrt_u64(x: u64) -> u64 {
     if x >> 32 == 0 {
         return u64::from((x as u32).isqrt());
     }
     let k = (64 - x.leading_zeros() - 31) / 2; // x >> 2k keeps 31 or 32 bits
     let y0 = u64::from(((x >> (2 * k)) as u32).isqrt()) << k;
-    // y0 ≤ √x; the Newton step lands on or a little above ⌊√x⌋
+    // a Newton step in floor arithmetic never lands below ⌊√x⌋ (AM-GM:
+    // ⌊(y0 + ⌊x/y0⌋)/2⌋ = ⌊(y0 + x/y0)/2⌋ ≥ ⌊√x⌋), and from this
+    // close a start only a little above it
     let mut y = (y0 + div_u64(x, y0)) / 2;
-    let square = |y: u64| u128::from(y) * u128::from(y);
-    while square(y) > u128::from(x) {
+    while u128::from(y) * u128::from(y) > u128::from(x) {
         y -= 1;
-    }
-    while square(y + 1) <= u128::from(x) {
-        y += 1;
     }
     y
 }
