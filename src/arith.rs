@@ -5,21 +5,48 @@
 //! the firmware carries one set of division code instead of two.
 
 /// `n / d` (`d > 0`), as `u64` division.
-pub const fn div_u64(n: u64, d: u64) -> u64 {
+pub fn div_u64(n: u64, d: u64) -> u64 {
     assert!(d != 0, "attempt to divide by zero");
-    if (n | d) >> 32 == 0 {
-        return (n as u32 / d as u32) as u64;
+    if d >> 32 != 0 {
+        return div_u128_by_u64(u128::from(n), d);
     }
-    div_u128_by_u64(n as u128, d)
+    let d = d as u32;
+    let hi = (n >> 32) as u32;
+    if hi == 0 {
+        return u64::from(n as u32 / d);
+    }
+    // a 32-bit divisor: the high word by the hardware divide, then the
+    // remainder and the low word (a quotient below 2^32) by the 64-by-32
+    // step, the divisor normalised (top bit set) as that step wants it
+    let (q_hi, r_hi) = (hi / d, hi % d);
+    let s = d.leading_zeros();
+    let low = ((u64::from(r_hi) << 32) | (n & 0xFFFF_FFFF)) << s;
+    (u64::from(q_hi) << 32) | u64::from(div_u64_by_u32(low, d << s))
 }
 
-/// `n.div_ceil(d)` (`d > 0`).
+/// `n.div_ceil(d)` (`d > 0`), one quotient bit at a time: `const` (the
+/// firmware computes step timings in a static initialiser) and short, for
+/// configuration rather than a hot path.
 pub const fn div_ceil_u64(n: u64, d: u64) -> u64 {
-    let q = div_u64(n, d);
-    if q.wrapping_mul(d) == n {
-        q
-    } else {
+    assert!(d != 0, "attempt to divide by zero");
+    // the dividend shifts out of `q` into the remainder as the quotient
+    // bits shift in
+    let (mut q, mut r, mut i) = (n, 0u64, 0);
+    while i < 64 {
+        // a remainder shifted past 64 bits is above any divisor
+        let over = r >> 63 != 0;
+        r = (r << 1) | (q >> 63);
+        q <<= 1;
+        if over || r >= d {
+            r = r.wrapping_sub(d);
+            q |= 1;
+        }
+        i += 1;
+    }
+    if r != 0 {
         q + 1
+    } else {
+        q
     }
 }
 
@@ -54,7 +81,7 @@ pub fn isqrt_u64(x: u64) -> u64 {
 /// `n / d` for `n >> 64 < d` (the quotient fits 64 bits): Knuth's
 /// algorithm D with two 32-bit digits (Hacker's Delight `divlu`), two
 /// 64-by-32 divisions.
-pub(crate) const fn div_u128_by_u64(n: u128, d: u64) -> u64 {
+pub(crate) fn div_u128_by_u64(n: u128, d: u64) -> u64 {
     const B: u64 = 1 << 32;
     let (u1, u0) = ((n >> 64) as u64, n as u64);
     let s = d.leading_zeros();
@@ -69,12 +96,11 @@ pub(crate) const fn div_u128_by_u64(n: u128, d: u64) -> u64 {
     let (un1, un0) = (un10 >> 32, un10 & (B - 1));
     // one quotient digit of (hi:lo) / v, Knuth's estimate from the top
     // digit then at most two corrections
-    // (a function, not a closure: this one is `const`)
-    const fn digit(hi: u64, lo: u64, vn1: u64, vn0: u64) -> u64 {
+    let digit = |hi: u64, lo: u64| {
         let (mut q, mut r) = if hi >> 32 >= vn1 {
             (B - 1, hi - (B - 1) * vn1)
         } else {
-            let q = div_u64_by_u32(hi, vn1 as u32) as u64;
+            let q = u64::from(div_u64_by_u32(hi, vn1 as u32));
             (q, hi - q * vn1)
         };
         while r < B && q * vn0 > (r << 32) + lo {
@@ -82,25 +108,25 @@ pub(crate) const fn div_u128_by_u64(n: u128, d: u64) -> u64 {
             r += vn1;
         }
         q
-    }
-    let q1 = digit(un32, un1, vn1, vn0);
+    };
+    let q1 = digit(un32, un1);
     let un21 = (un32 << 32)
         .wrapping_add(un1)
         .wrapping_sub(q1.wrapping_mul(v));
-    let q0 = digit(un21, un0, vn1, vn0);
+    let q0 = digit(un21, un0);
     (q1 << 32) | q0
 }
 
 /// `u / v` for a normalised `v` (top bit set) and `u >> 32 < v`, with
 /// 32-bit divisions only (the Cortex-M `udiv`; a 64-bit division is a
 /// software routine there): `divlu` on 16-bit half digits.
-pub(crate) const fn div_u64_by_u32(u: u64, v: u32) -> u32 {
+pub(crate) fn div_u64_by_u32(u: u64, v: u32) -> u32 {
     const B: u32 = 1 << 16;
     let (vn1, vn0) = (v >> 16, v & (B - 1));
     let un32 = (u >> 32) as u32;
     let un10 = u as u32;
     let (un1, un0) = (un10 >> 16, un10 & (B - 1));
-    const fn digit(hi: u32, lo: u32, vn1: u32, vn0: u32) -> u32 {
+    let digit = |hi: u32, lo: u32| {
         let mut q = hi / vn1;
         let mut r = hi - q * vn1;
         while q >= B || q * vn0 > (r << 16) + lo {
@@ -111,12 +137,12 @@ pub(crate) const fn div_u64_by_u32(u: u64, v: u32) -> u32 {
             }
         }
         q
-    }
-    let q1 = digit(un32, un1, vn1, vn0);
+    };
+    let q1 = digit(un32, un1);
     let un21 = (un32 << 16)
         .wrapping_add(un1)
         .wrapping_sub(q1.wrapping_mul(v));
-    let q0 = digit(un21, un0, vn1, vn0);
+    let q0 = digit(un21, un0);
     (q1 << 16) | q0
 }
 
