@@ -116,28 +116,26 @@ pub(crate) fn isqrt(w: u128) -> u128 {
     if bits <= 64 {
         return u128::from(isqrt_u64(w as u64));
     }
+    // a root below 2^64 squares in 64 bits, which a 32-bit core
+    // multiplies in far fewer instructions than u128 ones
+    let square = |y: u128| u128::from(y as u64) * u128::from(y as u64);
     if bits > 124 {
         // the Newton step below is exact to ±1 up to here; above (never
-        // for the planner's capped speeds) digit by digit: short and exact
-        let (mut rem, mut root, mut bit) = (w, 0u128, 1u128 << ((bits - 1) & !1));
-        while bit != 0 {
-            if rem >= root + bit {
-                rem -= root + bit;
-                root = (root >> 1) + bit;
-            } else {
-                root >>= 1;
-            }
-            bit >>= 2;
-        }
-        return root;
+        // for the planner's capped speeds) from the root of w / 4:
+        // ⌊√w⌋ is twice it or one more
+        let r = isqrt(w >> 2) << 1;
+        let r1 = r + 1;
+        return if r1 >> 64 == 0 && square(r1) <= w {
+            r1
+        } else {
+            r
+        };
     }
     let k = (bits - 63) / 2; // w >> 2k keeps 63 or 64 bits
     let y0 = u128::from(isqrt_u64((w >> (2 * k)) as u64)) << k;
     // y0 ≤ √w within 2^-31; w / y0 < 2^64 since √w < 2^64
     let y = (y0 + div(w, y0)) / 2;
-    // y and y + 1 are below 2^63 (√w < 2^62): 64-bit squares, which a
-    // 32-bit core multiplies in far fewer instructions than u128 ones
-    let square = |y: u128| u128::from(y as u64) * u128::from(y as u64);
+    // y and y + 1 are below 2^63 (√w < 2^62)
     if square(y) > w {
         y - 1
     } else if square(y + 1) <= w {
