@@ -72,7 +72,7 @@ pub fn isqrt_u64(x: u64) -> u64 {
     // ⌊(y0 + ⌊x/y0⌋)/2⌋ = ⌊(y0 + x/y0)/2⌋ ≥ ⌊√x⌋), and from this
     // close a start only a little above it
     let mut y = (y0 + div_u64(x, y0)) / 2;
-    while u128::from(y) * u128::from(y) > u128::from(x) {
+    while y.checked_mul(y).is_none_or(|square| square > x) {
         y -= 1;
     }
     y
