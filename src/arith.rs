@@ -50,7 +50,8 @@ pub const fn div_ceil_u64(n: u64, d: u64) -> u64 {
     }
 }
 
-/// `n / d` (`d ≠ 0`), rounded toward zero as `i64` division.
+/// `n / d` (`d ≠ 0`), rounded toward zero as `i64` division (`i64::MIN / -1`,
+/// which overflows, wraps instead of panicking).
 pub fn div_i64(n: i64, d: i64) -> i64 {
     let q = div_u64(n.unsigned_abs(), d.unsigned_abs()) as i64;
     if (n < 0) != (d < 0) {
