@@ -119,7 +119,11 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
         // a new address or line format takes effect after the reply (SPEC §7)
         if let Some(Some(line)) = with_device(|d| d.reply_sent()) {
             if let Err(e) = rs485::apply_line(&mut uart, line) {
-                defmt::error!("line {} refused by the USART: {}", line, e);
+                defmt::error!(
+                    "line {} refused by the USART: {}",
+                    line,
+                    rs485::config_error(e)
+                );
             }
         }
         log.drain();

@@ -64,7 +64,9 @@ async fn main(spawner: Spawner) {
     board::UartIrq::set_priority(PRIO_UART);
     TIM2::set_priority(PRIO_TIME);
 
-    let parts = defmt::unwrap!(board::split(p, &rs485::usart_config(LineConfig::DEFAULT)));
+    let parts = defmt::unwrap!(
+        board::split(p, &rs485::usart_config(LineConfig::DEFAULT)).map_err(rs485::config_error)
+    );
     // At once: embassy's init enabled the EXTI interrupts, and the handler
     // can only clear an edge's pending bit through the installed inputs.
     switches::install(parts.switches);
@@ -92,7 +94,7 @@ async fn main(spawner: Spawner) {
     };
 
     let mut uart = parts.uart;
-    defmt::unwrap!(rs485::apply_line(&mut uart, line));
+    defmt::unwrap!(rs485::apply_line(&mut uart, line).map_err(rs485::config_error));
     #[cfg(feature = "board-f103")]
     rs485::set_de_pin(parts.de);
     let timer_clock_hz = parts.step_timer.get_clock_frequency().0;
@@ -119,9 +121,15 @@ async fn main(spawner: Spawner) {
     );
     dispatch::EventLog::new().drain(); // how the parameters were loaded
 
-    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart, store)));
+    spawner.spawn(defmt::unwrap!(
+        dispatch::dispatcher_task(uart, store).ok(),
+        "task spawned twice"
+    ));
     #[cfg(feature = "board-f103")]
-    spawner.spawn(defmt::unwrap!(rs485::frame_gap_task()));
+    spawner.spawn(defmt::unwrap!(
+        rs485::frame_gap_task().ok(),
+        "task spawned twice"
+    ));
 
     // The step pin stays owned here for good.
     let _step_pin = parts.step_pin;

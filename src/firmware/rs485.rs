@@ -168,6 +168,33 @@ pub fn usart_config(line: LineConfig) -> usart::Config {
     c
 }
 
+/// What the USART refused in a line configuration, for the log. embassy's
+/// own `defmt::Format` impls are left off (their `defmt` features cost flash,
+/// see docs/firmware-size.md); the names are interned, so they cost no flash.
+pub fn config_error(e: usart::ConfigError) -> defmt::Str {
+    match e {
+        usart::ConfigError::BaudrateTooLow => {
+            defmt::intern!("baud rate too low for the USART clock")
+        }
+        usart::ConfigError::BaudrateTooHigh => {
+            defmt::intern!("baud rate too high for the USART clock")
+        }
+        usart::ConfigError::RxOrTxNotEnabled => {
+            defmt::intern!("receiver or transmitter not enabled")
+        }
+        usart::ConfigError::DataParityNotSupported => {
+            defmt::intern!("data bits and parity not supported")
+        }
+        #[cfg(feature = "board-g431")]
+        usart::ConfigError::DeAssertionTimeTooHigh => defmt::intern!("DE assertion time too high"),
+        #[cfg(feature = "board-g431")]
+        usart::ConfigError::DeDeassertionTimeTooHigh => {
+            defmt::intern!("DE deassertion time too high")
+        }
+        _ => defmt::intern!("configuration refused"),
+    }
+}
+
 /// Applies a line (at boot and after `Device::reply_sent` changed it) and
 /// (re)arms the receive interrupts. Call it between frames.
 pub fn apply_line(

@@ -36,7 +36,7 @@ use super::cli::{AxisLayout, Options};
 use super::console::Console;
 use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
-use super::transport::{Listener, Pty, ReadOutcome, Stream};
+use super::transport::{listen_error, Listener, Pty, ReadOutcome, Stream};
 use super::web::{self, ExceptionLog, Forced, WebPort};
 
 mod modbus_tcp;
@@ -95,7 +95,7 @@ impl DriveSlot {
     ) -> Result<Self, String> {
         let flash = match state {
             Some(path) => FileFlash::open(path, index)
-                .map_err(|e| format!("state file {}: {e}", path.display()))?,
+                .map_err(|e| format!("--state {}: {e}", path.display()))?,
             None => FileFlash::in_memory(),
         };
         let mut store = ParamStore::new(flash, 0..REGION_BYTES as u32)
@@ -253,8 +253,7 @@ impl VirtualDrive {
         }
         let mut lines = Vec::new();
         if opts.pty {
-            let pty = Pty::open(opts.pty_link.as_deref())
-                .map_err(|e| StartError(format!("cannot open a pseudo-terminal: {e}")))?;
+            let pty = Pty::open(opts.pty_link.as_deref()).map_err(StartError)?;
             let mut label = format!("pty {}", pty.path.display());
             if let Some(l) = &opts.pty_link {
                 label.push_str(&format!(" (link {})", l.display()));
@@ -264,15 +263,15 @@ impl VirtualDrive {
         }
         let mut listeners = Vec::new();
         for &addr in &opts.tcp {
-            let l = Listener::bind(addr)
-                .map_err(|e| StartError(format!("cannot listen on tcp {addr}: {e}")))?;
+            let l =
+                Listener::bind(addr).map_err(|e| StartError(listen_error("--tcp", addr, &e)))?;
             console.log(&format!("tcp: listening on {} (RTU framing)", l.addr));
             listeners.push(l);
         }
         let mut mbap = modbus_tcp::ModbusTcp::default();
         for &addr in &opts.modbus_tcp {
             let l = Listener::bind(addr)
-                .map_err(|e| StartError(format!("--modbus-tcp {addr}: cannot listen: {e}")))?;
+                .map_err(|e| StartError(listen_error("--modbus-tcp", addr, &e)))?;
             console.log(&format!(
                 "modbus-tcp: listening on {} (MBAP framing)",
                 l.addr
@@ -298,7 +297,7 @@ impl VirtualDrive {
             log_events(&mut console, d, None);
         }
         let trace = Trace::new(opts.trace.as_deref(), opts.plot.as_deref(), drives.len())
-            .map_err(|e| StartError(format!("cannot create the trace file: {e}")))?;
+            .map_err(StartError)?;
         for d in &drives {
             let line = d.device.line();
             console.log(&format!(
@@ -533,6 +532,9 @@ impl VirtualDrive {
         if let Some(due) = self.mbap.next_due() {
             at = at.min(due);
         }
+        if let Some(web) = &self.web {
+            at = at.min(web.next_due_us());
+        }
         at
     }
 
@@ -732,6 +734,8 @@ fn handle_due(
 /// flash operation, which the core only knows as "flash failed").
 fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
     while let Some(ev) = slot.device.take_event() {
+        // the vendor code names the cause; say what went on the wire
+        let mut sent_as = String::new();
         if let Event::Exception {
             function,
             exception,
@@ -742,6 +746,9 @@ fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
             let code = exception.code(standard).unwrap_or(exception.vendor_code());
             let port = line.unwrap_or("-");
             slot.exceptions.record(port, function, code, answered);
+            if answered && code != exception.vendor_code() {
+                sent_as = format!(", sent as {code} (PA55 = 1)");
+            }
         }
         let on = line.map_or(String::new(), |l| format!(" on {l}"));
         let failed = matches!(
@@ -752,7 +759,11 @@ fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
             Some(e) if failed => format!(": {e}"),
             _ => String::new(),
         };
-        console.log(&format!("{}{on}: {}{cause}", slot.label(), describe(&ev)));
+        console.log(&format!(
+            "{}{on}: {}{sent_as}{cause}",
+            slot.label(),
+            describe(&ev)
+        ));
     }
 }
 

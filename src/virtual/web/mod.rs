@@ -132,6 +132,11 @@ impl WebPort {
         touched
     }
 
+    /// When [`WebPort::serve`] next has something to publish.
+    pub fn next_due_us(&self) -> u64 {
+        self.next_sample_us.min(self.next_state_us)
+    }
+
     fn execute<T: Target>(
         &mut self,
         di: usize,

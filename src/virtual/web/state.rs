@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use modbus_drive::dictionary::{position, Access, DataType, DriveLayer, Object, TABLE};
 use modbus_drive::motion::Switches;
-use modbus_drive::params::{PA, PA_COUNT};
+use modbus_drive::params::PA;
 use modbus_drive::slave::{Counters, Slave};
 use modbus_drive::Device;
 
@@ -210,8 +210,7 @@ pub fn drive_json(v: &View<'_>) -> String {
         );
     }
     s.push_str("],\"pa\":[");
-    for n in 0..PA_COUNT {
-        let def = PA[n];
+    for (n, def) in PA.iter().enumerate() {
         let (name, unit) = pa_meta(n);
         let _ = write!(
             s,
@@ -244,6 +243,7 @@ fn written(object: Object, d: &Device) -> i64 {
 mod tests {
     use super::*;
     use modbus_drive::device::Identity;
+    use modbus_drive::params::PA_COUNT;
 
     #[test]
     fn strings_are_escaped() {
