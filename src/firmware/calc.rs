@@ -25,9 +25,10 @@ pub fn t35_rto_bits(line: LineConfig) -> u32 {
     }
 }
 
-/// How long the reply must still wait: SPEC §1 wants it no earlier than
-/// `delay_us` (t3.5 + PA56, `Device::reply_delay_us`) after the request's
-/// last byte. Timestamps are wrapping µs (`rtu::FrameAssembler`).
+/// How long a wait of `delay_us` after the last byte must still run (the
+/// F103's frame gap: t3.5 after the last byte, SPEC §1). Timestamps are
+/// wrapping µs (`rtu::FrameAssembler`).
+#[cfg_attr(feature = "board-g431", allow(dead_code))]
 pub fn reply_wait_us(now_us: u32, last_byte_at_us: u32, delay_us: u32) -> u32 {
     delay_us.saturating_sub(now_us.wrapping_sub(last_byte_at_us))
 }
