@@ -104,7 +104,7 @@ impl Device {
                 ee = true;
                 due_us = due_us.max(now_us + storage.take_busy_us());
                 // busy to other requests until its reply is due
-                self.ee_busy_until_us = Some(due_us);
+                self.ee_busy_until_us = (due_us > now_us).then_some(due_us);
             }
         }
         match response {

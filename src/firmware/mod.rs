@@ -1,11 +1,10 @@
-//! STM32 firmware (issue 6): embassy-stm32 glue around the core, one file
+//! STM32 firmware: embassy-stm32 glue around the core, one file
 //! per concern.
 //!
 //! Follow one request: `rs485.rs` (USART interrupt: timestamp → the core's
 //! `FrameAssembler`; t3.5 from the G431 receiver timeout or the F103 gap
-//! task) → `dispatch.rs` (`Device::handle_rx`, reply after
-//! `Device::reply_delay_us`, `Device::reply_sent`) → `rs485.rs` (one burst,
-//! DE). Follow one set-point: `control.rs` (1 kHz loop, `Device::control`
+//! task) → `dispatch.rs` (`Device::poll`, then the reply at the time it
+//! gave and a new line format) → `rs485.rs` (one burst, DE). Follow one set-point: `control.rs` (1 kHz loop, `Device::control`
 //! fills the core's `StepSchedule`) → `steps.rs` (step timer interrupt,
 //! `StepSource::advance`). Switches: `switches.rs` (EXTI → the schedule's
 //! limit brake); parameter flash: `flash.rs`;

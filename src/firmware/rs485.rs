@@ -79,7 +79,7 @@ impl Received {
         }
     }
 
-    /// The core's view of it, for `Device::handle_rx`.
+    /// The core's view of it, for `Device::poll`.
     pub fn event(&self) -> RxEvent<'_> {
         match &self.outcome {
             Outcome::Frame {
@@ -195,7 +195,7 @@ pub fn config_error(e: usart::ConfigError) -> defmt::Str {
     }
 }
 
-/// Applies a line (at boot and after `Device::reply_sent` changed it) and
+/// Applies a line (at boot and after a reply that changed it) and
 /// (re)arms the receive interrupts. Call it between frames.
 pub fn apply_line(
     uart: &mut Uart<'static, Blocking>,

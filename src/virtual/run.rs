@@ -7,10 +7,10 @@
 //!   time; a master writes a whole frame at once, so gaps inside it are ~0);
 //! - each drive frames the stream with its own [`FrameAssembler`] at its own
 //!   line timing (PA52/PA53), as each drive on a real bus has its own UART;
-//! - a frame closes after the drive's t3.5 of silence (`poll`), goes to
-//!   [`Device::handle_rx`], and a reply leaves in one write at
-//!   `last byte + Device::reply_delay_us()` at the earliest;
-//! - [`Device::reply_sent`] follows every handled frame, after the write.
+//! - a frame closes after the drive's t3.5 of silence (`poll`) and goes to
+//!   [`Device::poll`] (`run/serve.rs`), which queues the reply with the time
+//!   it may leave and a new line format behind it; the loop writes it in one
+//!   go when it is due.
 
 use std::collections::VecDeque;
 use std::io;
@@ -209,17 +209,19 @@ impl VirtualDrive {
         let Some(web) = &mut self.web else {
             return;
         };
-        for di in web.serve(now, &mut self.drives) {
+        for (di, line) in web.serve(now, &mut self.drives) {
             log_events(&mut self.console, &mut self.drives[di], Some("web"));
-            // A bus reply still queued for this drive applies a deferred
-            // address or line change when it leaves; else it applies now.
-            let queued = self
+            // A bus reply still queued for this drive puts a new line
+            // format in force when it leaves; else it takes effect now.
+            let next_out = self
                 .lines
-                .iter()
-                .any(|l| l.pending.iter().any(|p| p.drive == di));
-            if !queued {
-                let line = self.drives[di].device.reply_sent();
-                self.reply_done(di, line);
+                .iter_mut()
+                .flat_map(|l| l.pending.iter_mut())
+                .filter(|p| p.drive == di)
+                .min_by_key(|p| p.due_us);
+            match next_out {
+                Some(reply) => reply.line = line.or(reply.line),
+                None => self.reply_done(di, line),
             }
         }
     }

@@ -5,14 +5,13 @@
 use std::path::Path;
 
 use modbus_drive::boards::Board;
-use modbus_drive::device::{Identity, Response};
+use modbus_drive::device::{Identity, Line, Polled, Storage};
 use modbus_drive::dictionary::DriveLayer;
 use modbus_drive::drive::DriveEvent;
 use modbus_drive::event::{Event, FrameError};
 use modbus_drive::motion::sim::{RunStop, SimAxis};
 use modbus_drive::motion::{PlannerConfig, StepSchedule};
 use modbus_drive::params::{BootOutcome, ParamStore};
-use modbus_drive::rtu::MAX_FRAME;
 use modbus_drive::Device;
 
 use super::super::cli::AxisLayout;
@@ -254,18 +253,30 @@ pub(super) fn describe(ev: &Event) -> String {
     }
 }
 
+/// The drive's flash for the page: its answer waits for nothing, so the
+/// flash's chip time is not simulated for it and its tally starts afresh.
+struct UntimedStore<'s>(&'s mut ParamStore<FileFlash>);
+
+impl Storage for UntimedStore<'_> {
+    type Flash = FileFlash;
+    fn store(&mut self) -> &mut ParamStore<FileFlash> {
+        self.0
+    }
+    fn take_busy_us(&mut self) -> u64 {
+        self.0.flash().take_busy_us();
+        0
+    }
+}
+
 /// The page reaches a drive through its dispatcher only (`web/modbus.rs`).
 impl web::Dispatch for DriveSlot {
     fn device(&mut self) -> &mut Device {
         &mut self.device
     }
 
-    fn run_storage(&mut self, reply: &mut [u8; MAX_FRAME]) -> Option<Response> {
-        let r = self.device.poll_storage(&mut self.store, reply);
-        // The page's answer waits for nothing: the flash's time is not
-        // simulated for it, so its tally starts afresh.
-        self.store.flash().take_busy_us();
-        r
+    fn poll(&mut self, now_us: u64, line: &mut impl Line) -> Polled {
+        self.device
+            .poll(now_us, line, &mut UntimedStore(&mut self.store))
     }
 
     fn advance(&mut self, now_us: u64) {
