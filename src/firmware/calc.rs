@@ -35,9 +35,9 @@ pub fn reply_wait_us(now_us: u32, last_byte_at_us: u32, delay_us: u32) -> u32 {
 
 // ---------------------------------------------------------------- step output
 
-/// Safe minimum STEP pulse width: 2.5 µs (issue 6).
+/// Safe minimum STEP pulse width: 2.5 µs.
 pub const MIN_STEP_PULSE_NS: u32 = 2_500;
-/// Safe minimum DIR set-up time before the STEP edge: 5 µs (issue 6).
+/// Safe minimum DIR set-up time before the STEP edge: 5 µs.
 pub const MIN_DIR_SETUP_NS: u32 = 5_000;
 /// Longest pulse or set-up time a parameter may ask for: 100 µs.
 pub const MAX_SHAPE_NS: u32 = 100_000;

@@ -11,8 +11,8 @@
 //! frame's set-point reaches the planner ≤ 1 ms after its reply, and the
 //! debounced switch states come 2–3 ms after their edges — with the step
 //! count latched at each edge (switches.rs), which the core takes as the
-//! homing origin (`Device::control_latched`, SPEC §8.6; README "Firmware",
-//! "Homing origin"). Limits do not wait for this loop (switches.rs).
+//! homing origin (`Device::control_latched`, SPEC §8.6; docs/firmware.md).
+//! Limits do not wait for this loop (switches.rs).
 
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};

@@ -11,7 +11,7 @@
 //! pins and peripherals: `board_g431.rs` / `board_f103.rs`; arithmetic:
 //! `calc.rs` (host-tested).
 //!
-//! Interrupt priorities (lower = more urgent; README "Firmware"):
+//! Interrupt priorities (lower = more urgent; docs/firmware.md):
 //! step timer P0, switches (EXTI) P1, USART P2, embassy-time driver P3;
 //! the tasks run in thread mode.
 
@@ -76,8 +76,7 @@ async fn main(spawner: Spawner) {
     let (range, capacity) = (region.range(), region.capacity() as u32);
     let mut store = defmt::unwrap!(ParamStore::new(region, 0..capacity));
     // In a block: a `Device` local of `main` would stay in main's future
-    // (a static) after it has been moved to the dispatcher — 2.9 KiB of RAM
-    // twice (llvm-nm of the F103 ELF).
+    // (a static) after it has been moved to the dispatcher: its RAM twice.
     let (line, address) = {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks

@@ -120,7 +120,7 @@ struct Link {
 
 /// Set up at first use. A `OnceLock` is zero-initialised (.bss); a `Link`
 /// initialiser is not, and would cost its size again in flash as a .data
-/// image (README "Sizes").
+/// image.
 static LINK: OnceLock<Mutex<RefCell<Link>>> = OnceLock::new();
 
 /// `f` on the link, inside a critical section (the USART interrupt shares it).

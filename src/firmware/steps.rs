@@ -43,7 +43,7 @@ use super::calc::{Period, Step, StepShape, StepShaper};
 
 /// The step schedule between the control loop and this interrupt. Its
 /// `const` initialiser is all zeros, so it lives in .bss and costs no flash
-/// image (README "Sizes").
+/// image.
 static SCHEDULE: StepSchedule = StepSchedule::new();
 
 /// The step schedule.
