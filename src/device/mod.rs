@@ -160,18 +160,11 @@ impl Device {
     /// (§6) and reported as events.
     pub fn handle_rx(&mut self, rx: RxEvent<'_>, reply: &mut [u8; MAX_FRAME]) -> Response {
         let busy = self.busy();
-        let mut regs = Registers {
-            od: &mut self.od,
-            pa: &mut self.pa,
-            drive: &mut self.drive,
-            identity: &self.identity,
-            busy,
-            store_status: self.store_status,
-            ee_request: None,
-        };
+        let mut regs = Registers::new(&mut self.od, &mut self.pa, &mut self.drive, &self.identity)
+            .with_store(busy, self.store_status);
         let messages = self.slave.counters().slave_messages;
         let outcome = self.slave.handle(rx, self.address, &mut regs, reply);
-        let ee_request = regs.ee_request;
+        let ee_request = regs.ee_request();
         if self.slave.counters().slave_messages != messages {
             // a valid frame for us (or a broadcast): PA20 timer (SPEC §8.7)
             self.drive.frame_received();
