@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use modbus_drive::boards::Board;
-use modbus_drive::device::{Identity, Line, Polled, Storage};
+use modbus_drive::device::{Identity, Line, Polled};
 use modbus_drive::dictionary::DriveLayer;
 use modbus_drive::drive::DriveEvent;
 use modbus_drive::event::{Event, FrameError};
@@ -18,6 +18,7 @@ use super::super::cli::AxisLayout;
 use super::super::console::Console;
 use super::super::flash::{FileFlash, REGION_BYTES};
 use super::super::web::{self, ExceptionLog, Forced};
+use super::serve::SimStorage;
 
 /// Control loop period, as on the firmware (SPEC §8; within the planner's
 /// 3 ms horizon).
@@ -253,21 +254,6 @@ pub(super) fn describe(ev: &Event) -> String {
     }
 }
 
-/// The drive's flash for the page: its answer waits for nothing, so the
-/// flash's chip time is not simulated for it and its tally starts afresh.
-struct UntimedStore<'s>(&'s mut ParamStore<FileFlash>);
-
-impl Storage for UntimedStore<'_> {
-    type Flash = FileFlash;
-    fn store(&mut self) -> &mut ParamStore<FileFlash> {
-        self.0
-    }
-    fn take_busy_us(&mut self) -> u64 {
-        self.0.flash().take_busy_us();
-        0
-    }
-}
-
 /// The page reaches a drive through its dispatcher only (`web/modbus.rs`).
 impl web::Dispatch for DriveSlot {
     fn device(&mut self) -> &mut Device {
@@ -275,8 +261,12 @@ impl web::Dispatch for DriveSlot {
     }
 
     fn poll(&mut self, now_us: u64, line: &mut impl Line) -> Polled {
-        self.device
-            .poll(now_us, line, &mut UntimedStore(&mut self.store))
+        // the page's answer waits for no flash time
+        let mut storage = SimStorage {
+            store: &mut self.store,
+            timed: false,
+        };
+        self.device.poll(now_us, line, &mut storage)
     }
 
     fn advance(&mut self, now_us: u64) {

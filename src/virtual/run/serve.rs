@@ -64,17 +64,29 @@ impl Line for Queue<'_, '_> {
     }
 }
 
-/// The drive's flash with its chip time: an EE reply leaves no earlier
-/// than the chip would have finished.
-struct TimedStore<'s>(&'s mut ParamStore<FileFlash>);
+/// A drive's flash for [`Device::poll`]: `timed`, an EE reply leaves no
+/// earlier than the chip would have finished (the bus); else it waits for
+/// nothing (the page), and the flash's tally of chip time starts afresh
+/// either way.
+///
+/// [`Device::poll`]: modbus_drive::Device::poll
+pub(super) struct SimStorage<'s> {
+    pub store: &'s mut ParamStore<FileFlash>,
+    pub timed: bool,
+}
 
-impl Storage for TimedStore<'_> {
+impl Storage for SimStorage<'_> {
     type Flash = FileFlash;
     fn store(&mut self) -> &mut ParamStore<FileFlash> {
-        self.0
+        self.store
     }
     fn take_busy_us(&mut self) -> u64 {
-        self.0.flash().take_busy_us()
+        let busy = self.store.flash().take_busy_us();
+        if self.timed {
+            busy
+        } else {
+            0
+        }
     }
 }
 
@@ -103,8 +115,11 @@ pub(super) fn serve(
         queued: false,
         line: None,
     };
-    slot.device
-        .poll(now_us, &mut queue, &mut TimedStore(&mut slot.store));
+    let mut storage = SimStorage {
+        store: &mut slot.store,
+        timed: true,
+    };
+    slot.device.poll(now_us, &mut queue, &mut storage);
     slot.control_at(now_us);
     Served {
         queued: queue.queued,
