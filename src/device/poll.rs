@@ -50,6 +50,12 @@ pub trait Line {
 pub trait Storage {
     type Flash: NorFlash;
     fn store(&mut self) -> &mut ParamStore<Self::Flash>;
+    /// Whether the operation may run now, by the host's own view (the
+    /// firmware checks that its step output is idle); `false` refuses it
+    /// with exception 6 and changes nothing ([`Device::refuse_storage`]).
+    fn ready(&mut self) -> bool {
+        true
+    }
     /// Time (µs) the last operation keeps the flash busy after it returned:
     /// a simulated flash's chip time. 0 on hardware, where the operation
     /// itself took that long.
@@ -99,7 +105,12 @@ impl Device {
         };
         let mut ee = false;
         if self.pending_ee().is_some() {
-            if let Some(deferred) = self.poll_storage(storage.store(), &mut reply) {
+            let deferred = if storage.ready() {
+                self.poll_storage(storage.store(), &mut reply)
+            } else {
+                self.refuse_storage(&mut reply)
+            };
+            if let Some(deferred) = deferred {
                 response = deferred;
                 ee = true;
                 due_us = due_us.max(now_us + storage.take_busy_us());

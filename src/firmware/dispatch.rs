@@ -16,7 +16,7 @@ use embassy_stm32::usart::Uart;
 use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::once_lock::OnceLock;
-use modbus_drive::device::{Line, Request};
+use modbus_drive::device::{Line, Request, Storage};
 use modbus_drive::event::Event;
 use modbus_drive::params::ParamStore;
 use modbus_drive::rtu::{LineConfig, MAX_FRAME};
@@ -24,7 +24,8 @@ use modbus_drive::Device;
 
 use super::calc::RateLimit;
 use super::flash::FlashRegion;
-use super::rs485::{self, Received, FRAMES, FRAMES_DROPPED};
+use super::rs485::{self, RxFrame, FRAMES_DROPPED};
+use super::steps;
 
 /// The drive core, shared by the dispatcher and the control loop.
 /// Installed once by `main` ([`install`]). A `OnceLock` is zero-initialised
@@ -90,11 +91,11 @@ impl EventLog {
     }
 }
 
-/// The RS-485 line as [`Device::poll`] sees it: the frame taken from
-/// [`FRAMES`], and the reply and line format `poll` queues, which the task
+/// The RS-485 line as [`Device::poll`] sees it: the frame the link
+/// received, and the reply and line format `poll` queues, which the task
 /// carries out after it, in that order ([`Rs485Line::carry_out`]).
 struct Rs485Line<'a> {
-    received: Option<&'a Received>,
+    received: Option<&'a RxFrame>,
     /// The time driver's µs now, and the frame's last byte on that scale
     /// (the link stamps bytes with its wrapping 32-bit µs).
     now_us: u64,
@@ -106,9 +107,9 @@ struct Rs485Line<'a> {
 }
 
 impl<'a> Rs485Line<'a> {
-    fn new(received: &'a Received) -> Self {
+    fn new(received: &'a RxFrame) -> Self {
         let now_us = embassy_time::Instant::now().as_micros();
-        let ago = (now_us as u32).wrapping_sub(received.last_byte_at_us);
+        let ago = (now_us as u32).wrapping_sub(received.last_byte_at_us());
         Self {
             received: Some(received),
             now_us,
@@ -160,16 +161,35 @@ impl Line for Rs485Line<'_> {
     }
 }
 
+/// The parameter store as [`Device::poll`] sees it. An accepted EE request
+/// (SPEC §9) runs inside `poll`, its reply deferred until it is done.
+/// Erasing or programming stalls every fetch from the single flash bank,
+/// interrupts included, so it starts only with the step output idle (the
+/// core refuses it while statusword bit 9 is set; this is the glue's own
+/// check of the step schedule), and nothing can queue a step until it is
+/// done: the control loop shares this thread.
+struct FlashStorage<'s>(&'s mut Store);
+
+impl Storage for FlashStorage<'_> {
+    type Flash = FlashRegion<Flash<'static, FlashBlocking>>;
+    fn store(&mut self) -> &mut Store {
+        self.0
+    }
+    fn ready(&mut self) -> bool {
+        steps::idle()
+    }
+}
+
 #[embassy_executor::task]
 pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
     let mut log = EventLog::new();
     loop {
-        let rx = FRAMES.receive().await;
+        let rx = rs485::receive().await;
+        #[cfg(feature = "fault-test")]
+        super::fault::test_trigger(rx.event());
         let mut line = Rs485Line::new(&rx);
-        // An accepted EE request (SPEC §9) runs inside `poll`, its reply
-        // deferred until it is done. Erasing stalls the CPU's flash reads
-        // (single bank), so interrupts wait too: save with the motor at rest.
-        if with_device(|d| d.poll(line.now_us, &mut line, &mut store)).is_none() {
+        let mut storage = FlashStorage(&mut store);
+        if with_device(|d| d.poll(line.now_us, &mut line, &mut storage)).is_none() {
             continue;
         }
         log.drain();
