@@ -240,6 +240,33 @@ mod tests {
         assert_eq!(wire.sent[0].0[1], 0x03);
     }
 
+    /// A store that is never ready: the host sees its step output busy.
+    struct Busy(ParamStore<SimFlash<2>>);
+
+    impl Storage for Busy {
+        type Flash = SimFlash<2>;
+        fn store(&mut self) -> &mut ParamStore<SimFlash<2>> {
+            &mut self.0
+        }
+        fn ready(&mut self) -> bool {
+            false
+        }
+    }
+
+    #[test]
+    fn an_ee_request_the_host_is_not_ready_for_gets_exception_6() {
+        let mut d = Device::new(Identity::new("t"));
+        let save = [0x10, 0x00, 0x3A, 0x00, 0x01, 0x02, 0x00, 0x01];
+        let mut wire = Wire::with(&save, Some(0));
+        let mut busy = Busy(ParamStore::new(SimFlash::<2>::new(), 0..4096).unwrap());
+        assert_eq!(d.poll(0, &mut wire, &mut busy), Polled::Served);
+        assert_eq!(wire.sent.len(), 1);
+        assert_eq!(wire.sent[0].0[1..3], [0x90, 0x06]);
+        assert!(d.pending_ee().is_none());
+        // nothing was written: the store holds no saved set
+        assert!(busy.0.boot().outcome == crate::params::BootOutcome::Blank);
+    }
+
     #[test]
     fn a_foreign_frame_queues_nothing() {
         let mut d = Device::new(Identity::new("t"));
