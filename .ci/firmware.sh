@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Firmware stage (issue 6), run by .ci/run: both boards built in profile fw
+# Firmware stage (docs/firmware.md), run by .ci/run: both boards built in profile fw
 # (release, opt-level z), clippy -D warnings on both, each ELF checked against
 # its chip's memories (.ci/memory_map.py), then flash / static-RAM budgets
 # checked and printed and the size breakdown generated (.ci/size_report.py).

@@ -10,14 +10,20 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
 - CPU load while stepping in velocity mode at 50k, 100k steps/s and the
   planner's ceiling (MAX_STEP_RATE in src/motion/):
   the share of core cycles not spent asleep in WFI/WFE (`--stats`), under the
-  runner's one-cycle-per-instruction assumption (docs/fw-sim.md, "Time").
+  runner's one-cycle-per-instruction assumption (docs/fw-sim.md, "Time");
+- the highest step rate at which every pulse is on time: position moves at
+  0x6081 rising to the planner's ceiling, each traced pulse (`--trace-steps`)
+  compared with the core planner's schedule for the same move at the board's
+  step tick (examples/step_schedule.rs) within one tick.
 """
 
 from __future__ import annotations
 
 import csv
+import os
 import re
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -41,6 +47,16 @@ def _max_step_rate() -> int:
 
 MAX_STEP_RATE = _max_step_rate()
 RATES = sorted({50_000, 100_000, MAX_STEP_RATE})
+# the planner's steepest ramp (MAX_ACCEL, steps/s²): the shortest moves
+# that reach each rate
+MAX_ACCEL = int(re.search(r"pub const MAX_ACCEL: u64 = ([0-9_]+);",
+                          (ROOT / "src" / "motion" / "planner" / "mod.rs").read_text())[1])
+ON_TIME_RATES = list(range(25_000, MAX_STEP_RATE + 1, 25_000))
+CRUISE_STEPS = 2_000  # steps at the top rate in each move
+# the step timer's tick (Board::step_tick_hz in src/boards.rs)
+TICK_NS = {"g431": 100, "f103": 125}
+SCHEDULE = Path(os.environ.get("FW_SIM_SCHEDULE_BIN")
+                or ROOT / "target" / "debug" / "examples" / "step_schedule")
 STEPS_PER_REV = 10_000  # PA10 default (SPEC §7)
 
 
@@ -110,6 +126,74 @@ def load_at(board: str, rate: int, work: Path) -> tuple[float, float, float]:
         fw.stop()
 
 
+def host_schedule(board: str, distance: int, rate: int, accel: int) -> list[int]:
+    """Step ticks relative to the first (examples/step_schedule.rs)."""
+    out = subprocess.run([str(SCHEDULE), board, str(distance), str(rate), str(accel), str(accel)],
+                         capture_output=True, text=True, timeout=120, check=True).stdout
+    return [int(x) for x in out.split()]
+
+
+def pulses(path: Path) -> list[int]:
+    with open(path) as f:
+        return [int(r["time_ns"]) for r in csv.DictReader(f)]
+
+
+def on_time(board: str, work: Path, polled: bool) -> list[tuple[int, int, int, float, float,
+                                                                float]]:
+    """Per rate: (steps/s, distance, pulses, shortest period µs, worst
+    deviation in ticks of pulses 2.. from the schedule, relative to pulse 2,
+    first interval minus the schedule's in ticks). One runner, moves back
+    and forth; `polled`: the master reads the statusword every 20 ms of wall
+    time during each move, otherwise the bus is quiet until the pulses are
+    out."""
+    tick = TICK_NS[board]
+    trace = work / f"{board}-on-time-{polled}.steps.csv"
+    fw = c.Firmware(work, board, ["--trace-steps", str(trace), "--quiet"])
+    out = []
+    try:
+        m = c.Master(fw.client())
+        m.enable()
+        m.write(c.MODE, 1)
+        # 0x6083/0x6084 in 0.1 r/s², 0x6081 in 0.1 r/s (SPEC §5)
+        m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        at, seen, sign = 0, 0, 1
+        for rate in ON_TIME_RATES:
+            distance = rate * rate // MAX_ACCEL + CRUISE_STEPS
+            at += sign * distance
+            sign = -sign
+            m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
+            m.write32(c.TARGET_POSITION, at)
+            m.write(c.CONTROLWORD, 0x001F)
+            m.write(c.CONTROLWORD, 0x000F)
+            if polled:
+                m.wait(lambda sw: sw & c.TARGET_REACHED and not sw & c.MOTOR_RUNNING, 120,
+                       f"{board}: move at {rate} steps/s")
+            deadline = time.monotonic() + 120
+            while len(pulses(trace)) < seen + distance:  # the pin lags the count
+                assert time.monotonic() < deadline, f"{board}: pulses missing at {rate}"
+                time.sleep(0.02)
+            time.sleep(0.2)  # a late one would be seen, and the move is over
+            m.wait(lambda sw: sw & c.TARGET_REACHED and not sw & c.MOTOR_RUNNING, 10,
+                   f"{board}: move at {rate} steps/s")
+            assert m.read32(c.ACTUAL_POSITION) == at
+            pin = pulses(trace)[seen:]
+            seen += len(pin)
+            host = host_schedule(board, distance, rate, MAX_ACCEL)
+            assert len(host) == distance, (board, rate, len(host))
+            # a pulse too many or too few is off the schedule from there on
+            worst = max(abs((pin[k] - pin[1]) / tick - (host[k] - host[1]))
+                        for k in range(1, min(len(pin), distance)))
+            first = (pin[1] - pin[0]) / tick - (host[1] - host[0])
+            shortest = min(b - a for a, b in zip(pin, pin[1:])) / 1000
+            out.append((rate, distance, len(pin), shortest, worst, first))
+            print(board, out[-1], flush=True)
+        fw.alive()
+    finally:
+        fw.stop()
+    return out
+
+
 def main() -> int:
     work = Path(tempfile.mkdtemp(prefix="fw-sim-measure-"))
     lines = ["# fw-sim measurements (generated)", "",
@@ -151,6 +235,40 @@ def main() -> int:
             load, measured, speed = load_at(board, rate, work)
             lines.append(f"| {board} | {rate} | {measured:.0f} | {load:.1f} | {speed:.2f} |")
             print(lines[-1], flush=True)
+    lines += ["", "## Highest step rate with every pulse on time", "",
+              "Position moves from rest at 0x6081 rising in 25 000 steps/s increments",
+              f"up to the planner's ceiling ({MAX_STEP_RATE} steps/s), ramps at its steepest",
+              f"acceleration (MAX_ACCEL, {MAX_ACCEL} steps/s²), each long enough for",
+              f"{CRUISE_STEPS} steps at the set rate, one runner, back and forth. Every",
+              "traced STEP pulse is compared with the core planner's",
+              "schedule for the same move at the board's step tick",
+              "(examples/step_schedule.rs); the pin and the schedule are aligned at",
+              "the second pulse. A rate passes when every pulse from the second on is",
+              "within one step-timer tick of the schedule and the pulse count equals the",
+              "distance. The first interval from rest is listed apart (docs/fw-sim.md,",
+              "\"Findings\").", "",
+              "Bus: `quiet` — no frame from the moment the move is started until its",
+              "last pulse; `polled` — the master reads the statusword every 20 ms of",
+              "wall-clock time throughout the move (a few ms of emulated time apart,",
+              "depending on the emulator's speed, so these rows vary from run to run).", "",
+              "| board | bus | steps/s | distance | pulses | shortest period µs "
+              "| worst deviation, ticks | first interval − schedule, ticks | on time |",
+              "|---|---|---|---|---|---|---|---|---|"]
+    highest = {}
+    for board in c.BOARDS:
+        for polled in (False, True):
+            bus = "polled" if polled else "quiet"
+            for rate, distance, n, shortest, worst, first in on_time(board, work, polled):
+                ok = worst <= 1 and n == distance
+                if ok and highest.get((board, bus), 0) == rate - 25_000:
+                    highest[board, bus] = rate
+                lines.append(f"| {board} | {bus} | {rate} | {distance} | {n} | {shortest:.3f} "
+                             f"| {worst:.2f} | {first:+.2f} | {'yes' if ok else 'no'} |")
+                print(lines[-1], flush=True)
+    lines += [""]
+    for (board, bus), top in sorted(highest.items()):
+        ceiling = " (the planner's ceiling)" if top == MAX_STEP_RATE else ""
+        lines.append(f"- {board}, bus {bus}: every pulse on time up to **{top} steps/s**{ceiling}.")
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
     return 0

@@ -711,3 +711,49 @@ fn the_watchdog_registers_give_at_least_the_timeout_at_the_nominal_lsi() {
     assert_eq!(iwdg_settings(26_214_400, 40_000), Some((6, 0xFFF)));
     assert_eq!(iwdg_settings(26_214_401, 40_000), None);
 }
+
+/// Rising edges (ticks from the first period's start) of the periods the
+/// shaper makes when the source answers `answers` in turn.
+fn edges(shape: StepShape, answers: &[Option<Step>]) -> Vec<u32> {
+    let mut shaper = StepShaper::new(shape);
+    let (mut t, mut out) = (0u32, Vec::new());
+    for a in answers {
+        let p = shaper.next_period(|| *a);
+        if p.dir.is_some() {
+            out.push(t + u32::from(p.ccr));
+        }
+        t += u32::from(p.arr) + 1;
+    }
+    out
+}
+
+#[test]
+fn a_step_found_after_the_queue_ran_dry_keeps_its_interval() {
+    // The timer preloads: the period the shaper returns runs after the one
+    // returned before. A source that is dry while a step's period runs (the
+    // next step not queued yet) gets an idle period preloaded behind it;
+    // the next step, found at the end of that step's period, is due its
+    // interval after that step, and the idle period counts towards it.
+    for hz in [G431_TICK_HZ, F103_TICK_HZ] {
+        let shape = StepShape::safe(hz);
+        let step = |t| {
+            Some(Step {
+                forward: true,
+                interval_ticks: t,
+            })
+        };
+        let e = edges(shape, &[step(1000), None, step(5000), step(300)]);
+        assert_eq!((e[1] - e[0], e[2] - e[1]), (5000, 300), "{hz} Hz");
+        // dry for longer: the interval counts from the call that found it
+        let e = edges(shape, &[step(1000), None, None, step(5000)]);
+        assert_eq!(e[1] - e[0], shape.idle_ticks + 5000, "{hz} Hz");
+        // an interval shorter than the idle period already running: the
+        // first period after it, at the shortest
+        let e = edges(shape, &[step(1000), None, step(10)]);
+        assert_eq!(
+            e[1] - e[0],
+            shape.idle_ticks + 2 * shape.pulse_ticks,
+            "{hz} Hz"
+        );
+    }
+}

@@ -9,14 +9,17 @@ use crate::chip::Kind;
 use crate::machine::Switches;
 
 pub const USAGE: &str = "\
-usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--pty-link PATH]
+usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--modbus-tcp HOST:PORT]...
+              [--pty-link PATH]
               [--trace-steps FILE] [--trace-line FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
-              [--home-switch FROM:TO] [--run-for SECONDS] [--quiet]
+              [--home-switch FROM:TO] [--write-protect] [--run-for SECONDS] [--quiet]
 
 Runs the unmodified firmware image of a board on an emulated STM32.
   --board       g431 (STM32G431CB, default) or f103 (STM32F103C8)
   --elf         firmware ELF to run; default: build it (cargo fw / cargo fw-f103)
   --tcp         raw RTU bytes over TCP (as the virtual drive's --tcp)
+  --modbus-tcp  Modbus TCP (MBAP) masters, through a TCP-to-RTU gateway: the
+                unit identifier is the slave address (repeatable)
   --pty-link    a pseudo-terminal, linked at PATH
   --trace-steps CSV of every step pulse: time_ns,dir,width_ns
   --trace-line  CSV of the line: time_ns,event (rx, tx, de),value
@@ -29,6 +32,8 @@ Runs the unmodified firmware image of a board on an emulated STM32.
                 sleeping core cycles, step pulses
   --state       file holding the parameter flash pages (kept across runs)
   --cw-limit / --ccw-limit / --home-switch: switch positions in steps
+  --write-protect the parameter pages are write-protected (as by the option
+                bytes): erase and program set WRPERR / WRPRTERR, change nothing
   --run-for     stop after this much emulated time (exit 0)
   --quiet       do not print the firmware's defmt log";
 
@@ -46,6 +51,7 @@ pub struct Args {
     pub board: Kind,
     pub elf: Option<PathBuf>,
     pub tcp: Vec<SocketAddr>,
+    pub modbus_tcp: Vec<SocketAddr>,
     pub pty_link: Option<PathBuf>,
     pub trace_steps: Option<PathBuf>,
     pub trace_line: Option<PathBuf>,
@@ -53,6 +59,7 @@ pub struct Args {
     /// Line faults: (1-based index of the received character, kind).
     pub noise: Vec<(u64, LineFault)>,
     pub power_cut: Option<u64>,
+    pub write_protect: bool,
     pub state: Option<PathBuf>,
     pub switches: Switches,
     pub run_for_ps: Option<u64>,
@@ -69,12 +76,14 @@ impl Args {
             board: Kind::G431,
             elf: None,
             tcp: Vec::new(),
+            modbus_tcp: Vec::new(),
             pty_link: None,
             trace_steps: None,
             trace_line: None,
             stats: None,
             noise: Vec::new(),
             power_cut: None,
+            write_protect: false,
             state: None,
             switches: Switches::default(),
             run_for_ps: None,
@@ -92,6 +101,10 @@ impl Args {
                 a.quiet = true;
                 continue;
             }
+            if flag == "--write-protect" {
+                a.write_protect = true;
+                continue;
+            }
             let v = it
                 .next()
                 .ok_or_else(|| format!("{flag} needs a value\n{USAGE}"))?;
@@ -107,6 +120,10 @@ impl Args {
                 "--tcp" => a.tcp.push(
                     v.parse()
                         .map_err(|_| format!("--tcp: not HOST:PORT: {v}"))?,
+                ),
+                "--modbus-tcp" => a.modbus_tcp.push(
+                    v.parse()
+                        .map_err(|_| format!("--modbus-tcp: not HOST:PORT: {v}"))?,
                 ),
                 "--pty-link" => a.pty_link = Some(v.into()),
                 "--trace-steps" => a.trace_steps = Some(v.into()),

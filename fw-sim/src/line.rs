@@ -14,14 +14,22 @@ use std::time::Duration;
 
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
+use crate::gateway::Gateway;
+
 pub struct Line {
     listeners: Vec<TcpListener>,
     conns: Vec<TcpStream>,
     pty: Option<(File, OwnedFd, Option<PathBuf>)>,
+    /// Modbus TCP masters (`--modbus-tcp`), through the gateway.
+    pub gateway: Gateway,
 }
 
 impl Line {
-    pub fn new(tcp: &[SocketAddr], pty_link: Option<&PathBuf>) -> std::io::Result<Self> {
+    pub fn new(
+        tcp: &[SocketAddr],
+        modbus_tcp: &[SocketAddr],
+        pty_link: Option<&PathBuf>,
+    ) -> std::io::Result<Self> {
         let mut listeners = Vec::new();
         for a in tcp {
             let l = TcpListener::bind(a)?;
@@ -55,6 +63,7 @@ impl Line {
             listeners,
             conns: Vec::new(),
             pty,
+            gateway: Gateway::new(modbus_tcp)?,
         })
     }
 
@@ -72,6 +81,9 @@ impl Line {
             if let Some((m, _, _)) = &self.pty {
                 fds.push(PollFd::new(m.as_fd(), PollFlags::POLLIN));
             }
+            for fd in self.gateway.fds() {
+                fds.push(PollFd::new(fd, PollFlags::POLLIN));
+            }
             if ms > 0 {
                 let _ = poll(&mut fds, PollTimeout::from(ms));
             }
@@ -83,6 +95,7 @@ impl Line {
                 self.conns.push(s);
             }
         }
+        self.gateway.read();
         let mut chunks = Vec::new();
         let mut buf = [0u8; 1024];
         self.conns.retain_mut(|c| loop {

@@ -7,6 +7,7 @@ mod cli;
 mod clock;
 mod cpu;
 mod elf;
+mod gateway;
 mod line;
 mod machine;
 mod periph;
@@ -90,13 +91,15 @@ fn run() -> Result<i32, String> {
     };
     let mut machine = Machine::new(chip, flash, args.switches, trace);
     machine.flash.cut_at = args.power_cut;
+    machine.flash.write_protected = args.write_protect;
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
         None
     } else {
         image.rtt.and_then(|cb| Rtt::new(&image.bytes, cb))
     };
-    let line = Line::new(&args.tcp, args.pty_link.as_ref()).map_err(|e| format!("line: {e}"))?;
+    let line = Line::new(&args.tcp, &args.modbus_tcp, args.pty_link.as_ref())
+        .map_err(|e| format!("line: {e}"))?;
     eprintln!("fw-sim: {} running {}", chip.name, elf.display());
     let pc = cpu::reset(&mut uc)?;
     let mut r = Runner {
@@ -369,6 +372,7 @@ impl Runner {
     fn input(&mut self, wait: Duration) {
         let chunks = self.line.poll(wait);
         self.queue(chunks);
+        self.gateway();
     }
 
     /// Characters from the master onto the RX wire, back to back from now,
@@ -419,15 +423,28 @@ impl Runner {
         } else {
             m.usart.de_edges.clear();
         }
-        let out: Vec<u8> = m
-            .usart
-            .tx_out
-            .drain(..)
-            .filter(|c| c.3)
-            .map(|c| c.2)
-            .collect();
+        let mut out = Vec::new();
+        for (_, end, byte, driven) in m.usart.tx_out.drain(..) {
+            if driven {
+                out.push(byte);
+                self.line.gateway.tx(byte, end);
+            }
+        }
         if !out.is_empty() {
             self.line.send(&out);
+        }
+        self.gateway();
+    }
+
+    /// `--modbus-tcp`: finishes the request on the line when its reply is
+    /// complete or overdue, and puts the next one on the RX wire.
+    fn gateway(&mut self) {
+        let now = self.now();
+        let t35 = self.uc.get_data().usart.t35_ps();
+        self.line.gateway.tick(now, t35);
+        if let Some(frame) = self.line.gateway.next_frame() {
+            self.queue(vec![frame]);
+            self.line.gateway.sent(self.rx_tail);
         }
     }
 

@@ -21,22 +21,23 @@ pub fn t35_rto_bits(line: LineConfig) -> u32 {
     if line.baud <= 19_200 {
         (35 * line.format.bits_per_char()).div_ceil(10)
     } else {
-        (1750 * u64::from(line.baud)).div_ceil(1_000_000) as u32
+        modbus_drive::arith::div_ceil_u64(1750 * u64::from(line.baud), 1_000_000) as u32
     }
 }
 
-/// How long the reply must still wait: SPEC §1 wants it no earlier than
-/// `delay_us` (t3.5 + PA56, `Device::reply_delay_us`) after the request's
-/// last byte. Timestamps are wrapping µs (`rtu::FrameAssembler`).
+/// How long a wait of `delay_us` after the last byte must still run (the
+/// F103's frame gap: t3.5 after the last byte, SPEC §1). Timestamps are
+/// wrapping µs (`rtu::FrameAssembler`).
+#[cfg_attr(feature = "board-g431", allow(dead_code))]
 pub fn reply_wait_us(now_us: u32, last_byte_at_us: u32, delay_us: u32) -> u32 {
     delay_us.saturating_sub(now_us.wrapping_sub(last_byte_at_us))
 }
 
 // ---------------------------------------------------------------- step output
 
-/// Safe minimum STEP pulse width: 2.5 µs (issue 6).
+/// Safe minimum STEP pulse width: 2.5 µs.
 pub const MIN_STEP_PULSE_NS: u32 = 2_500;
-/// Safe minimum DIR set-up time before the STEP edge: 5 µs (issue 6).
+/// Safe minimum DIR set-up time before the STEP edge: 5 µs.
 pub const MIN_DIR_SETUP_NS: u32 = 5_000;
 /// Longest pulse or set-up time a parameter may ask for: 100 µs.
 pub const MAX_SHAPE_NS: u32 = 100_000;
@@ -53,7 +54,7 @@ pub const IDLE_PERIOD_NS: u32 = 100_000;
 
 /// Nanoseconds → timer ticks at `tick_hz`, rounded up (a minimum stays a minimum).
 pub const fn ns_to_ticks(ns: u32, tick_hz: u32) -> u32 {
-    (ns as u64 * tick_hz as u64).div_ceil(1_000_000_000) as u32
+    modbus_drive::arith::div_ceil_u64(ns as u64 * tick_hz as u64, 1_000_000_000) as u32
 }
 
 /// The step timer's prescaler register value (PSC) for a tick of `tick_hz`
@@ -186,6 +187,12 @@ pub struct StepShaper {
     remaining: u32,
     pending_forward: bool,
     last_forward: bool,
+    /// Ticks of the idle period returned by the last call because no step
+    /// was due (0 if that call returned anything else). The timer has
+    /// preloaded it and it starts as this call's period is computed, so a
+    /// step found now — whose interval counts from now, the update event
+    /// of the last edge or of an idle period — is that much closer.
+    idle_ahead: u32,
 }
 
 impl StepShaper {
@@ -195,6 +202,7 @@ impl StepShaper {
             remaining: 0,
             pending_forward: true,
             last_forward: true,
+            idle_ahead: 0,
         }
     }
 
@@ -216,6 +224,7 @@ impl StepShaper {
     pub fn next_period(&mut self, next_step: impl FnOnce() -> Option<Step>) -> Period {
         if self.remaining == 0 {
             let Some(step) = next_step() else {
+                self.idle_ahead = self.shape.idle_ticks;
                 return Self::idle(self.shape.idle_ticks);
             };
             let min = if step.forward != self.last_forward {
@@ -223,7 +232,9 @@ impl StepShaper {
             } else {
                 self.shape.min_period()
             };
-            self.remaining = step.interval_ticks.max(min);
+            // the preloaded idle period runs first: count it in the interval
+            let ahead = core::mem::take(&mut self.idle_ahead);
+            self.remaining = step.interval_ticks.saturating_sub(ahead).max(min);
             self.pending_forward = step.forward;
         }
         if self.remaining > MAX_PERIOD_TICKS {

@@ -123,7 +123,7 @@ impl RxFrame {
         unsafe { SLOTS[self.index].get() }
     }
 
-    /// The core's view of it, for `Device::handle_rx`.
+    /// The core's view of it, for `Device::poll`.
     pub fn event(&self) -> RxEvent<'_> {
         let s = self.slot();
         match s.kind {
@@ -284,7 +284,7 @@ pub fn config_error(e: usart::ConfigError) -> defmt::Str {
     }
 }
 
-/// Applies a line (at boot and after `Device::reply_sent` changed it) and
+/// Applies a line (at boot and after a reply that changed it) and
 /// (re)arms the receive interrupts. Call it between frames.
 pub fn apply_line(
     uart: &mut Uart<'static, Blocking>,

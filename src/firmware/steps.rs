@@ -17,7 +17,12 @@
 //! `StepSource::advance`. Widths and set-up come from PA15/PA16 with safe
 //! minimums (calc.rs). While no step is due the timer runs idle periods of
 //! 100 µs and asks the source again at each: that is how the interrupt
-//! starts when the control loop has queued segments (≤ 100 µs later).
+//! starts when the control loop has queued segments (≤ 100 µs later). A
+//! step found at such an update event is due its interval from there; the
+//! idle period already preloaded runs first and counts towards it
+//! (`StepShaper`), so a queue that runs dry for a moment — the control loop
+//! has not queued the next step yet when the interrupt asks for it, one
+//! period ahead — costs no time.
 //!
 //! `advance` counts the step announced at the previous update event: that
 //! step is already loaded into the timer and goes out at the end of the
@@ -49,7 +54,7 @@ use super::owned::IrqOwned;
 
 /// The step schedule between the control loop and this interrupt. Its
 /// `const` initialiser is all zeros, so it lives in .bss and costs no flash
-/// image (README "Sizes").
+/// image.
 static SCHEDULE: StepSchedule = StepSchedule::new();
 
 /// The step schedule.

@@ -22,13 +22,20 @@
 //! it to the core with the debounced change (`Device::control_latched`),
 //! which takes it as the origin if it lies on the current search leg. The
 //! step interrupt outranks the critical section (priority.rs) and may step
-//! during the read; `StepSchedule::position` is a sequence-counted read
-//! made for exactly that, so it is consistent.
+//! during the read; the count is read before and after the pins and the
+//! pins again if it changed, so count and levels belong together.
+//!
+//! The count is taken with the first read, never after the confirmation
+//! below: the STEP pulse that moves the axis onto the edge ends with the
+//! update event at which the step interrupt counts the next step, so the
+//! latch must be taken within one STEP pulse width of the edge.
 //!
 //! A limit brakes only when a second read of its pin [`CONFIRM_US`] after
 //! the first agrees: a spike shorter than that (motor cables next to the
 //! switch wiring) no longer latches a quick stop. A release needs no
 //! confirmation (a brake already under way is the schedule's business).
+//! The homing latch is not confirmed: a spike latches nothing lasting,
+//! the control loop forgets a latch whose switch reads stable again.
 //!
 //! Shared state: the inputs and latches behind a critical section
 //! ([`INPUTS`]), inside which the limits are also sent, so the EXTI
@@ -97,7 +104,21 @@ pub fn set_params(polarity: u16, limit_enable: u16) {
 /// applies PA14 itself).
 fn read(i: &mut Inputs) -> Switches {
     let polarity = POLARITY.load(Ordering::Relaxed);
-    let s = i.pins.read(polarity);
+    let schedule = steps::schedule();
+    // The step count that goes with this reading, taken now and not after
+    // the confirmation below: by then the step interrupt may have counted
+    // the next step (the STEP pulse that moved the axis onto the edge ends
+    // with the update event that counts the following one). Read again if
+    // a step was counted during the pin read, so the pair is consistent.
+    let mut position = schedule.position();
+    let s = loop {
+        let s = i.pins.read(polarity);
+        let now = schedule.position();
+        if now == position {
+            break s;
+        }
+        position = now;
+    };
     let (mut cw, mut ccw) = (s.cw_limit, s.ccw_limit);
     if cw || ccw {
         cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000 * CONFIRM_US);
@@ -106,9 +127,7 @@ fn read(i: &mut Inputs) -> Switches {
         ccw &= again.ccw_limit;
     }
     let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
-    let schedule = steps::schedule();
     schedule.set_limits(cw && enabled & 1 != 0, ccw && enabled & 2 != 0);
-    let position = schedule.position();
     i.cw.edge(s.cw_limit, position);
     i.ccw.edge(s.ccw_limit, position);
     i.home.edge(s.home, position);

@@ -9,7 +9,6 @@ import subprocess
 import time
 from pathlib import Path
 
-import pytest
 
 from conftest import (ROOT, ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, MODE,
                       MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY, STATE_MASK,
@@ -144,9 +143,12 @@ def test_pulses_follow_the_hosts_step_schedule(start_fw, board, tmp_path):
         assert abs(got - want) <= 1, f"{board}: step {k} at {got} ticks, schedule {want}"
 
 
-@pytest.mark.xfail(strict=True, reason="found by fw-sim: from rest the gap between the first two "
-                   "pulses is one idle period of the step timer longer than scheduled")
 def test_the_first_interval_follows_the_hosts_step_schedule(start_fw, board, tmp_path):
+    """From rest the planner queues only the first step at first; the step
+    timer, which preloads, asks for the second while the first one's period
+    runs, finds none and preloads an idle period. The second step, found at
+    the first pulse, is due its interval after it and the idle period
+    counts towards it (calc::StepShaper): the gap is the schedule's."""
     tick_ns = TICK_NS[board]
     host = host_schedule(board, DISTANCE, 50_000, 100_000, 100_000)
     pin = traced_move(start_fw, board, tmp_path)

@@ -6,8 +6,6 @@ halt (SPEC §8.5)."""
 import csv
 import time
 
-import pytest
-
 from conftest import (ACCELERATION, ACTUAL_POSITION, ACTUAL_VELOCITY, BIT12, BIT13, CONTROLWORD,
                       DECELERATION, HOME_OFFSET, HOME_SWITCH, HOMING_ACCELERATION,
                       HOMING_METHOD, HOMING_SPEED, HOMING_ZERO_SPEED, MODE, MOTOR_RUNNING,
@@ -23,15 +21,7 @@ def read_csv(path):
 programs = e2e_module("test_programs")
 
 
-def test_homing_method_1_to_the_cw_limit(start_drive, board, request):
-    if board == "f103":
-        # Seen here and reported, not hidden: in some runs the F103 image
-        # takes the origin one step off (-999 finds the CW limit active).
-        # Suspected race: the step interrupt (higher priority) announces
-        # the next step before the EXTI handler has read the position, when
-        # the handler starts later than one STEP pulse width after the edge.
-        request.applymarker(pytest.mark.xfail(reason="F103 homing origin one step off in "
-                                              "some runs (firmware timing)", strict=False))
+def test_homing_method_1_to_the_cw_limit(start_drive, board):
     programs.test_homing_method_1_to_the_cw_limit(start_drive, "tcp")
 
 

@@ -11,6 +11,10 @@
 //!   SIZERR, PROGERR, WRPERR; F1 PGERR, WRPRTERR) instead of writing.
 //! - Page erase (G4 PER + PNB + STRT, F1 PER + AR + STRT), BSY for the
 //!   erase time. Mass erase and option bytes are not modelled.
+//! - `--write-protect`: the parameter pages are write-protected, as the
+//!   option bytes' WRP areas (G4) / WRP bits (F1) would make them: erase and
+//!   program set WRPERR (RM0440 §5.7.5) / WRPRTERR (RM0008 §3.3 FLASH_SR,
+//!   PM0075 §2.3.3-2.3.4) and change nothing.
 //! - Only the parameter pages are writable flash here; programming or
 //!   erasing a page of code stops the runner (`Fault`).
 
@@ -54,6 +58,8 @@ pub struct Flash {
     pub ops_started: u64,
     pub cut_at: Option<u64>,
     pub cut: bool,
+    /// The parameter pages are write-protected (`--write-protect`).
+    pub write_protected: bool,
 }
 
 pub enum FlashWrite {
@@ -112,6 +118,7 @@ impl Flash {
             ops_started: 0,
             cut_at: None,
             cut: false,
+            write_protected: false,
         })
     }
 
@@ -249,6 +256,11 @@ impl Flash {
                 self.sr |= WRPERR;
                 return FlashWrite::Done;
             }
+            if self.write_protected {
+                self.sr |= WRPERR;
+                self.half = None;
+                return FlashWrite::Done;
+            }
             match self.half.take() {
                 None if a.is_multiple_of(8) => self.half = Some((a, v as u32)),
                 None => self.sr |= PGAERR,
@@ -286,6 +298,10 @@ impl Flash {
                 self.sr |= WRPRTERR;
                 return FlashWrite::Done;
             }
+            if self.write_protected {
+                self.sr |= WRPRTERR;
+                return FlashWrite::Done;
+            }
             let o = (a - self.region_base) as usize;
             let erased = self.data[o] == 0xFF && self.data[o + 1] == 0xFF;
             if !erased && v as u16 != 0 {
@@ -306,6 +322,11 @@ impl Flash {
     fn erase_page(&mut self, page_addr: u32, t: u64) -> Result<(), String> {
         if !self.in_region(page_addr, self.page) {
             return Err(format!("firmware erases a code page at {page_addr:#010x}"));
+        }
+        if self.write_protected {
+            // G4 WRPERR, F1 WRPRTERR: the same bit
+            self.sr |= 1 << 4;
+            return Ok(());
         }
         self.start(Op::Erase { page: page_addr }, t);
         Ok(())

@@ -159,6 +159,17 @@ impl Usart {
     pub fn char_ps(&self) -> u64 {
         self.bit_ps() * self.char_bits() as u64
     }
+    /// The line's t3.5 at the current baud (Modbus over Serial Line
+    /// §2.5.1.1: 3.5 character times, fixed at 1750 µs above 19200 baud).
+    pub fn t35_ps(&self) -> u64 {
+        const FIXED: u64 = 1_750_000_000;
+        let bit = self.bit_ps();
+        if bit == 0 || bit < PS_PER_S as u64 / 19_200 {
+            FIXED
+        } else {
+            self.char_ps() * 7 / 2
+        }
+    }
     /// Receiver on with its interrupt enabled: the firmware listens.
     pub fn rx_armed(&self) -> bool {
         self.re() && self.cr1 & (1 << 5) != 0
