@@ -41,6 +41,10 @@ pub const PA: [PaDef; PA_COUNT] = {
     t[12] = rw(1, 6000, 3000); // maximum speed, r/min
     t[13] = rw(0, 7, 0); // switch polarity bits (1 = normally closed)
     t[14] = rw(0, 3, 3); // limit switch enable bits
+                         // encoder counts per revolution after ×4 decoding: 0 = no encoder,
+                         // else COUNTS_PER_REV_MIN..=65535 (the gap is checked in `in_range`)
+    t[17] = rw(0, u16::MAX, 0);
+    t[18] = rw(0, 1, 0); // encoder direction invert
     t[20] = rw(0, 60000, 0); // communication-loss timeout, ms
     t[51] = rw(1, 247, 1); // slave address
     t[52] = rw(0, 4, 4); // baud
@@ -50,6 +54,17 @@ pub const PA: [PaDef; PA_COUNT] = {
     t[56] = rw(0, 100, 0); // minimum response delay, ms
     t
 };
+
+/// PA17 below this (and above 0) is refused: too coarse to check a
+/// following error against (SPEC §8.8).
+const ENCODER_PA: usize = 17;
+
+/// Whether `v` is in PA`n`'s range (SPEC §7, §8.8).
+fn in_range(n: usize, v: u16) -> bool {
+    let d = PA[n];
+    let gap = n == ENCODER_PA && v != 0 && v < crate::closed_loop::COUNTS_PER_REV_MIN;
+    d.min <= v && v <= d.max && !gap
+}
 
 /// The working set of parameters.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -81,8 +96,7 @@ impl Params {
 
     /// Whether `v` is in the range of PA`n` (read-only ones accept nothing).
     pub fn valid(n: usize, v: u16) -> bool {
-        let d = PA[n];
-        !d.read_only && d.min <= v && v <= d.max
+        !PA[n].read_only && in_range(n, v)
     }
 
     /// Stores `v` in PA`n` without checks: the caller has validated it.
@@ -102,7 +116,7 @@ impl Params {
             let d = PA[n];
             if d.read_only {
                 self.values[n] = d.default;
-            } else if d.min <= v && v <= d.max {
+            } else if in_range(n, v) {
                 self.values[n] = v;
             } else {
                 self.values[n] = d.default;
@@ -135,6 +149,15 @@ impl Params {
     /// safe minimum).
     pub fn dir_setup(&self) -> u16 {
         self.values[16]
+    }
+    /// PA17: encoder counts per revolution after ×4 decoding (0: no
+    /// encoder, open loop).
+    pub fn encoder_counts_per_rev(&self) -> u16 {
+        self.values[ENCODER_PA]
+    }
+    /// PA18: encoder direction invert.
+    pub fn encoder_inverted(&self) -> bool {
+        self.values[18] != 0
     }
     pub fn comm_loss_ms(&self) -> u16 {
         self.values[20]

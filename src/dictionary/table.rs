@@ -5,6 +5,7 @@
 //! to a position with one `match` (no scan).
 
 use super::{DriveLayer, Identity, OdValues};
+use crate::closed_loop::WINDOW_OFF;
 
 /// Who may read / write an entry.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -80,6 +81,9 @@ pub enum Object {
     ModeDisplay,
     ActualPosition,
     ActualVelocity,
+    FollowingErrorWindow,
+    FollowingErrorTimeout,
+    FollowingErrorActual,
 }
 
 /// One entry of the table.
@@ -113,8 +117,9 @@ const fn entry(index: u16, object: Object, access: Access, data_type: DataType) 
 use Access::{Ro, Rw, Wo};
 use DataType::{Str, I16, I32, U16, U32};
 
-/// SPEC §5, in table order. Every default is 0 (strings excepted).
-pub const TABLE: [Entry; 22] = [
+/// SPEC §5 and §8.8, in table order. Every default is 0 (strings
+/// excepted) but the following error window's, which is "check off".
+pub const TABLE: [Entry; 25] = [
     entry(0x1001, Object::ErrorRegister, Ro, U16),
     entry(0x1008, Object::DeviceName, Ro, Str),
     entry(0x1009, Object::HardwareVersion, Ro, Str),
@@ -137,6 +142,12 @@ pub const TABLE: [Entry; 22] = [
     entry(0x6061, Object::ModeDisplay, Ro, I16),
     entry(0x6064, Object::ActualPosition, Ro, I32),
     entry(0x606C, Object::ActualVelocity, Ro, I32),
+    Entry {
+        default: WINDOW_OFF as i32,
+        ..entry(0x6065, Object::FollowingErrorWindow, Rw, U32)
+    },
+    entry(0x6066, Object::FollowingErrorTimeout, Rw, U16),
+    entry(0x60F4, Object::FollowingErrorActual, Ro, I32),
 ];
 
 /// Words of the whole table, in table order.
@@ -150,8 +161,8 @@ const TABLE_WORDS: usize = {
     n
 };
 
-/// `WORD_AT[p]`: words of the entries before position `p` (`WORD_AT[22]`
-/// is [`TABLE_WORDS`]).
+/// `WORD_AT[p]`: words of the entries before position `p`
+/// (`WORD_AT[TABLE.len()]` is [`TABLE_WORDS`]).
 const WORD_AT: [u8; TABLE.len() + 1] = {
     let mut at = [0u8; TABLE.len() + 1];
     let mut p = 0;
@@ -230,7 +241,7 @@ impl Span {
         Some(Self {
             entries,
             first,
-            // end ≤ 22: no shift overflows
+            // end ≤ TABLE.len() < 32: no shift overflows
             mask: ((1u32 << end) - 1) & !((1u32 << first) - 1),
         })
     }
@@ -297,6 +308,9 @@ pub const fn position(address: u16) -> Option<usize> {
         0x6061 => Object::ModeDisplay,
         0x6064 => Object::ActualPosition,
         0x606C => Object::ActualVelocity,
+        0x6065 => Object::FollowingErrorWindow,
+        0x6066 => Object::FollowingErrorTimeout,
+        0x60F4 => Object::FollowingErrorActual,
         _ => return None,
     };
     Some(object as usize)
@@ -351,11 +365,14 @@ impl Object {
             Self::HomingSpeed => od.homing_speed,
             Self::HomingAcceleration => u32::from(od.homing_acceleration),
             Self::HomingZeroSpeed => od.homing_zero_speed,
+            Self::FollowingErrorWindow => od.following_error_window,
+            Self::FollowingErrorTimeout => u32::from(od.following_error_timeout),
             Self::ErrorRegister
             | Self::Statusword
             | Self::ModeDisplay
             | Self::ActualPosition
-            | Self::ActualVelocity => self.read_live(drive),
+            | Self::ActualVelocity
+            | Self::FollowingErrorActual => self.read_live(drive),
         }
     }
 
@@ -368,6 +385,7 @@ impl Object {
             Self::ModeDisplay => u32::from(drive.mode_display() as u16),
             Self::ActualPosition => drive.actual_position() as u32,
             Self::ActualVelocity => drive.actual_velocity_rpm() as u32,
+            Self::FollowingErrorActual => drive.following_error() as u32,
             _ => 0,
         }
     }
@@ -392,6 +410,8 @@ impl Object {
             Self::HomingSpeed => od.homing_speed = raw,
             Self::HomingAcceleration => od.homing_acceleration = raw as u16,
             Self::HomingZeroSpeed => od.homing_zero_speed = raw,
+            Self::FollowingErrorWindow => od.following_error_window = raw,
+            Self::FollowingErrorTimeout => od.following_error_timeout = raw as u16,
             Self::ErrorRegister
             | Self::DeviceName
             | Self::HardwareVersion
@@ -399,7 +419,8 @@ impl Object {
             | Self::Statusword
             | Self::ModeDisplay
             | Self::ActualPosition
-            | Self::ActualVelocity => {}
+            | Self::ActualVelocity
+            | Self::FollowingErrorActual => {}
         }
     }
 
@@ -435,7 +456,9 @@ mod tests {
             assert_eq!(position(e.index), Some(i));
         }
         // SPEC §5: 0x6090 and the legacy addresses are not entries.
-        for a in [0x6090, 0x0000, 0x0064, 0x6082, 0x607B, 0xFFFF] {
+        for a in [
+            0x6090, 0x0000, 0x0064, 0x6082, 0x607B, 0x6067, 0x60F5, 0xFFFF,
+        ] {
             assert_eq!(position(a), None);
         }
     }

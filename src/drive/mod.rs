@@ -9,6 +9,7 @@
 //! goals to the [`Planner`], fills the schedule, runs homing, the limit
 //! checks and the communication-loss timer.
 
+mod feedback;
 mod homing;
 pub mod io;
 mod limits;
@@ -24,6 +25,7 @@ use crate::motion::{
     Fill, Goal, HomingError, Planner, PlannerConfig, StepSchedule, SwitchEdges, Switches,
 };
 use crate::params::{DriveMonitor, Params};
+use feedback::Feedback;
 use homing::HomingState;
 use position::SetPoint;
 use settings::Settings;
@@ -84,6 +86,9 @@ pub enum FaultCause {
     BothLimits,
     /// No valid frame for PA20 ms while operation was enabled: bit 4.
     CommunicationLoss,
+    /// The following error stayed above 0x6065 for longer than 0x6066
+    /// (SPEC §8.8): bit 5.
+    FollowingError,
 }
 
 impl FaultCause {
@@ -91,6 +96,7 @@ impl FaultCause {
         match self {
             Self::BothLimits => 1 << 0,
             Self::CommunicationLoss => 1 << 4,
+            Self::FollowingError => 1 << 5,
         }
     }
 }
@@ -193,6 +199,8 @@ pub struct Drive {
     now_us: u64,
     frame_seen: bool,
     last_frame_us: u64,
+    /// Encoder, measured position and following-error check (SPEC §8.8).
+    feedback: Feedback,
     events: Deque<DriveEvent, 8>,
 }
 
@@ -242,6 +250,7 @@ impl Drive {
             now_us: 0,
             frame_seen: true,
             last_frame_us: 0,
+            feedback: Feedback::default(),
             events: Deque::new(),
         }
     }
@@ -329,6 +338,7 @@ impl Drive {
         }
 
         self.limit_brake(sched, cfg.od);
+        self.update_feedback(now_us, cfg);
 
         // §8.7 faults
         if self.fault.is_none() {
@@ -476,7 +486,7 @@ impl DriveLayer for Drive {
     }
 
     fn actual_position(&self) -> i32 {
-        self.user_position() as i32
+        self.reported_position() as i32
     }
 
     fn actual_velocity_rpm(&self) -> i32 {
@@ -485,6 +495,10 @@ impl DriveLayer for Drive {
 
     fn error_register(&self) -> u16 {
         self.error_register
+    }
+
+    fn following_error(&self) -> i32 {
+        self.following_error_steps()
     }
 
     fn monitor(&self) -> DriveMonitor {
@@ -507,6 +521,7 @@ impl DriveLayer for Drive {
                 | u16::from(self.switches.ccw_limit) << 1
                 | u16::from(self.switches.home) << 2,
             outputs: u16::from(out.power_stage) | u16::from(out.brake_released) << 1,
+            following_error: self.following_error_steps(),
         }
     }
 
