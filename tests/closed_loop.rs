@@ -99,6 +99,9 @@ fn pa17_takes_0_or_100_and_more_and_pa18_0_or_1() {
     assert_eq!(bus.read(PA17, 2), Ok(vec![0, 0]), "nothing stored");
     assert_eq!(bus.write(PA17, &[4000, 1]), Ok(()));
     assert_eq!(bus.read(PA17, 2), Ok(vec![4000, 1]));
+    assert_eq!(bus.write_single(PA18, 2), Err(3));
+    assert_eq!(bus.write_single(PA18, 0), Ok(()));
+    assert!(!bus.device.params().encoder_inverted());
 }
 
 #[test]
