@@ -188,6 +188,13 @@ impl Params {
     pub fn set_answer_frame_errors(&mut self, on: bool) {
         self.values[54] = u16::from(on);
     }
+    /// PA17: encoder counts per revolution (0: none; else at least
+    /// [`crate::closed_loop::COUNTS_PER_REV_MIN`], which this keeps).
+    pub fn set_encoder_counts_per_rev(&mut self, counts: u16) {
+        if in_range(ENCODER_PA, counts) {
+            self.values[ENCODER_PA] = counts;
+        }
+    }
     /// PA55: the standard Modbus exception profile.
     pub fn set_standard_exceptions(&mut self, on: bool) {
         self.values[55] = u16::from(on);

@@ -21,6 +21,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use modbus_drive::boards::Board;
+use modbus_drive::closed_loop::sim::SimEncoder;
 use modbus_drive::device::{Identity, Response};
 use modbus_drive::dictionary::DriveLayer;
 use modbus_drive::drive::DriveEvent;
@@ -32,7 +33,7 @@ use modbus_drive::rtu::{FrameAssembler, RxEvent, RxFlags, MAX_FRAME};
 use modbus_drive::Device;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
-use super::cli::{AxisLayout, Options};
+use super::cli::{AxisLayout, EncoderFaults, Options};
 use super::console::Console;
 use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
@@ -71,6 +72,9 @@ struct DriveSlot {
     schedule: Box<StepSchedule>,
     /// Step interrupt, motor and switches.
     axis: SimAxis,
+    /// The encoder on the motor (`--encoder`, or PA17 > 0).
+    encoder: SimEncoder,
+    encoder_wired: bool,
     /// Time of the next periodic control call, µs.
     next_control_us: u64,
     last_statusword: u16,
@@ -115,6 +119,9 @@ impl DriveSlot {
             // force at once: no change worth logging
             device.configure(|pa, _| pa.set_address(address));
         }
+        if layout.encoder.on && device.params().encoder_counts_per_rev() == 0 {
+            device.configure(|pa, _| pa.set_encoder_counts_per_rev(SIM_ENCODER_COUNTS));
+        }
         let last_statusword = device.drive().statusword();
         let last_mode = device.drive().mode_display();
         Ok(Self {
@@ -122,6 +129,8 @@ impl DriveSlot {
             store,
             schedule: Box::new(StepSchedule::new()),
             axis: sim_axis(layout, planner.tick_hz),
+            encoder: sim_encoder(layout.encoder),
+            encoder_wired: layout.encoder.on,
             next_control_us: 0,
             last_statusword,
             last_mode,
@@ -156,18 +165,56 @@ impl DriveSlot {
             .set_limit_enable(self.device.params().limit_enable());
         while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
             let at = self.axis.now_us();
+            self.read_encoder();
             let switches = self.forced.apply(self.axis.switches());
             self.device.control(at, switches, &self.schedule);
             self.axis.kick(&self.schedule);
         }
+        self.read_encoder();
         let switches = self.forced.apply(self.axis.switches());
         self.device.control(t_us, switches, &self.schedule);
         self.axis.kick(&self.schedule);
     }
 
+    /// What the firmware's encoder timer does before a control call: the
+    /// counter, here from the simulated motor, scaled as the drive's PA17 /
+    /// PA10 / PA18 say (a wired encoder matches them).
+    fn read_encoder(&mut self) {
+        let pa = self.device.params();
+        if !self.encoder_wired && pa.encoder_counts_per_rev() == 0 {
+            return;
+        }
+        self.encoder.set_scale(
+            pa.encoder_counts_per_rev(),
+            pa.steps_per_rev(),
+            pa.encoder_inverted(),
+        );
+        let raw = self
+            .encoder
+            .update(self.axis.position(), self.axis.is_running());
+        self.device.set_encoder_count(raw);
+    }
+
     fn label(&self) -> String {
         format!("drive {}", self.device.address())
     }
+}
+
+/// PA17 that `--encoder` sets when the drive has none: a 1000-line
+/// encoder after ×4 decoding.
+const SIM_ENCODER_COUNTS: u16 = 4000;
+
+/// The simulated encoder with the `--stall-at` / `--slip` /
+/// `--encoder-noise` faults.
+fn sim_encoder(f: EncoderFaults) -> SimEncoder {
+    let mut e = SimEncoder::new().with_noise(f.noise_counts);
+    if let Some(at) = f.stall_at {
+        e = e.with_stall_at(i64::from(at));
+    }
+    if let Some((steps, at)) = f.slip {
+        e = e.with_slip(i64::from(steps), i64::from(at));
+    }
+    e
 }
 
 /// The simulated axis with the `--cw-limit` / `--ccw-limit` /
