@@ -33,13 +33,14 @@ use modbus_drive::rtu::{FrameAssembler, RxEvent, RxFlags, MAX_FRAME};
 use modbus_drive::Device;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
-use super::cli::{AxisLayout, EncoderFaults, Options};
+use super::cli::{AxisLayout, Options};
 use super::console::Console;
 use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
 use super::transport::{listen_error, Listener, Pty, ReadOutcome, Stream};
 use super::web::{self, ExceptionLog, Forced, WebPort};
 
+mod encoder;
 mod modbus_tcp;
 
 /// Longest sleep of the loop: the status line and trace keep ticking.
@@ -119,9 +120,7 @@ impl DriveSlot {
             // force at once: no change worth logging
             device.configure(|pa, _| pa.set_address(address));
         }
-        if layout.encoder.on && device.params().encoder_counts_per_rev() == 0 {
-            device.configure(|pa, _| pa.set_encoder_counts_per_rev(SIM_ENCODER_COUNTS));
-        }
+        encoder::wire(&mut device, layout.encoder);
         let last_statusword = device.drive().statusword();
         let last_mode = device.drive().mode_display();
         Ok(Self {
@@ -129,7 +128,7 @@ impl DriveSlot {
             store,
             schedule: Box::new(StepSchedule::new()),
             axis: sim_axis(layout, planner.tick_hz),
-            encoder: sim_encoder(layout.encoder),
+            encoder: encoder::sim_encoder(layout.encoder),
             encoder_wired: layout.encoder.on,
             next_control_us: 0,
             last_statusword,
@@ -176,45 +175,9 @@ impl DriveSlot {
         self.axis.kick(&self.schedule);
     }
 
-    /// What the firmware's encoder timer does before a control call: the
-    /// counter, here from the simulated motor, scaled as the drive's PA17 /
-    /// PA10 / PA18 say (a wired encoder matches them).
-    fn read_encoder(&mut self) {
-        let pa = self.device.params();
-        if !self.encoder_wired && pa.encoder_counts_per_rev() == 0 {
-            return;
-        }
-        self.encoder.set_scale(
-            pa.encoder_counts_per_rev(),
-            pa.steps_per_rev(),
-            pa.encoder_inverted(),
-        );
-        let raw = self
-            .encoder
-            .update(self.axis.position(), self.axis.is_running());
-        self.device.set_encoder_count(raw);
-    }
-
     fn label(&self) -> String {
         format!("drive {}", self.device.address())
     }
-}
-
-/// PA17 that `--encoder` sets when the drive has none: a 1000-line
-/// encoder after ×4 decoding.
-const SIM_ENCODER_COUNTS: u16 = 4000;
-
-/// The simulated encoder with the `--stall-at` / `--slip` /
-/// `--encoder-noise` faults.
-fn sim_encoder(f: EncoderFaults) -> SimEncoder {
-    let mut e = SimEncoder::new().with_noise(f.noise_counts);
-    if let Some(at) = f.stall_at {
-        e = e.with_stall_at(i64::from(at));
-    }
-    if let Some((steps, at)) = f.slip {
-        e = e.with_slip(i64::from(steps), i64::from(at));
-    }
-    e
 }
 
 /// The simulated axis with the `--cw-limit` / `--ccw-limit` /
