@@ -59,11 +59,13 @@ pub const PA: [PaDef; PA_COUNT] = {
 /// following error against (SPEC §8.8).
 const ENCODER_PA: usize = 17;
 
-/// Whether `v` is in PA`n`'s range (SPEC §7, §8.8).
-fn in_range(n: usize, v: u16) -> bool {
-    let d = PA[n];
-    let gap = n == ENCODER_PA && v != 0 && v < crate::closed_loop::COUNTS_PER_REV_MIN;
-    d.min <= v && v <= d.max && !gap
+/// Whether `v` is in PA`n`'s range (SPEC §7, §8.8): [`PA`]'s bounds, and
+/// PA17's gap 1..=99 ([`crate::closed_loop::COUNTS_PER_REV_MIN`]).
+#[inline(always)]
+fn in_range(n: usize, d: PaDef, v: u16) -> bool {
+    const GAP: u16 = crate::closed_loop::COUNTS_PER_REV_MIN - 1;
+    // v - 1 < 99 ⇔ 1 ≤ v ≤ 99, one compare
+    d.min <= v && v <= d.max && !(n == ENCODER_PA && v.wrapping_sub(1) < GAP)
 }
 
 /// The working set of parameters.
@@ -96,7 +98,8 @@ impl Params {
 
     /// Whether `v` is in the range of PA`n` (read-only ones accept nothing).
     pub fn valid(n: usize, v: u16) -> bool {
-        !PA[n].read_only && in_range(n, v)
+        let d = PA[n];
+        !d.read_only && in_range(n, d, v)
     }
 
     /// Stores `v` in PA`n` without checks: the caller has validated it.
@@ -116,7 +119,7 @@ impl Params {
             let d = PA[n];
             if d.read_only {
                 self.values[n] = d.default;
-            } else if in_range(n, v) {
+            } else if in_range(n, d, v) {
                 self.values[n] = v;
             } else {
                 self.values[n] = d.default;
@@ -191,7 +194,7 @@ impl Params {
     /// PA17: encoder counts per revolution (0: none; else at least
     /// [`crate::closed_loop::COUNTS_PER_REV_MIN`], which this keeps).
     pub fn set_encoder_counts_per_rev(&mut self, counts: u16) {
-        if in_range(ENCODER_PA, counts) {
+        if in_range(ENCODER_PA, PA[ENCODER_PA], counts) {
             self.values[ENCODER_PA] = counts;
         }
     }
