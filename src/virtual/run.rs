@@ -485,8 +485,14 @@ impl VirtualDrive {
                 self.console.log(&format!("trace: {e}"));
             }
             let counters = d.device.slave().counters();
+            // the following error beside the position once an encoder is in use
+            let ferr = if drive.closed_loop() {
+                format!(" ferr {}", drive.following_error())
+            } else {
+                String::new()
+            };
             status.push(format!(
-                "@{} {:?} sw 0x{:04X} mode {} pos {} vel {} r/min frames {} errors {}",
+                "@{} {:?} sw 0x{:04X} mode {} pos {}{ferr} vel {} r/min frames {} errors {}",
                 sample.address,
                 drive.state(),
                 sample.statusword,
