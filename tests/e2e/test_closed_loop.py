@@ -75,3 +75,30 @@ def test_a_stall_faults_the_drive_and_fault_reset_and_re_enable_work(start_drive
     time.sleep(0.05)
     assert not m.statusword() & BIT13
     assert abs(m.read32(ACTUAL_POSITION)) <= 2
+
+
+def test_a_slip_below_the_window_runs_on_and_one_above_it_faults(start_drive):
+    """A drive slipping 150 steps (window 200: no fault,
+    the error stays), and one slipping 500 (fault, bit 13, 0x1001 bit 5)."""
+    for slip, faults in (("150@30000", False), ("500@30000", True)):
+        d = start_drive("--no-status", "--slip", slip, "--encoder-noise", "2", pty=False)
+        m = Master(d.client("tcp"))
+        m.write32(FOLLOWING_ERROR_WINDOW, 200, signed=False)
+        m.write(FOLLOWING_ERROR_TIMEOUT, 10)
+        m.enable()
+        move_to(m, 100_000)
+        if faults:
+            m.wait(lambda s: s & FAULT_MASK == FAULT, 5, "the following-error fault")
+            assert m.statusword() & BIT13
+            assert m.read(ERROR_REGISTER) == 1 << 5
+        else:
+            m.wait(lambda s: s & TARGET_REACHED and s & STATE_MASK == OPERATION_ENABLED, 5,
+                   "the end of the move")
+            time.sleep(0.05)
+            sw = m.statusword()
+            assert sw & STATE_MASK == OPERATION_ENABLED and not sw & BIT13, hex(sw)
+            assert m.read(ERROR_REGISTER) == 0
+            # ±2 counts of noise are ±5 steps at 4000 counts / 10 000 steps
+            assert 145 <= m.read32(FOLLOWING_ERROR_ACTUAL) <= 156
+            assert 99_844 <= m.read32(ACTUAL_POSITION) <= 99_855
+        d.stop()
