@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# e2e stage (issue 4): the release binary of the virtual drive, started as a
+# e2e stage (docs/testing.md): the release binary of the virtual drive, started as a
 # user starts it, driven by real Modbus masters (pymodbus over the pty and
 # over TCP, mbpoll and socat over the pty, pymodbus, mbpoll and Node
 # modbus-serial over Modbus TCP). Run by .ci/run.

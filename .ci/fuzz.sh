@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fuzz stage of .ci/run (issue 7, README "Proof"): every cargo-fuzz target
+# Fuzz stage of .ci/run (docs/testing.md): every cargo-fuzz target
 # for FUZZ_SECONDS (default 60) each, seeded with fuzz/regressions/<target>/.
 # An input that breaks an invariant is copied to fuzz/regressions/<target>/
 # (commit it: `cargo test` replays it from then on) and the stage fails.

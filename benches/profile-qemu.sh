@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Where a workload's instructions go, per function (issue 7, README "Proof"):
+# Where a workload's instructions go, per function (docs/benchmarks.md):
 #   benches/profile-qemu.sh drive-fc06      (see bench::profile for names)
 # Runs one call of it on QEMU mps2-an386 with a trace of every executed
 # translation block and sums the instructions of each block per function

@@ -15,6 +15,7 @@
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod arith;
 pub mod boards;
 pub mod closed_loop;
 pub mod device;

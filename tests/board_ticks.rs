@@ -1,8 +1,8 @@
 //! Every documented motion limit at each board's real step tick
 //! (`boards::Board`, the planner as the firmware configures it): a move at
 //! the limit starts, reaches its target, and its pulses follow the ideal
-//! profile (issue 3's step time bound) within the limit's velocity and
-//! acceleration. Limits (README "Units and limits", SPEC §8.4–§8.6):
+//! profile (the planner's step time bound) within the limit's velocity and
+//! acceleration. Limits (docs/drive.md "Units and limits", SPEC §8.4–§8.6):
 //! acceleration and deceleration 2 000 000 steps/s² (0x6083 / 0x6084 /
 //! 0x6085 / 0x609A = 2000 at PA10 = 10000), 200 000 steps/s (0x6081 = 200),
 //! homing 0x6099 / 0x609B up to 100000 capped at 300 r/min (methods 1–4)

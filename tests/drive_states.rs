@@ -477,7 +477,7 @@ fn mode_bits_in_every_state() {
 /// change there is no previous position-mode target; the change stops the
 /// old motion with 0x6084 and a relative set-point counts from where the
 /// motor comes to rest, whether it is latched after the stop or during it
-/// (README, Position mode).
+/// (docs/drive.md, Position mode).
 #[test]
 fn relative_set_point_after_a_mode_change_counts_from_rest() {
     let mut ends = Vec::new();
@@ -520,7 +520,7 @@ fn relative_set_point_after_a_mode_change_counts_from_rest() {
     assert_eq!(ends[0], ends[1], "latched during the stop or after it");
 }
 
-/// A mode change with 0x6084 = 0 stops at once (README); until the step
+/// A mode change with 0x6084 = 0 stops at once (docs/drive.md); until the step
 /// interrupt has done so the rest position is not known: bit 12 = 0 and a
 /// set-point edge is ignored (SPEC §8.4), then the slot frees.
 #[test]
@@ -550,7 +550,7 @@ fn mode_change_with_a_stop_at_once_frees_the_slot_at_rest() {
 }
 
 /// SPEC §8.1: halt decelerates with 0x6084 in position and velocity mode
-/// (not with 0x6085), at once when 0x6084 = 0 (README).
+/// (not with 0x6085), at once when 0x6084 = 0 (docs/drive.md).
 #[test]
 fn halt_decelerates_with_0x6084() {
     // cruising at 100000 steps/s; 0x6084 = 1e6 steps/s²: 5000 steps

@@ -99,7 +99,7 @@ fn home(m: i16, from: i64, offset: i32) -> i64 {
 /// reverse; stop on the home switch"): from the right of the switch it
 /// meets the right edge moving left; from its left it reverses at the CW
 /// limit and meets the left edge moving right; started on the switch it
-/// leaves it to the right and comes back to the right edge (README). 4 is
+/// leaves it to the right and comes back to the right edge (docs/drive.md). 4 is
 /// the mirror.
 fn origin(m: i16, from: i64) -> i64 {
     match m {
@@ -206,7 +206,7 @@ fn bad_parameters_fail_at_standstill() {
 }
 
 /// SPEC §8.1: halt decelerates with 0x6084 in homing too (not with the
-/// homing ramp 0x609A), at once when 0x6084 = 0 (README); halted at rest
+/// homing ramp 0x609A), at once when 0x6084 = 0 (docs/drive.md); halted at rest
 /// the status is 001 (§8.6 "interrupted"), and the search resumes.
 #[test]
 fn halt_decelerates_with_0x6084_and_resumes() {
@@ -406,7 +406,7 @@ fn latched_edge_is_the_origin_for_every_method() {
 }
 
 /// The same glue without the latch takes the origin where the debounced
-/// change was seen: late in the direction of travel (README "Homing
+/// change was seen: late in the direction of travel (docs/drive.md "Homing
 /// origin") — what the latch above corrects.
 #[test]
 fn without_the_latch_the_origin_is_late() {

@@ -1,4 +1,4 @@
-//! Exactness of the planner and step schedule (issue 3, SPEC §8.4/§8.5):
+//! Exactness of the planner and step schedule (SPEC §8.4/§8.5):
 //! final position exact, step times within min(1 µs, 5 %) of the continuous
 //! profile, velocity ≤ +0.5 %, acceleration ≤ +2 % after the first 10
 //! steps, direction changes only at rest, nothing scheduled in the past.
@@ -233,7 +233,7 @@ fn goal_changes(targets: &[(i64, u64)], v: f64, a: f64, d: f64) -> PlannerRun {
 /// The margins behind the README's precision figures, on the seed's move
 /// (200000 steps, 5 r/s, 10 r/s² at PA10 = 10000, 10 MHz timer): step
 /// times within 0.25 µs of the continuous trapezoid (measured 0.107 µs:
-/// the segment fit may use up to half of issue 3's 1 µs, `segment_len`),
+/// the segment fit may use up to half of the planner's 1 µs bound, `segment_len`),
 /// velocity never above the commanded one (1e-9), acceleration ≤ +0.1 %
 /// after the first 10 steps (measured +0.06 %), fewer than 5000 fitted
 /// segments (measured 1565).
@@ -304,7 +304,7 @@ fn slow_cruise(tick_hz: u32) -> PlannerRun {
 }
 
 /// A change of goal takes effect within the horizon however long the
-/// segments are (README "Planner and precision"): at a slow cruise the
+/// segments are (docs/drive.md "Planner and precision"): at a slow cruise the
 /// segments are fitted 64 steps (128 ms) long, yet a stop given mid-cruise
 /// starts decelerating after at most the horizon (3 ms) and one step —
 /// its steps pushed beyond the horizon are taken back.
@@ -349,7 +349,7 @@ fn a_new_goal_takes_effect_within_the_horizon() {
 }
 
 /// A segment is pushed whole and a new goal takes back its steps due
-/// after the horizon in the next control call (README "Planner and
+/// after the horizon in the next control call (docs/drive.md "Planner and
 /// precision"). If that call comes so late that the interrupt has already
 /// reached the cut, the planner stops at once (counted as an underrun)
 /// and plans the goal again from where the motor is: the move still ends
@@ -382,12 +382,12 @@ fn a_cut_the_interrupt_passed_first_plans_the_goal_again() {
 }
 
 /// A goal that cuts a pushed segment continues the steps made without a
-/// jump (README "Planner and precision"). The sequence is the one
+/// jump (docs/drive.md "Planner and precision"). The sequence is the one
 /// `random_velocity_changes` found (its regression file keeps it too):
 /// three speed changes while accelerating, a reversal, and a stop with the
 /// same deceleration given 4 to 11 ms into the reversal, so at several
 /// points inside its segments; the acceleration between consecutive
-/// intervals must stay within issue 3's +2 % across every cut. Starting
+/// intervals must stay within the planner's +2 % bound across every cut. Starting
 /// the next segment from the profile's exact time and `1/v` at the cut
 /// instead (where the fit is off by up to its error bound), 4 of these 8
 /// stops fail, by up to +3.0 %.

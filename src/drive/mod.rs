@@ -20,6 +20,7 @@ mod velocity;
 
 use heapless::Deque;
 
+use crate::arith::div_i64;
 use crate::dictionary::{Config, DriveLayer, OdValues};
 use crate::motion::{
     Fill, Goal, HomingError, Planner, PlannerConfig, StepSchedule, SwitchEdges, Switches,
@@ -490,7 +491,7 @@ impl DriveLayer for Drive {
     }
 
     fn actual_velocity_rpm(&self) -> i32 {
-        (self.velocity * 6 / self.s.steps_per_rev as i64) as i32
+        div_i64(self.velocity * 6, self.s.steps_per_rev as i64) as i32
     }
 
     fn error_register(&self) -> u16 {
@@ -509,13 +510,15 @@ impl DriveLayer for Drive {
             .or(self.last_target)
             .unwrap_or(self.user_position());
         let speed_command = match self.mode {
-            MODE_VELOCITY => i64::from(self.s.profile_velocity) * 60 / 10,
-            _ => self.active.map_or(0, |a| a.ramp.velocity as i64 * 6 / spr),
+            MODE_VELOCITY => i64::from(self.s.profile_velocity) * 6,
+            _ => self
+                .active
+                .map_or(0, |a| div_i64(a.ramp.velocity as i64 * 6, spr)),
         };
         let out = self.outputs();
         DriveMonitor {
             command_position: command as i32,
-            step_rate_steps_per_s: (self.velocity / 10) as i32,
+            step_rate_steps_per_s: div_i64(self.velocity, 10) as i32,
             speed_command_rpm: speed_command as i32,
             inputs: u16::from(self.switches.cw_limit)
                 | u16::from(self.switches.ccw_limit) << 1

@@ -1,6 +1,7 @@
 //! The configuration the drive works with, as step figures (PA10, PA12
 //! and the OD's ramps in steps).
 
+use crate::arith::div_u64;
 use crate::dictionary::{Config, OdValues};
 use crate::motion::planner::MAX_STEP_RATE;
 use crate::motion::{HomingMethod, Ramp};
@@ -110,7 +111,7 @@ impl Settings {
 
 /// r/min → 0.1 steps/s, capped at the maximum step rate.
 pub(super) fn rpm_to_velocity(rpm: u64, steps_per_rev: u64) -> u64 {
-    (rpm * steps_per_rev / 6).min(u64::from(MAX_STEP_RATE) * 10)
+    div_u64(rpm * steps_per_rev, 6).min(u64::from(MAX_STEP_RATE) * 10)
 }
 
 #[cfg(test)]

@@ -1,7 +1,7 @@
-//! The dispatcher task: closed frames → `Device::handle_rx` → (EE operation
-//! on the parameter store) → reply after `Device::reply_delay_us` →
-//! `Device::reply_sent` (SPEC §1, §3, §7, §9). It also logs what the core
-//! reports (`Device::take_event`).
+//! The dispatcher task: hands each closed frame to `Device::poll` (SPEC §1,
+//! §3, §7, §9), then sends the reply `poll` queued at its time and puts a
+//! new line format in force. It also logs what the core reports
+//! (`Device::take_event`).
 //!
 //! The device lives in `DEVICE`, a thread-mode mutex: only tasks of the
 //! thread-mode executor (this one and the control loop) touch it, never an
@@ -9,6 +9,7 @@
 
 use core::cell::RefCell;
 use core::sync::atomic::Ordering;
+use modbus_drive::arith::div_u64;
 
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
 use embassy_stm32::mode::Blocking;
@@ -16,20 +17,21 @@ use embassy_stm32::usart::Uart;
 use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::once_lock::OnceLock;
-use modbus_drive::device::Response;
+use modbus_drive::device::{Line, Request, Storage};
 use modbus_drive::event::Event;
 use modbus_drive::params::ParamStore;
-use modbus_drive::rtu::MAX_FRAME;
+use modbus_drive::rtu::{LineConfig, MAX_FRAME};
 use modbus_drive::Device;
 
-use super::calc::{reply_wait_us, RateLimit};
+use super::calc::RateLimit;
 use super::flash::FlashRegion;
-use super::rs485::{self, FRAMES, FRAMES_DROPPED};
+use super::rs485::{self, RxFrame, FRAMES_DROPPED};
+use super::steps;
 
 /// The drive core, shared by the dispatcher and the control loop.
 /// Installed once by `main` ([`install`]). A `OnceLock` is zero-initialised
 /// (.bss): an `Option<Device>` initialiser is not (`None` is a niche value),
-/// and its 2 KiB image would sit in flash as .data (README "Sizes").
+/// and its image would sit in flash as .data.
 static DEVICE: OnceLock<Mutex<ThreadModeRawMutex, RefCell<Device>>> = OnceLock::new();
 
 /// The parameter store (SPEC §9) on the board's parameter pages.
@@ -64,7 +66,7 @@ impl EventLog {
 
     pub fn drain(&mut self) {
         while let Some(Some(event)) = with_device(|d| d.take_event()) {
-            let now_ms = embassy_time::Instant::now().as_millis() as u32;
+            let now_ms = div_u64(embassy_time::Instant::now().as_micros(), 1000) as u32;
             match event {
                 Event::FrameError { .. } => {
                     if let Some(suppressed) = self.frame_errors.allow(now_ms) {
@@ -90,35 +92,46 @@ impl EventLog {
     }
 }
 
-#[embassy_executor::task]
-pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
-    let mut reply = [0u8; MAX_FRAME];
-    let mut log = EventLog::new();
-    loop {
-        let rx = FRAMES.receive().await;
-        let Some((mut response, delay_us)) =
-            with_device(|d| (d.handle_rx(rx.event(), &mut reply), d.reply_delay_us()))
-        else {
-            continue;
-        };
-        // An accepted EE request (SPEC §9) runs now; its reply is deferred
-        // until it is done. Erasing stalls the CPU's flash reads (single
-        // bank), so interrupts wait too: save with the motor at rest.
-        if let Some(Some(deferred)) = with_device(|d| {
-            d.pending_ee()
-                .and_then(|_| d.poll_storage(&mut store, &mut reply))
-        }) {
-            response = deferred;
+/// The RS-485 line as [`Device::poll`] sees it: the frame the link
+/// received, and the reply and line format `poll` queues, which the task
+/// carries out after it, in that order ([`Rs485Line::carry_out`]).
+struct Rs485Line<'a> {
+    received: Option<&'a RxFrame>,
+    /// The time driver's µs now, and the frame's last byte on that scale
+    /// (the link stamps bytes with its wrapping 32-bit µs).
+    now_us: u64,
+    last_byte_us: u64,
+    reply: [u8; MAX_FRAME],
+    /// Bytes of `reply` to send, and when.
+    queued: Option<(usize, u64)>,
+    line: Option<LineConfig>,
+}
+
+impl<'a> Rs485Line<'a> {
+    fn new(received: &'a RxFrame) -> Self {
+        let now_us = embassy_time::Instant::now().as_micros();
+        let ago = (now_us as u32).wrapping_sub(received.last_byte_at_us());
+        Self {
+            received: Some(received),
+            now_us,
+            last_byte_us: now_us.saturating_sub(u64::from(ago)),
+            reply: [0; MAX_FRAME],
+            queued: None,
+            line: None,
         }
-        log.drain();
-        if let Response::Reply(n) = response {
-            let wait = reply_wait_us(rs485::now_us(), rx.last_byte_at_us, delay_us);
-            embassy_time::Timer::after_micros(u64::from(wait)).await;
-            rs485::send(&reply[..n.min(MAX_FRAME)]).await;
+    }
+
+    /// Sends the queued reply at its time, then puts a new line format in
+    /// force (SPEC §7: after the reply).
+    async fn carry_out(&mut self, uart: &mut Uart<'static, Blocking>) {
+        if let Some((n, at_us)) = self.queued.take() {
+            embassy_time::Timer::at(embassy_time::Instant::from_micros(at_us)).await;
+            if n > 0 {
+                rs485::send(&self.reply[..n]).await;
+            }
         }
-        // a new address or line format takes effect after the reply (SPEC §7)
-        if let Some(Some(line)) = with_device(|d| d.reply_sent()) {
-            if let Err(e) = rs485::apply_line(&mut uart, line) {
+        if let Some(line) = self.line.take() {
+            if let Err(e) = rs485::apply_line(uart, line) {
                 defmt::error!(
                     "line {} refused by the USART: {}",
                     line,
@@ -126,6 +139,62 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
                 );
             }
         }
+    }
+}
+
+impl Line for Rs485Line<'_> {
+    fn receive(&mut self) -> Option<Request<'_>> {
+        let received = self.received.take()?;
+        Some(Request {
+            event: received.event(),
+            last_byte_us: Some(self.last_byte_us),
+        })
+    }
+
+    fn send(&mut self, bytes: &[u8], at_us: u64) {
+        let n = bytes.len().min(MAX_FRAME);
+        self.reply[..n].copy_from_slice(&bytes[..n]);
+        self.queued = Some((n, at_us));
+    }
+
+    fn reconfigure(&mut self, line: LineConfig) {
+        self.line = Some(line);
+    }
+}
+
+/// The parameter store as [`Device::poll`] sees it. An accepted EE request
+/// (SPEC §9) runs inside `poll`, its reply deferred until it is done.
+/// Erasing or programming stalls every fetch from the single flash bank,
+/// interrupts included, so it starts only with the step output idle (the
+/// core refuses it while statusword bit 9 is set; this is the glue's own
+/// check of the step schedule), and nothing can queue a step until it is
+/// done: the control loop shares this thread.
+struct FlashStorage<'s>(&'s mut Store);
+
+impl Storage for FlashStorage<'_> {
+    type Flash = FlashRegion<Flash<'static, FlashBlocking>>;
+    fn store(&mut self) -> &mut Store {
+        self.0
+    }
+    fn ready(&mut self) -> bool {
+        steps::idle()
+    }
+}
+
+#[embassy_executor::task]
+pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
+    let mut log = EventLog::new();
+    loop {
+        let rx = rs485::receive().await;
+        #[cfg(feature = "fault-test")]
+        super::fault::test_trigger(rx.event());
+        let mut line = Rs485Line::new(&rx);
+        let mut storage = FlashStorage(&mut store);
+        if with_device(|d| d.poll(line.now_us, &mut line, &mut storage)).is_none() {
+            continue;
+        }
+        log.drain();
+        line.carry_out(&mut uart).await;
         log.drain();
     }
 }

@@ -119,8 +119,12 @@ impl FrameTiming {
     }
 }
 
+/// Rounded-up division in 32 bits: every operand above fits (at most
+/// 35 × 11 × 10⁶ over a 32-bit baud rate, or 10 × 19200 in the branch
+/// that multiplies it), and a 64-bit division is a software routine on
+/// the firmware's core.
 const fn div_ceil(a: u64, b: u64) -> u64 {
-    a.div_ceil(b)
+    (a as u32).div_ceil(b as u32) as u64
 }
 
 #[cfg(test)]

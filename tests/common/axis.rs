@@ -1,6 +1,6 @@
 //! Motion test harness: a [`Planner`] (or a whole `Device`) driven by a
 //! control loop over a [`SimAxis`], recording every step, and the checks of
-//! issue 3's exactness bounds.
+//! the planner's exactness bounds (docs/drive.md).
 #![allow(dead_code)]
 
 use modbus_drive::closed_loop::sim::SimEncoder;
@@ -101,7 +101,7 @@ pub fn exact_velocities(steps: &[StepRecord], tick_hz: u32) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// Checks issue 3's velocity and acceleration bounds and the "direction
+/// Checks the planner's velocity and acceleration bounds and the "direction
 /// changes only at rest" rule on the exact schedule times:
 /// |v| ≤ v_max·1.005, and after the first 10 steps of each run from rest
 /// the acceleration between two intervals ≤ a_max·1.02.
@@ -280,7 +280,7 @@ fn to_rest(forward: bool, s0: f64, t0: f64, dist: i64, v: f64, a: f64, d: f64) -
 }
 
 /// A stop from speed `s0` at time `t0` to rest after exactly `n` whole
-/// steps: cruise, then `d`, as the planner's stops do (README); when `n`
+/// steps: cruise, then `d`, as the planner's stops do (docs/drive.md); when `n`
 /// is a hair short of the continuous stop distance (see `ideal_goal`), the
 /// ramp over `n` steps is correspondingly a hair steeper.
 fn stop_run(forward: bool, s0: f64, t0: f64, n: i64, d: f64) -> Run {

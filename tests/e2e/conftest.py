@@ -1,4 +1,4 @@
-"""Harness for the end-to-end tests (issue 4): the release binary, started
+"""Harness for the end-to-end tests: the release binary, started
 as a user starts it, driven by real Modbus masters over its pseudo-terminal
 and over TCP. Every started process is stopped in a `finally`, whatever the
 test did; every wait has a timeout."""

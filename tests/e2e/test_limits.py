@@ -1,4 +1,4 @@
-"""Limits as a commissioning engineer meets them (issue 18): a stop at a
+"""Limits as a commissioning engineer meets them: a stop at a
 limit switch begins at the step where the edge is seen and takes the
 distance 0x6085 gives; a fault the drive starts in is logged at start-up,
 on no client's account."""

@@ -1,5 +1,5 @@
 """mbpoll (Debian's libmodbus master) over the pseudo-terminal: a read of
-0x6041 and a write of 0x6083 (issue 4). `-P none`: mbpoll's default parity
+0x6041 and a write of 0x6083. `-P none`: mbpoll's default parity
 is even, the drive's line is 8N1 (SPEC §1)."""
 
 import re

@@ -1,4 +1,4 @@
-"""Modbus TCP (`--modbus-tcp`, issue 18): MBAP framing as HMI/SCADA tools,
+"""Modbus TCP (`--modbus-tcp`): MBAP framing as HMI/SCADA tools,
 PLC soft-masters and pymodbus' default TCP client speak it, per the
 "MODBUS Messaging on TCP/IP Implementation Guide V1.0b": transaction id
 echoed, protocol id 0, length checked, unit id routed to the drive with

@@ -1,5 +1,5 @@
 """The program as a user meets it: flags, `ready`, transports, signals,
-trace and plot (issue 4)."""
+trace and plot."""
 
 import csv
 import os

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Soak on the virtual drive (issue 7, README "Proof"): the release binary,
+# Soak on the virtual drive (docs/testing.md): the release binary,
 # two drives on one bus, bus noise while both move, then the fault checks.
 #   tests/soak/run.sh                  # 100,000 frames (the documented run)
 #   tests/soak/run.sh --frames 10000   # the CI run

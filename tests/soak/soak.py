@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Bus-noise soak and fault checks on the virtual drive (issue 7, README "Proof").
+"""Bus-noise soak and fault checks on the virtual drive (docs/testing.md).
 
     tests/soak/run.sh                 # 100,000 frames + fault checks
     tests/soak/run.sh --frames 10000  # what .ci/e2e-time budgets allow

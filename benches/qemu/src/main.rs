@@ -1,4 +1,4 @@
-//! Cortex-M4 instruction counts on QEMU's `mps2-an386` (issue 7).
+//! Cortex-M4 instruction counts on QEMU's `mps2-an386` (docs/benchmarks.md).
 //!
 //! QEMU runs with `-icount shift=0`: virtual time advances 1 ns per executed
 //! instruction. SysTick counts the 25 MHz CPU clock (CLKSOURCE = 1), so one
@@ -8,7 +8,7 @@
 //! scale before anything else is trusted.
 //!
 //! Output goes through semihosting; the exit status is non-zero when a
-//! result is wrong or a target (README "Proof") is missed.
+//! result is wrong or a target (docs/benchmarks.md) is missed.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
 

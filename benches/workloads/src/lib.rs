@@ -1,5 +1,5 @@
 //! The calls the benchmarks measure, on the same inputs for the drive core
-//! and for the libraries a user would pick instead (issue 7).
+//! and for the libraries a user would pick instead.
 //!
 //! Every workload is an `#[inline(never)]` function taking `&mut` state and
 //! returning a value that depends on the work done, so that the runner can
@@ -382,7 +382,7 @@ pub const MOVE_RAMP: Ramp = Ramp {
     decel: RAMP_ACCEL_STEPS_PER_S2 as u64 * 10,
 };
 
-/// The seed's move (`seed_move_precision_margins`, README "Planner and
+/// The seed's move (`seed_move_precision_margins`, docs/drive.md "Planner and
 /// precision"): 200 000 steps at 50 000 steps/s, 100 000 steps/s² — a
 /// faster move, on which the planner's per-call and per-segment costs
 /// spread over more steps. Reported for information, without a target.

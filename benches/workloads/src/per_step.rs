@@ -1,4 +1,4 @@
-//! A design experiment, not the drive's planner (README "Proof"): the bench
+//! A design experiment, not the drive's planner (docs/benchmarks.md): the bench
 //! triangle's step times computed one by one, exactly, instead of fitted
 //! per segment and expanded — how much a per-step planner would cost on
 //! the Cortex-M4 in the same rhythm (a call every 1 ms that fills 3 ms
@@ -17,7 +17,7 @@
 //!
 //! It is deliberately the cheapest case: one move, no cruise, no change
 //! of goal, no direction, no velocity shown, and a 2^-10-tick root that
-//! only fits this move (issue 3's acceleration bound needs about
+//! only fits this move (the planner's acceleration bound needs about
 //! 2^-16 tick at 200 000 steps/s, and 64-bit roots there). Its cost is
 //! therefore a floor for a per-step design written like the rest of the
 //! core (safe Rust: no assembly), not an estimate of one.

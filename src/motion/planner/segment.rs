@@ -3,6 +3,7 @@
 
 use super::slots::SlotInfo;
 use super::{Planner, SCHEDULE_SLOTS};
+use crate::arith::div_i64;
 use crate::motion::profile::w_along;
 use crate::motion::schedule::{Segment, StepSchedule};
 
@@ -213,7 +214,7 @@ impl Planner {
             .wrapping_add(r.add2.wrapping_mul(20))
             .wrapping_add(r.add3.wrapping_mul(-15))
             .wrapping_add(r.add4.wrapping_mul(12));
-        self.s_join = r.interval.wrapping_add((higher / 60) as u64);
+        self.s_join = r.interval.wrapping_add(div_i64(higher, 60) as u64);
         self.s_end = 0;
         taken
     }

@@ -42,7 +42,7 @@ impl SlotInfo {
         } else {
             b2 + (((a2 - b2) * left) >> k)
         };
-        let v = w.isqrt() as i64;
+        let v = crate::arith::isqrt_u64(w) as i64;
         if b < 0 || (b == 0 && a < 0) {
             -v
         } else {

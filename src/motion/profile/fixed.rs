@@ -4,6 +4,9 @@
 //! loop on a 32-bit core).
 
 use super::V_FRAC;
+#[cfg(test)]
+pub(super) use crate::arith::div_u64_by_u32;
+use crate::arith::{div_u128_by_u64, isqrt_u64};
 
 /// v² after `dx` (Q32 steps) on a piece of v² slope `slope` (per Q32
 /// unit) from v² = `w`: v² is linear in the position on a piece.
@@ -78,76 +81,30 @@ pub(super) fn log2_q8_up(x: u64) -> i32 {
 pub(crate) fn div(n: u128, d: u128) -> u128 {
     match u64::try_from(d) {
         Ok(d64) if d64 != 0 && n >> 64 < d => u128::from(div_u128_by_u64(n, d64)),
-        _ => n / d,
+        _ => div_long(n, d),
     }
 }
 
-/// `n / d` for `n >> 64 < d` (the quotient fits 64 bits): Knuth's
-/// algorithm D with two 32-bit digits (Hacker's Delight `divlu`), two
-/// 64-by-32 divisions.
-pub(super) fn div_u128_by_u64(n: u128, d: u64) -> u64 {
-    const B: u64 = 1 << 32;
-    let (u1, u0) = ((n >> 64) as u64, n as u64);
-    let s = d.leading_zeros();
-    let v = d << s;
-    let (vn1, vn0) = (v >> 32, v & (B - 1));
-    let un32 = if s == 0 {
-        u1
-    } else {
-        (u1 << s) | (u0 >> (64 - s))
-    };
-    let un10 = u0 << s;
-    let (un1, un0) = (un10 >> 32, un10 & (B - 1));
-    // one quotient digit of (hi:lo) / v, Knuth's estimate from the top
-    // digit then at most two corrections
-    let digit = |hi: u64, lo: u64| {
-        let (mut q, mut r) = if hi >> 32 >= vn1 {
-            (B - 1, hi - (B - 1) * vn1)
-        } else {
-            let q = u64::from(div_u64_by_u32(hi, vn1 as u32));
-            (q, hi - q * vn1)
-        };
-        while r < B && q * vn0 > (r << 32) + lo {
-            q -= 1;
-            r += vn1;
+/// `n / d` one quotient bit at a time: the rare case of [`div`] (a
+/// quotient or divisor above 64 bits). core's generic u128 division
+/// is fast but large on a 32-bit core, and flash is the scarce resource.
+#[inline(never)]
+fn div_long(n: u128, d: u128) -> u128 {
+    assert!(d != 0, "attempt to divide by zero");
+    // the dividend shifts out of `q` into the remainder as the quotient
+    // bits shift in (constant shifts only: short on a 32-bit core)
+    let (mut q, mut r) = (n, 0u128);
+    for _ in 0..128 {
+        // a remainder shifted past 128 bits is above any divisor
+        let over = r >> 127 != 0;
+        r = (r << 1) | (q >> 127);
+        q <<= 1;
+        if over || r >= d {
+            r = r.wrapping_sub(d);
+            q |= 1;
         }
-        q
-    };
-    let q1 = digit(un32, un1);
-    let un21 = (un32 << 32)
-        .wrapping_add(un1)
-        .wrapping_sub(q1.wrapping_mul(v));
-    let q0 = digit(un21, un0);
-    (q1 << 32) | q0
-}
-
-/// `u / v` for a normalised `v` (top bit set) and `u >> 32 < v`, with
-/// 32-bit divisions only (the Cortex-M `udiv`; a 64-bit division is a
-/// software routine there): `divlu` on 16-bit half digits.
-pub(super) fn div_u64_by_u32(u: u64, v: u32) -> u32 {
-    const B: u32 = 1 << 16;
-    let (vn1, vn0) = (v >> 16, v & (B - 1));
-    let un32 = (u >> 32) as u32;
-    let un10 = u as u32;
-    let (un1, un0) = (un10 >> 16, un10 & (B - 1));
-    let digit = |hi: u32, lo: u32| {
-        let mut q = hi / vn1;
-        let mut r = hi - q * vn1;
-        while q >= B || q * vn0 > (r << 16) + lo {
-            q -= 1;
-            r += vn1;
-            if r >= B {
-                break;
-            }
-        }
-        q
-    };
-    let q1 = digit(un32, un1);
-    let un21 = (un32 << 16)
-        .wrapping_add(un1)
-        .wrapping_sub(q1.wrapping_mul(v));
-    let q0 = digit(un21, un0);
-    (q1 << 16) | q0
+    }
+    q
 }
 
 /// `⌊√w⌋`: the root of the top 64 bits, then one Newton step with a
@@ -157,30 +114,31 @@ pub(super) fn div_u64_by_u32(u: u64, v: u32) -> u32 {
 pub(crate) fn isqrt(w: u128) -> u128 {
     let bits = 128 - w.leading_zeros();
     if bits <= 64 {
-        return u128::from((w as u64).isqrt());
+        return u128::from(isqrt_u64(w as u64));
     }
+    // a root below 2^64 squares in 64 bits, which a 32-bit core
+    // multiplies in far fewer instructions than u128 ones
+    let square = |y: u128| u128::from(y as u64) * u128::from(y as u64);
     if bits > 124 {
         // the Newton step below is exact to ±1 up to here; above (never
-        // for the planner's capped speeds) digit by digit: short and exact
-        let (mut rem, mut root, mut bit) = (w, 0u128, 1u128 << ((bits - 1) & !1));
-        while bit != 0 {
-            if rem >= root + bit {
-                rem -= root + bit;
-                root = (root >> 1) + bit;
-            } else {
-                root >>= 1;
-            }
-            bit >>= 2;
-        }
-        return root;
+        // for the planner's capped speeds) from the root of w / 4:
+        // ⌊√w⌋ is twice it or one more
+        let r = isqrt(w >> 2) << 1;
+        let r1 = r + 1;
+        return if r1 >> 64 == 0 && square(r1) <= w {
+            r1
+        } else {
+            r
+        };
     }
     let k = (bits - 63) / 2; // w >> 2k keeps 63 or 64 bits
-    let y0 = u128::from(((w >> (2 * k)) as u64).isqrt()) << k;
+    let y0 = u128::from(isqrt_u64((w >> (2 * k)) as u64)) << k;
     // y0 ≤ √w within 2^-31; w / y0 < 2^64 since √w < 2^64
     let y = (y0 + div(w, y0)) / 2;
-    if y * y > w {
+    // y and y + 1 are below 2^63 (√w < 2^62)
+    if square(y) > w {
         y - 1
-    } else if (y + 1) * (y + 1) <= w {
+    } else if square(y + 1) <= w {
         y + 1
     } else {
         y

@@ -5,7 +5,7 @@
 use modbus_drive::closed_loop::sim::SimEncoder;
 use modbus_drive::Device;
 
-use super::DriveSlot;
+use super::drive_slot::DriveSlot;
 use crate::virtual_drive::cli::EncoderFaults;
 
 /// PA17 that `--encoder` sets when the drive has none: a 1000-line
