@@ -2,9 +2,9 @@
 //! stall or lose steps, read back through a simulated 16-bit encoder
 //! counter, scaled to steps and checked every 1 ms control period.
 //!
-//! The drive's reaction (quick stop, fault state, statusword and 0x1001
-//! bits) is not wired to the check yet; these tests pin down when the check
-//! says "fault" and when it must not.
+//! These tests pin down when the check says "fault" and when it must not;
+//! the drive's reaction to it (quick stop, fault state, statusword and
+//! 0x1001 bits) is tested through frames in `tests/closed_loop.rs`.
 
 use modbus_drive::closed_loop::{
     CountsToSteps, Encoder, FollowingErrorMonitor, FollowingState, WINDOW_OFF,

@@ -13,6 +13,8 @@
 
 mod encoder;
 mod following_error;
+#[cfg(feature = "sim")]
+pub mod sim;
 
 pub use encoder::{CountsToSteps, Encoder, COUNTS_PER_REV_MIN};
 pub use following_error::{FollowingErrorMonitor, FollowingState, WINDOW_OFF};

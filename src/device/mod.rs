@@ -360,6 +360,15 @@ impl Device {
         self.control_latched(now_us, switches, SwitchEdges::default(), schedule);
     }
 
+    /// The encoder timer's 16-bit counter, read by glue that has an encoder
+    /// just before its control call (SPEC §8.8). The drive is closed loop
+    /// once this has been called and PA17 names a resolution; glue without
+    /// an encoder never calls it. The counter may wrap; it must be read
+    /// before it has moved half its range since the last reading.
+    pub fn set_encoder_count(&mut self, raw: u16) {
+        self.drive.set_encoder_count(raw);
+    }
+
     /// [`Self::control`] for glue that samples the switches later than
     /// their edges (the firmware's debounced 1 kHz loop): `edges` are the
     /// step counts ([`StepSchedule::position`]) latched at the edges that

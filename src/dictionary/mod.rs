@@ -26,7 +26,7 @@ use crate::rtu::pdu::{ReadRequest, WriteMultipleRequest};
 use crate::rtu::Exception;
 
 /// The RW/WO values of the SPEC §5 table as last written by the master.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct OdValues {
     /// 0x6000: 0 = high word first, 1 = low word first.
     pub word_order: u16,
@@ -56,6 +56,35 @@ pub struct OdValues {
     pub homing_acceleration: u16,
     /// 0x609B homing zero (slow) speed, 0.1 rev/s.
     pub homing_zero_speed: u32,
+    /// 0x6065 following error window, steps (SPEC §8.8; `u32::MAX` = off).
+    pub following_error_window: u32,
+    /// 0x6066 following error time out, ms.
+    pub following_error_timeout: u16,
+}
+
+impl Default for OdValues {
+    /// SPEC §5 and §8.8 defaults: all 0 but the following error window,
+    /// which is off so that the drive stays open loop.
+    fn default() -> Self {
+        Self {
+            word_order: 0,
+            quick_stop_option: 0,
+            controlword: 0,
+            mode: 0,
+            profile_velocity: 0,
+            acceleration: 0,
+            deceleration: 0,
+            quick_stop_deceleration: 0,
+            target_position: 0,
+            home_offset: 0,
+            homing_method: 0,
+            homing_speed: 0,
+            homing_acceleration: 0,
+            homing_zero_speed: 0,
+            following_error_window: crate::closed_loop::WINDOW_OFF,
+            following_error_timeout: 0,
+        }
+    }
 }
 
 /// Everything the master configures, as the drive layer sees it.
@@ -90,6 +119,11 @@ pub trait DriveLayer {
     fn actual_velocity_rpm(&self) -> i32;
     /// 0x1001 (§8.7).
     fn error_register(&self) -> u16;
+    /// 0x60F4, steps: commanded − measured position (§8.8); 0 without an
+    /// encoder.
+    fn following_error(&self) -> i32 {
+        0
+    }
     /// Live values of the legacy DP monitor (SPEC §9, `params/monitor.rs`)
     /// beyond the entries above; a drive that does not know reports zeros.
     fn monitor(&self) -> DriveMonitor {

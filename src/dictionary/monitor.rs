@@ -8,8 +8,8 @@
 //! | 0x02 | DP-PoS. | actual position, high word |
 //! | 0x03 | DP-CPo | command position: the target the profile runs to, low word |
 //! | 0x04 | DP-CPo. | command position, high word |
-//! | 0x05 | DP-EPo | position error, low word: 0 (open loop, no encoder) |
-//! | 0x06 | DP-EPo. | position error, high word: 0 |
+//! | 0x05 | DP-EPo | following error (0x60F4), low word: 0 open loop (PA17 = 0) |
+//! | 0x06 | DP-EPo. | following error, high word |
 //! | 0x07 | DP-trq | torque: 0 (not measured) |
 //! | 0x08 | DP-I | motor current: 0 (not measured) |
 //! | 0x09 | DP-LSP | linear speed: 0 (no lead given) |
@@ -56,6 +56,8 @@ pub struct DriveMonitor {
     pub inputs: u16,
     /// Outputs: bit 0 power stage enabled, bit 1 brake released (§8.1).
     pub outputs: u16,
+    /// Commanded − measured position, steps (0x60F4, SPEC §8.8).
+    pub following_error: i32,
 }
 
 /// State of the parameter store as DP-Err reports it (bits 8..10).
@@ -94,6 +96,8 @@ pub fn dp_value<D: DriveLayer>(address: u16, drive: &D, pa: &Params, store: Stor
         0x02 => high(drive.actual_position()),
         0x03 => low(m.command_position),
         0x04 => high(m.command_position),
+        0x05 => low(m.following_error),
+        0x06 => high(m.following_error),
         0x0A => drive.mode_display() as u16,
         0x0B => (m.step_rate_steps_per_s.unsigned_abs() / 10).min(u32::from(u16::MAX)) as u16,
         0x0C => saturate_i16(m.speed_command_rpm),
@@ -104,7 +108,7 @@ pub fn dp_value<D: DriveLayer>(address: u16, drive: &D, pa: &Params, store: Stor
         0x0F => m.inputs,
         0x10 => m.outputs,
         DP_ERR => (drive.error_register() & 0x00FF) | store.dp_err_bits(),
-        // 0x05/0x06 position error, 0x07 torque, 0x08 current, 0x09 linear
+        // 0x07 torque, 0x08 current, 0x09 linear
         // speed, 0x0D torque command, 0x11 encoder, 0x12 inertia, 0x14
         // torque limit, 0x15/0x16 phase currents, 0x17 reserved: an
         // open-loop step drive measures none of them (SPEC §9).
@@ -164,6 +168,7 @@ mod tests {
                 speed_command_rpm: 600,
                 inputs: 0b101,
                 outputs: 0b11,
+                following_error: -70_000,
             },
         };
         let pa = Params::defaults(); // PA10 = 10000
@@ -171,6 +176,7 @@ mod tests {
         assert_eq!(v[0x00], (-600i16) as u16);
         assert_eq!([v[0x01], v[0x02]], [0xF2BF, 0xFFFC]); // -200001
         assert_eq!([v[0x03], v[0x04]], [0x93E0, 0x0004]); // 300000
+        assert_eq!([v[0x05], v[0x06]], [0xEE90, 0xFFFE]); // -70000
         assert_eq!(v[0x0A], 3);
         assert_eq!(v[0x0B], 10_000);
         assert_eq!(v[0x0C], 600);
@@ -178,7 +184,7 @@ mod tests {
         assert_eq!(v[0x0F], 0b101);
         assert_eq!(v[0x10], 0b11);
         assert_eq!(v[0x13], 0x11);
-        for a in [5, 6, 7, 8, 9, 0x0D, 0x11, 0x12, 0x14, 0x15, 0x16, 0x17] {
+        for a in [7, 8, 9, 0x0D, 0x11, 0x12, 0x14, 0x15, 0x16, 0x17] {
             assert_eq!(v[a], 0, "item {a:#04x} is not measured open loop");
         }
     }

@@ -41,6 +41,10 @@ pub const PA: [PaDef; PA_COUNT] = {
     t[12] = rw(1, 6000, 3000); // maximum speed, r/min
     t[13] = rw(0, 7, 0); // switch polarity bits (1 = normally closed)
     t[14] = rw(0, 3, 3); // limit switch enable bits
+                         // encoder counts per revolution after ×4 decoding: 0 = no encoder,
+                         // else COUNTS_PER_REV_MIN..=65535 (the gap is checked in `in_range`)
+    t[17] = rw(0, u16::MAX, 0);
+    t[18] = rw(0, 1, 0); // encoder direction invert
     t[20] = rw(0, 60000, 0); // communication-loss timeout, ms
     t[51] = rw(1, 247, 1); // slave address
     t[52] = rw(0, 4, 4); // baud
@@ -50,6 +54,19 @@ pub const PA: [PaDef; PA_COUNT] = {
     t[56] = rw(0, 100, 0); // minimum response delay, ms
     t
 };
+
+/// PA17 below this (and above 0) is refused: too coarse to check a
+/// following error against (SPEC §8.8).
+const ENCODER_PA: usize = 17;
+
+/// Whether `v` is in PA`n`'s range (SPEC §7, §8.8): [`PA`]'s bounds, and
+/// PA17's gap 1..=99 ([`crate::closed_loop::COUNTS_PER_REV_MIN`]).
+#[inline(always)]
+fn in_range(n: usize, d: PaDef, v: u16) -> bool {
+    const GAP: u16 = crate::closed_loop::COUNTS_PER_REV_MIN - 1;
+    // v - 1 < 99 ⇔ 1 ≤ v ≤ 99, one compare
+    d.min <= v && v <= d.max && !(n == ENCODER_PA && v.wrapping_sub(1) < GAP)
+}
 
 /// The working set of parameters.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -82,7 +99,7 @@ impl Params {
     /// Whether `v` is in the range of PA`n` (read-only ones accept nothing).
     pub fn valid(n: usize, v: u16) -> bool {
         let d = PA[n];
-        !d.read_only && d.min <= v && v <= d.max
+        !d.read_only && in_range(n, d, v)
     }
 
     /// Stores `v` in PA`n` without checks: the caller has validated it.
@@ -102,7 +119,7 @@ impl Params {
             let d = PA[n];
             if d.read_only {
                 self.values[n] = d.default;
-            } else if d.min <= v && v <= d.max {
+            } else if in_range(n, d, v) {
                 self.values[n] = v;
             } else {
                 self.values[n] = d.default;
@@ -136,6 +153,15 @@ impl Params {
     pub fn dir_setup(&self) -> u16 {
         self.values[16]
     }
+    /// PA17: encoder counts per revolution after ×4 decoding (0: no
+    /// encoder, open loop).
+    pub fn encoder_counts_per_rev(&self) -> u16 {
+        self.values[ENCODER_PA]
+    }
+    /// PA18: encoder direction invert.
+    pub fn encoder_inverted(&self) -> bool {
+        self.values[18] != 0
+    }
     pub fn comm_loss_ms(&self) -> u16 {
         self.values[20]
     }
@@ -164,6 +190,13 @@ impl Params {
     /// PA54: answer frame errors with exception 9/10.
     pub fn set_answer_frame_errors(&mut self, on: bool) {
         self.values[54] = u16::from(on);
+    }
+    /// PA17: encoder counts per revolution (0: none; else at least
+    /// [`crate::closed_loop::COUNTS_PER_REV_MIN`], which this keeps).
+    pub fn set_encoder_counts_per_rev(&mut self, counts: u16) {
+        if in_range(ENCODER_PA, PA[ENCODER_PA], counts) {
+            self.values[ENCODER_PA] = counts;
+        }
     }
     /// PA55: the standard Modbus exception profile.
     pub fn set_standard_exceptions(&mut self, on: bool) {

@@ -5,6 +5,7 @@
 //! to a position with one `match` (no scan).
 
 use super::{DriveLayer, Identity, OdValues};
+use crate::closed_loop::WINDOW_OFF;
 
 /// Who may read / write an entry.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -80,6 +81,9 @@ pub enum Object {
     ModeDisplay,
     ActualPosition,
     ActualVelocity,
+    FollowingErrorWindow,
+    FollowingErrorTimeout,
+    FollowingErrorActual,
 }
 
 /// One entry of the table.
@@ -113,8 +117,9 @@ const fn entry(index: u16, object: Object, access: Access, data_type: DataType) 
 use Access::{Ro, Rw, Wo};
 use DataType::{Str, I16, I32, U16, U32};
 
-/// SPEC §5, in table order. Every default is 0 (strings excepted).
-pub const TABLE: [Entry; 22] = [
+/// SPEC §5 and §8.8, in table order. Every default is 0 (strings
+/// excepted) but the following error window's, which is "check off".
+pub const TABLE: [Entry; 25] = [
     entry(0x1001, Object::ErrorRegister, Ro, U16),
     entry(0x1008, Object::DeviceName, Ro, Str),
     entry(0x1009, Object::HardwareVersion, Ro, Str),
@@ -137,6 +142,12 @@ pub const TABLE: [Entry; 22] = [
     entry(0x6061, Object::ModeDisplay, Ro, I16),
     entry(0x6064, Object::ActualPosition, Ro, I32),
     entry(0x606C, Object::ActualVelocity, Ro, I32),
+    Entry {
+        default: WINDOW_OFF as i32,
+        ..entry(0x6065, Object::FollowingErrorWindow, Rw, U32)
+    },
+    entry(0x6066, Object::FollowingErrorTimeout, Rw, U16),
+    entry(0x60F4, Object::FollowingErrorActual, Ro, I32),
 ];
 
 /// Words of the whole table, in table order.
@@ -150,8 +161,8 @@ const TABLE_WORDS: usize = {
     n
 };
 
-/// `WORD_AT[p]`: words of the entries before position `p` (`WORD_AT[22]`
-/// is [`TABLE_WORDS`]).
+/// `WORD_AT[p]`: words of the entries before position `p`
+/// (`WORD_AT[TABLE.len()]` is [`TABLE_WORDS`]).
 const WORD_AT: [u8; TABLE.len() + 1] = {
     let mut at = [0u8; TABLE.len() + 1];
     let mut p = 0;
@@ -230,7 +241,7 @@ impl Span {
         Some(Self {
             entries,
             first,
-            // end ≤ 22: no shift overflows
+            // end ≤ TABLE.len() < 32: no shift overflows
             mask: ((1u32 << end) - 1) & !((1u32 << first) - 1),
         })
     }
@@ -297,6 +308,9 @@ pub const fn position(address: u16) -> Option<usize> {
         0x6061 => Object::ModeDisplay,
         0x6064 => Object::ActualPosition,
         0x606C => Object::ActualVelocity,
+        0x6065 => Object::FollowingErrorWindow,
+        0x6066 => Object::FollowingErrorTimeout,
+        0x60F4 => Object::FollowingErrorActual,
         _ => return None,
     };
     Some(object as usize)
@@ -351,11 +365,14 @@ impl Object {
             Self::HomingSpeed => od.homing_speed,
             Self::HomingAcceleration => u32::from(od.homing_acceleration),
             Self::HomingZeroSpeed => od.homing_zero_speed,
+            Self::FollowingErrorWindow => od.following_error_window,
+            Self::FollowingErrorTimeout => u32::from(od.following_error_timeout),
             Self::ErrorRegister
             | Self::Statusword
             | Self::ModeDisplay
             | Self::ActualPosition
-            | Self::ActualVelocity => self.read_live(drive),
+            | Self::ActualVelocity
+            | Self::FollowingErrorActual => self.read_live(drive),
         }
     }
 
@@ -368,6 +385,7 @@ impl Object {
             Self::ModeDisplay => u32::from(drive.mode_display() as u16),
             Self::ActualPosition => drive.actual_position() as u32,
             Self::ActualVelocity => drive.actual_velocity_rpm() as u32,
+            Self::FollowingErrorActual => drive.following_error() as u32,
             _ => 0,
         }
     }
@@ -392,6 +410,8 @@ impl Object {
             Self::HomingSpeed => od.homing_speed = raw,
             Self::HomingAcceleration => od.homing_acceleration = raw as u16,
             Self::HomingZeroSpeed => od.homing_zero_speed = raw,
+            Self::FollowingErrorWindow => od.following_error_window = raw,
+            Self::FollowingErrorTimeout => od.following_error_timeout = raw as u16,
             Self::ErrorRegister
             | Self::DeviceName
             | Self::HardwareVersion
@@ -399,7 +419,8 @@ impl Object {
             | Self::Statusword
             | Self::ModeDisplay
             | Self::ActualPosition
-            | Self::ActualVelocity => {}
+            | Self::ActualVelocity
+            | Self::FollowingErrorActual => {}
         }
     }
 
@@ -425,135 +446,4 @@ pub fn string_bytes(s: &str) -> [u8; STRING_BYTES] {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn object_discriminants_are_table_positions_and_lookup_agrees() {
-        for (i, e) in TABLE.iter().enumerate() {
-            assert_eq!(e.object as usize, i);
-            assert_eq!(position(e.index), Some(i));
-        }
-        // SPEC §5: 0x6090 and the legacy addresses are not entries.
-        for a in [0x6090, 0x0000, 0x0064, 0x6082, 0x607B, 0xFFFF] {
-            assert_eq!(position(a), None);
-        }
-    }
-
-    #[test]
-    fn ranges_of_section_5_2_step_8() {
-        use Object::*;
-        assert!(WordOrder.accepts(0) && WordOrder.accepts(1) && !WordOrder.accepts(2));
-        for m in [1, 3, 6] {
-            assert!(ModeOfOperation.accepts(m));
-        }
-        for m in [0, 2, 4, 5, 7, 0xFFFF] {
-            assert!(!ModeOfOperation.accepts(m), "mode {m}");
-        }
-        assert!(HomingMethod.accepts(1) && HomingMethod.accepts(8));
-        assert!(!HomingMethod.accepts(0) && !HomingMethod.accepts(9));
-        assert!(QuickStopOption.accepts(0) && QuickStopOption.accepts(0x7FFF));
-        assert!(!QuickStopOption.accepts(0x8000) && !QuickStopOption.accepts(0xFFFF));
-        assert!(HomingSpeed.accepts(100_001) && ProfileVelocity.accepts(u32::MAX));
-    }
-
-    #[test]
-    fn defaults_are_what_a_fresh_dictionary_reads() {
-        struct Idle;
-        impl DriveLayer for Idle {
-            fn statusword(&self) -> u16 {
-                0
-            }
-            fn mode_display(&self) -> i16 {
-                0
-            }
-            fn actual_position(&self) -> i32 {
-                0
-            }
-            fn actual_velocity_rpm(&self) -> i32 {
-                0
-            }
-            fn error_register(&self) -> u16 {
-                0
-            }
-            fn values_written(&mut self, _: super::super::Config<'_>) {}
-            fn mode_written(&mut self, _: i16, _: super::super::Config<'_>) {}
-            fn controlword_written(&mut self, _: u16, _: super::super::Config<'_>) {}
-        }
-        let od = OdValues::default();
-        for e in TABLE {
-            assert_eq!(e.object.read_raw(&od, &Idle) as i32, e.default, "{e:?}");
-        }
-    }
-
-    /// The entries a request of `quantity` words from `first` covers, by
-    /// walking the table word by word (what `Span` finds with look-ups).
-    fn walk(first: usize, quantity: u16) -> Option<core::ops::Range<usize>> {
-        let (mut at, mut p) = (0, first);
-        while at < usize::from(quantity) {
-            at += usize::from(TABLE.get(p)?.words());
-            p += 1;
-        }
-        (at == usize::from(quantity)).then_some(first..p)
-    }
-
-    #[test]
-    fn spans_agree_with_a_walk_of_the_table() {
-        // SPEC §5.2 steps 6 and 7: a request must end on an entry boundary
-        // inside the table; its access is that of every entry it covers.
-        for first in 0..TABLE.len() {
-            for quantity in 0..=60 {
-                let span = Span::new(first, quantity);
-                let Some(range) = walk(first, quantity) else {
-                    assert_eq!(span, None, "first {first} quantity {quantity}");
-                    continue;
-                };
-                let span = span.expect("the walk found a span");
-                let entries = &TABLE[range.clone()];
-                assert_eq!(span.entries(), entries);
-                assert_eq!(
-                    span.any_read_only(),
-                    entries.iter().any(|e| e.access == Access::Ro)
-                );
-                assert_eq!(
-                    span.any_write_only(),
-                    entries.iter().any(|e| e.access == Access::Wo)
-                );
-                for e in TABLE {
-                    assert_eq!(span.covers(e.object), range.contains(&(e.object as usize)));
-                }
-                let mut word = 0;
-                let mut ranged = std::vec::Vec::new();
-                for e in entries {
-                    if e.object.ranged() {
-                        ranged.push((e.object, word));
-                    }
-                    word += usize::from(e.words());
-                }
-                let found: std::vec::Vec<_> = span.ranged().map(|(e, w)| (e.object, w)).collect();
-                assert_eq!(found, ranged, "first {first} quantity {quantity}");
-            }
-        }
-    }
-
-    #[test]
-    fn only_ranged_one_word_entries_refuse_values() {
-        // `Registers::write` checks §5.2 step 8 on the ranged entries only,
-        // reading one word for each.
-        for e in TABLE {
-            if e.object.ranged() {
-                assert_eq!(e.words(), 1, "{e:?}");
-            } else {
-                for raw in [0, 1, 0x7FFF, 0x8000, 0xFFFF, 0x1_0000, u32::MAX] {
-                    assert!(e.object.accepts(raw), "{e:?} {raw:#x}");
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn strings_are_cut_and_nul_padded() {
-        assert_eq!(&string_bytes("ab")[..3], b"ab\0");
-        assert_eq!(string_bytes("0123456789abcdefXYZ"), *b"0123456789abcdef");
-    }
-}
+mod tests;

@@ -9,6 +9,7 @@
 //! goals to the [`Planner`], fills the schedule, runs homing, the limit
 //! checks and the communication-loss timer.
 
+mod feedback;
 mod homing;
 pub mod io;
 mod limits;
@@ -25,6 +26,7 @@ use crate::motion::{
     Fill, Goal, HomingError, Planner, PlannerConfig, StepSchedule, SwitchEdges, Switches,
 };
 use crate::params::{DriveMonitor, Params};
+use feedback::Feedback;
 use homing::HomingState;
 use position::SetPoint;
 use settings::Settings;
@@ -85,6 +87,9 @@ pub enum FaultCause {
     BothLimits,
     /// No valid frame for PA20 ms while operation was enabled: bit 4.
     CommunicationLoss,
+    /// The following error stayed above 0x6065 for longer than 0x6066
+    /// (SPEC §8.8): bit 5.
+    FollowingError,
 }
 
 impl FaultCause {
@@ -92,6 +97,7 @@ impl FaultCause {
         match self {
             Self::BothLimits => 1 << 0,
             Self::CommunicationLoss => 1 << 4,
+            Self::FollowingError => 1 << 5,
         }
     }
 }
@@ -194,6 +200,8 @@ pub struct Drive {
     now_us: u64,
     frame_seen: bool,
     last_frame_us: u64,
+    /// Encoder, measured position and following-error check (SPEC §8.8).
+    feedback: Feedback,
     events: Deque<DriveEvent, 8>,
 }
 
@@ -243,6 +251,7 @@ impl Drive {
             now_us: 0,
             frame_seen: true,
             last_frame_us: 0,
+            feedback: Feedback::default(),
             events: Deque::new(),
         }
     }
@@ -330,6 +339,7 @@ impl Drive {
         }
 
         self.limit_brake(sched, cfg.od);
+        self.update_feedback(now_us, cfg);
 
         // §8.7 faults
         if self.fault.is_none() {
@@ -477,7 +487,7 @@ impl DriveLayer for Drive {
     }
 
     fn actual_position(&self) -> i32 {
-        self.user_position() as i32
+        self.reported_position() as i32
     }
 
     fn actual_velocity_rpm(&self) -> i32 {
@@ -486,6 +496,10 @@ impl DriveLayer for Drive {
 
     fn error_register(&self) -> u16 {
         self.error_register
+    }
+
+    fn following_error(&self) -> i32 {
+        self.following_error_steps()
     }
 
     fn monitor(&self) -> DriveMonitor {
@@ -510,6 +524,7 @@ impl DriveLayer for Drive {
                 | u16::from(self.switches.ccw_limit) << 1
                 | u16::from(self.switches.home) << 2,
             outputs: u16::from(out.power_stage) | u16::from(out.brake_released) << 1,
+            following_error: self.following_error_steps(),
         }
     }
 

@@ -135,6 +135,9 @@ impl Drive {
             w |= sw::RUNNING;
         }
         w |= self.mode_bits();
+        if self.following_error_latched() {
+            w |= sw::BIT13;
+        }
         if self.switches.home {
             w |= sw::HOME_SWITCH;
         }
@@ -167,6 +170,7 @@ impl Drive {
                 };
                 if rising(cw::FAULT_RESET) && cause_gone {
                     self.fault = None;
+                    self.reset_following_error();
                     self.error_register = 0;
                     self.warning = false;
                     self.set_state(SwitchOnDisabled);
@@ -229,6 +233,7 @@ impl Drive {
         if was != OperationEnabled {
             self.frame_seen = true;
             self.last_target = None;
+            self.take_measured_position();
         }
 
         // Operation enabled: halt and the mode bits.

@@ -13,6 +13,8 @@
 //! | CW limit | PB12 | EXTI12 → EXTI15_10, pull-down |
 //! | CCW limit | PB13 | EXTI13 → EXTI15_10, pull-down |
 //! | HOME | PB14 | EXTI14 → EXTI15_10, pull-down |
+//! | encoder A | PB6 | TIM4_CH1 (no remap), encoder mode (started when PA17 > 0) |
+//! | encoder B | PB7 | TIM4_CH2 (no remap) |
 //!
 //! Switch inputs follow the core's `drive::io` convention (a normally open
 //! switch is active when its pin is high): the contact (or an opto-coupler
@@ -26,13 +28,13 @@ use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
 use embassy_stm32::gpio::{AfioRemap, Level, Output, OutputType, Pull, Speed};
 use embassy_stm32::mode::Blocking;
-use embassy_stm32::peripherals::TIM3;
+use embassy_stm32::peripherals::{PB6, PB7, TIM3, TIM4};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::low_level::Timer;
 use embassy_stm32::timer::simple_pwm::PwmPin;
 use embassy_stm32::timer::Ch1;
 use embassy_stm32::usart::{self, Uart};
-use embassy_stm32::{bind_interrupts, interrupt, pac, Config, Peripherals};
+use embassy_stm32::{bind_interrupts, interrupt, pac, Config, Peri, Peripherals};
 
 use modbus_drive::boards::Board;
 
@@ -122,6 +124,14 @@ pub fn safe_outputs() {
 }
 
 /// Everything the firmware drives, configured.
+/// The encoder's timer and pins, untouched until the encoder is wanted
+/// (`firmware::encoder`).
+pub struct EncoderPins {
+    pub timer: Peri<'static, TIM4>,
+    pub a: Peri<'static, PB6>,
+    pub b: Peri<'static, PB7>,
+}
+
 pub struct Parts {
     pub uart: Uart<'static, Blocking>,
     pub de: Output<'static>,
@@ -131,6 +141,7 @@ pub struct Parts {
     pub enable: Output<'static>,
     pub brake: Output<'static>,
     pub switches: SwitchInputs,
+    pub encoder: EncoderPins,
     pub param_flash: Option<FlashRegion<Flash<'static, FlashBlocking>>>,
 }
 
@@ -144,6 +155,11 @@ pub fn split(p: Peripherals, line: &usart::Config) -> Result<Parts, usart::Confi
         dir: Output::new(p.PB0, Level::Low, Speed::Low),
         enable: Output::new(p.PB1, Level::Low, Speed::Low),
         brake: Output::new(p.PB10, Level::Low, Speed::Low),
+        encoder: EncoderPins {
+            timer: p.TIM4,
+            a: p.PB6,
+            b: p.PB7,
+        },
         switches: SwitchInputs {
             cw_limit: ExtiInput::new_blocking(p.PB12, p.EXTI12, Pull::Down, TriggerEdge::Any),
             ccw_limit: ExtiInput::new_blocking(p.PB13, p.EXTI13, Pull::Down, TriggerEdge::Any),

@@ -26,6 +26,7 @@ use modbus_drive::motion::StepSchedule;
 use super::board;
 use super::calc::StepShape;
 use super::dispatch::{with_device, EventLog};
+use super::encoder::EncoderInput;
 use super::fault::Watchdog;
 use super::steps;
 use super::switches;
@@ -36,12 +37,19 @@ pub const CONTROL_PERIOD: Duration = Duration::from_micros(1000);
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;
 
-pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule, watchdog: Watchdog) -> ! {
+pub async fn run(
+    mut pins: PowerPins,
+    schedule: &'static StepSchedule,
+    watchdog: Watchdog,
+    mut encoder: EncoderInput,
+) -> ! {
     let mut ticker = Ticker::every(CONTROL_PERIOD);
     let mut log = EventLog::new();
     let mut last_shape = None;
     let mut pins_ok = true;
     let mut worst_late = 0;
+    // PA17 > 0 as last seen: the encoder timer starts the period after
+    let mut encoder_wanted = false;
     loop {
         ticker.next().await;
         watchdog.feed();
@@ -50,7 +58,12 @@ pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule, watchdog:
         if switches_changed {
             defmt::info!("switches: {}", switch_states);
         }
+        let count = encoder.read(encoder_wanted);
         let Some((outputs, params, shape)) = with_device(|d| {
+            if let Some(c) = count {
+                d.set_encoder_count(c);
+            }
+            encoder_wanted = d.params().encoder_counts_per_rev() > 0;
             d.control_latched(now_us, switch_states, edges, schedule);
             (
                 d.drive().outputs(),

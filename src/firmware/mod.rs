@@ -34,6 +34,7 @@ mod board;
 mod calc;
 mod control;
 mod dispatch;
+mod encoder;
 mod fault;
 mod flash;
 mod owned;
@@ -151,6 +152,7 @@ async fn main(spawner: Spawner) {
         },
         schedule,
         watchdog,
+        encoder::EncoderInput::new(parts.encoder),
     )
     .await
 }

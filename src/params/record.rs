@@ -11,7 +11,12 @@
 //! | 3 | number of PA values that follow (60) |
 //! | 4..124 | PA0..PA59, u16 each |
 //! | 124..154 | 0x6000, 0x605A, 0x6081, 0x6083, 0x6084, 0x6085, 0x607C, 0x6098, 0x6099, 0x609A, 0x609B in their §5 widths |
-//! | 154..156 | CRC-16/MODBUS of bytes 0..154 |
+//! | 154..160 | 0x6065, 0x6066 (SPEC §8.8) |
+//! | 160..162 | CRC-16/MODBUS of bytes 0..160 |
+//!
+//! A record of format version 1 (before the closed loop: no bytes
+//! 154..160, its CRC at 154) is still loaded, with the following-error
+//! entries at their defaults, so that an update keeps the saved set.
 //!
 //! The write-only 0x6040 / 0x6060 and the target position 0x607A are not
 //! saved (SPEC §9); a loaded set leaves them as they are in the working set.
@@ -21,13 +26,16 @@ use crate::rtu::crc16;
 
 /// Format version written into every record; a record of another version is
 /// not loaded (the store then reports it unreadable and defaults apply).
-pub const RECORD_VERSION: u8 = 1;
+pub const RECORD_VERSION: u8 = 2;
 /// Size of one encoded record.
 pub const RECORD_LEN: usize = HEADER_LEN + 2 * PA_COUNT + OD_LEN + 2;
 
 const MAGIC: [u8; 2] = *b"PS";
 const HEADER_LEN: usize = 4;
-const OD_LEN: usize = 30;
+const OD_LEN: usize = 36;
+/// The version before the following-error entries, and its length.
+const RECORD_VERSION_1: u8 = 1;
+const RECORD_LEN_1: usize = RECORD_LEN - 6;
 
 /// Why a record was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -104,6 +112,8 @@ impl ParamSet {
         w.bytes(&od.homing_speed.to_le_bytes());
         w.bytes(&od.homing_acceleration.to_le_bytes());
         w.bytes(&od.homing_zero_speed.to_le_bytes());
+        w.bytes(&od.following_error_window.to_le_bytes());
+        w.bytes(&od.following_error_timeout.to_le_bytes());
         let crc = crc16(&w.buf[..w.at]);
         w.bytes(&crc.to_le_bytes());
         debug_assert_eq!(w.at, RECORD_LEN);
@@ -114,16 +124,18 @@ impl ParamSet {
     /// older firmware with other ranges) are replaced by defaults; the second
     /// result counts them.
     pub fn decode(bytes: &[u8]) -> Result<(Self, usize), RecordError> {
-        if bytes.len() != RECORD_LEN || bytes[..2] != MAGIC {
+        if bytes.len() < 4 || bytes[..2] != MAGIC {
             return Err(RecordError::Malformed);
         }
-        if bytes[2] != RECORD_VERSION {
-            return Err(RecordError::Version(bytes[2]));
-        }
-        if usize::from(bytes[3]) != PA_COUNT {
+        let len = match bytes[2] {
+            RECORD_VERSION => RECORD_LEN,
+            RECORD_VERSION_1 => RECORD_LEN_1,
+            v => return Err(RecordError::Version(v)),
+        };
+        if bytes.len() != len || usize::from(bytes[3]) != PA_COUNT {
             return Err(RecordError::Malformed);
         }
-        let body = RECORD_LEN - 2;
+        let body = len - 2;
         if crc16(&bytes[..body]) != u16::from_le_bytes([bytes[body], bytes[body + 1]]) {
             return Err(RecordError::Crc);
         }
@@ -149,6 +161,10 @@ impl ParamSet {
             homing_zero_speed: r.u32(),
             ..defaults.clone()
         };
+        if bytes[2] == RECORD_VERSION {
+            od.following_error_window = r.u32();
+            od.following_error_timeout = r.u16();
+        }
         // The §5.2 step-8 ranges of the saved entries with a restricted range.
         if od.word_order > 1 {
             od.word_order = defaults.word_order;
@@ -210,6 +226,10 @@ mod tests {
         s.od.homing_speed = 100_000;
         s.od.homing_zero_speed = u32::MAX;
         s.od.homing_method = 8;
+        s.od.following_error_window = 500;
+        s.od.following_error_timeout = 20;
+        s.pa.set_unchecked(17, 4000);
+        s.pa.set_unchecked(18, 1);
         s
     }
 
@@ -263,9 +283,39 @@ mod tests {
             ParamSet::decode(&[0xFF; RECORD_LEN]),
             Err(RecordError::Malformed)
         );
-        let mut v2 = good;
-        v2[2] = 2;
-        assert_eq!(ParamSet::decode(&v2), Err(RecordError::Version(2)));
+        let mut v3 = good;
+        v3[2] = 3;
+        assert_eq!(ParamSet::decode(&v3), Err(RecordError::Version(3)));
+        // a version-2 body under a version-1 header has the wrong length
+        let mut v1 = good;
+        v1[2] = RECORD_VERSION_1;
+        assert_eq!(ParamSet::decode(&v1), Err(RecordError::Malformed));
+    }
+
+    #[test]
+    fn a_version_1_record_loads_with_the_following_error_check_off() {
+        // The layout before the closed loop: bytes 0..154, then its CRC.
+        let s = sample();
+        let v2 = s.encode();
+        let mut v1 = [0u8; RECORD_LEN_1];
+        v1[..RECORD_LEN_1 - 2].copy_from_slice(&v2[..RECORD_LEN_1 - 2]);
+        v1[2] = RECORD_VERSION_1;
+        let crc = crc16(&v1[..RECORD_LEN_1 - 2]);
+        v1[RECORD_LEN_1 - 2..].copy_from_slice(&crc.to_le_bytes());
+        let (d, fixed) = ParamSet::decode(&v1).expect("a version-1 record loads");
+        assert_eq!(fixed, 0);
+        assert_eq!(d.pa, s.pa);
+        assert_eq!(d.od.homing_zero_speed, u32::MAX);
+        assert_eq!(d.od.following_error_window, u32::MAX);
+        assert_eq!(d.od.following_error_timeout, 0);
+    }
+
+    #[test]
+    fn pa17_between_1_and_99_falls_back_to_no_encoder() {
+        let mut s = sample();
+        s.pa.set_unchecked(17, 99);
+        let (d, fixed) = ParamSet::decode(&s.encode()).expect("crc is good");
+        assert_eq!((fixed, d.pa.get(17)), (1, 0));
     }
 
     #[test]

@@ -29,7 +29,7 @@
 //! # Layout and power-loss argument
 //!
 //! The region is a [`sequential_storage`] map with two keys, 0 = saved set and
-//! 1 = backup set; each value is one [`ParamSet`] record (156 bytes, own
+//! 1 = backup set; each value is one [`ParamSet`] record ([`RECORD_LEN`] bytes, own
 //! version, length and CRC-16, `record.rs`). A save *appends* a new item: the
 //! crate writes the item header (length with its CRC-16, data CRC-32) and
 //! then the data; a fetch returns the last item of the key whose header and

@@ -53,6 +53,16 @@ DRIVES AND AXES:
                              position is at or above STEPS. Every axis.
     --home-switch FROM:TO    Home switch: active while FROM <= position <= TO.
                              Every axis.
+    --encoder                A simulated encoder on every motor (SPEC §8.8;
+                             docs/closed-loop.md): PA17 = 4000 counts/rev at
+                             start-up unless set. Also on whenever PA17 > 0.
+    --stall-at STEPS         The motor stalls where the steps reach STEPS (once;
+                             the stall ends when step output stops).
+                             Implies --encoder.
+    --slip STEPS@POS         The motor loses STEPS steps once where the steps
+                             pass POS. Implies --encoder.
+    --encoder-noise COUNTS   +-COUNTS of noise on every encoder reading.
+                             Implies --encoder.
     --allow-limit-overlap    Accept a --cw-limit at or above the --ccw-limit:
                              where the two overlap both limits are active
                              (a wiring fault, e.g. a cut cable to normally
@@ -112,6 +122,18 @@ pub struct AxisLayout {
     pub cw_limit_steps: Option<i32>,
     pub ccw_limit_steps: Option<i32>,
     pub home_switch: Option<HomeSwitch>,
+    pub encoder: EncoderFaults,
+}
+
+/// The simulated encoder and the motor faults it shows (`--encoder`,
+/// `--stall-at`, `--slip`, `--encoder-noise`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct EncoderFaults {
+    pub on: bool,
+    pub stall_at: Option<i32>,
+    /// (steps lost, position)
+    pub slip: Option<(i32, i32)>,
+    pub noise_counts: u16,
 }
 
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -205,13 +227,14 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             }
             seen.push(flag.clone());
         }
-        const SWITCHES: [&str; 6] = [
+        const SWITCHES: [&str; 7] = [
             "--help",
             "--version",
             "--no-pty",
             "--no-status",
             "--allow-limit-overlap",
             "--standard-exceptions",
+            "--encoder",
         ];
         if SWITCHES.contains(&flag.as_str()) {
             if let Some(v) = parser.optional_value() {
@@ -241,6 +264,23 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             "--no-status" => o.status_line = false,
             "--allow-limit-overlap" => limit_overlap = true,
             "--standard-exceptions" => o.standard_exceptions = true,
+            "--encoder" => o.axis.encoder.on = true,
+            "--stall-at" => {
+                o.axis.encoder.stall_at = Some(parse_steps("--stall-at", &value("--stall-at")?)?);
+                o.axis.encoder.on = true;
+            }
+            "--slip" => {
+                o.axis.encoder.slip = Some(parse_slip(&value("--slip")?)?);
+                o.axis.encoder.on = true;
+            }
+            "--encoder-noise" => {
+                let v = value("--encoder-noise")?;
+                o.axis.encoder.noise_counts = v
+                    .trim()
+                    .parse()
+                    .or_else(|_| err(format!("--encoder-noise {v}: expected counts 0..=65535")))?;
+                o.axis.encoder.on = true;
+            }
             "--pty-link" => o.pty_link = Some(PathBuf::from(value("--pty-link")?)),
             "--tcp" => o.tcp.push(parse_socket("--tcp", &value("--tcp")?)?),
             "--modbus-tcp" => o
@@ -361,6 +401,13 @@ fn parse_steps(flag: &str, v: &str) -> Result<i32, UsageError> {
         .or_else(|_| err(format!("{flag} {v}: expected a position in steps (i32)")))
 }
 
+fn parse_slip(v: &str) -> Result<(i32, i32), UsageError> {
+    let Some((steps, at)) = v.split_once('@') else {
+        return err(format!("--slip {v}: expected STEPS@POS, e.g. 500@20000"));
+    };
+    Ok((parse_steps("--slip", steps)?, parse_steps("--slip", at)?))
+}
+
 fn parse_window(v: &str) -> Result<HomeSwitch, UsageError> {
     let Some((a, b)) = v.split_once(':') else {
         return err(format!("--home-switch {v}: expected FROM:TO in steps"));
@@ -443,8 +490,22 @@ mod tests {
             "--web",
             "127.0.0.1:8080",
             "--board=F103",
+            "--stall-at",
+            "-20000",
+            "--slip=500@30000",
+            "--encoder-noise",
+            "3",
         ])
         .unwrap();
+        let enc = o.axis.encoder;
+        assert!(enc.on, "the fault flags imply --encoder");
+        assert_eq!(enc.stall_at, Some(-20000));
+        assert_eq!(enc.slip, Some((500, 30000)));
+        assert_eq!(enc.noise_counts, 3);
+        assert!(run(&["--encoder"]).unwrap().axis.encoder.on);
+        assert!(run(&["--slip", "500"]).is_err());
+        assert!(run(&["--slip", "a@1"]).is_err());
+        assert!(run(&["--encoder-noise", "-1"]).is_err());
         assert_eq!(o.web, Some("127.0.0.1:8080".parse().unwrap()));
         assert_eq!(o.board, Board::F103);
         assert_eq!(o.pty_link, Some(PathBuf::from("/tmp/x")));

@@ -30,6 +30,7 @@ use super::transport::{listen_error, Listener, Pty, ReadOutcome, Stream};
 use super::web::WebPort;
 
 mod drive_slot;
+mod encoder;
 mod modbus_tcp;
 mod serve;
 
@@ -331,8 +332,14 @@ impl VirtualDrive {
                 self.console.log(&format!("trace: {e}"));
             }
             let counters = d.device.slave().counters();
+            // the following error beside the position once an encoder is in use
+            let ferr = if drive.closed_loop() {
+                format!(" ferr {}", drive.following_error())
+            } else {
+                String::new()
+            };
             status.push(format!(
-                "@{} {:?} sw 0x{:04X} mode {} pos {} vel {} r/min frames {} errors {}",
+                "@{} {:?} sw 0x{:04X} mode {} pos {}{ferr} vel {} r/min frames {} errors {}",
                 sample.address,
                 drive.state(),
                 sample.statusword,

@@ -3,6 +3,7 @@
 //! the planner's exactness bounds (docs/drive.md).
 #![allow(dead_code)]
 
+use modbus_drive::closed_loop::sim::SimEncoder;
 use modbus_drive::motion::sim::{RunStop, SimAxis, StepRecord};
 use modbus_drive::motion::{Fill, Goal, Planner, PlannerConfig, StepSchedule};
 
@@ -473,6 +474,9 @@ pub struct Rig {
     pub now_us: u64,
     pub period_us: u64,
     pub tick_hz: u32,
+    /// A simulated encoder on the motor, read before every control call
+    /// (SPEC §8.8), scaled with the drive's PA17 / PA10 / PA18.
+    pub encoder: Option<SimEncoder>,
 }
 
 impl Rig {
@@ -514,6 +518,7 @@ impl Rig {
             now_us: 0,
             period_us: 1000,
             tick_hz,
+            encoder: None,
         };
         rig.control();
         rig
@@ -522,6 +527,16 @@ impl Rig {
     /// The glue's control step at the current time, then start the idle
     /// step interrupt.
     pub fn control(&mut self) {
+        if let Some(e) = self.encoder.as_mut() {
+            let pa = self.bus.device.params();
+            e.set_scale(
+                pa.encoder_counts_per_rev(),
+                pa.steps_per_rev(),
+                pa.encoder_inverted(),
+            );
+            let raw = e.update(self.axis.position(), self.axis.is_running());
+            self.bus.device.set_encoder_count(raw);
+        }
         let sw = self.axis.switches();
         self.bus.device.control(self.now_us, sw, &self.sched);
         self.axis.kick(&self.sched);

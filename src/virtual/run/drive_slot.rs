@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use modbus_drive::boards::Board;
+use modbus_drive::closed_loop::sim::SimEncoder;
 use modbus_drive::device::{Identity, Line, Polled};
 use modbus_drive::dictionary::DriveLayer;
 use modbus_drive::drive::DriveEvent;
@@ -18,6 +19,7 @@ use super::super::cli::AxisLayout;
 use super::super::console::Console;
 use super::super::flash::{FileFlash, REGION_BYTES};
 use super::super::web::{self, ExceptionLog, Forced};
+use super::encoder;
 use super::serve::SimStorage;
 
 /// Control loop period, as on the firmware (SPEC §8; within the planner's
@@ -37,6 +39,9 @@ pub(super) struct DriveSlot {
     pub(super) schedule: Box<StepSchedule>,
     /// Step interrupt, motor and switches.
     pub(super) axis: SimAxis,
+    /// The encoder on the motor (`--encoder`, or PA17 > 0).
+    pub(super) encoder: SimEncoder,
+    pub(super) encoder_wired: bool,
     /// Time of the next periodic control call, µs.
     pub(super) next_control_us: u64,
     pub(super) last_statusword: u16,
@@ -81,6 +86,7 @@ impl DriveSlot {
             // force at once: no change worth logging
             device.configure(|pa, _| pa.set_address(address));
         }
+        encoder::wire(&mut device, layout.encoder);
         let last_statusword = device.drive().statusword();
         let last_mode = device.drive().mode_display();
         Ok(Self {
@@ -88,6 +94,8 @@ impl DriveSlot {
             store,
             schedule: Box::new(StepSchedule::new()),
             axis: sim_axis(layout, planner.tick_hz),
+            encoder: encoder::sim_encoder(layout.encoder),
+            encoder_wired: layout.encoder.on,
             next_control_us: 0,
             last_statusword,
             last_mode,
@@ -122,10 +130,12 @@ impl DriveSlot {
             .set_limit_enable(self.device.params().limit_enable());
         while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
             let at = self.axis.now_us();
+            self.read_encoder();
             let switches = self.forced.apply(self.axis.switches());
             self.device.control(at, switches, &self.schedule);
             self.axis.kick(&self.schedule);
         }
+        self.read_encoder();
         let switches = self.forced.apply(self.axis.switches());
         self.device.control(t_us, switches, &self.schedule);
         self.axis.kick(&self.schedule);
