@@ -103,6 +103,8 @@ pub fn pa_meta(n: usize) -> (&'static str, &'static str) {
         12 => ("maximum speed", "r/min"),
         13 => ("switch polarity (bit 0 CW, 1 CCW, 2 home; 1 = NC)", "bits"),
         14 => ("limit switch enable (bit 0 CW, 1 CCW)", "bits"),
+        15 => ("STEP pulse width (firmware)", "0.1 µs"),
+        16 => ("DIR set-up time (firmware)", "0.1 µs"),
         17 => ("encoder counts per revolution (0 = none)", "counts"),
         18 => ("encoder direction invert", ""),
         20 => ("communication-loss timeout (0 = off)", "ms"),
@@ -112,6 +114,8 @@ pub fn pa_meta(n: usize) -> (&'static str, &'static str) {
         54 => ("answer frame errors with 9/10", ""),
         55 => ("exception profile (0 vendor, 1 standard)", ""),
         56 => ("minimum response delay", "ms"),
+        57 => ("RS-485 DE lead (firmware)", "bit times"),
+        58 => ("RS-485 DE tail (firmware)", "bit times"),
         _ => ("reserved", ""),
     }
 }
