@@ -7,9 +7,9 @@ import re
 import subprocess
 import time
 
-from conftest import (ACCELERATION, ACTUAL_POSITION, ACTUAL_VELOCITY, CCW_LIMIT, DECELERATION,
-                      MODE, PA_BASE, PROFILE_VELOCITY, QUICK_STOP_DECELERATION, Master, hexb,
-                      with_crc)
+from conftest import ACCELERATION, PA_BASE, Master, e2e_module, hexb, with_crc
+
+limits = e2e_module("test_limits")
 
 MAX_SPEED_PA12 = PA_BASE + 12
 EE_SET = with_crc(hexb("01 10 00 3A 00 01 02 00 01"))  # new format, k = 1
@@ -20,21 +20,7 @@ def test_a_ccw_limit_stops_the_axis_with_the_quick_stop_distance(start_fw, board
     10 000 with 0x6085 = 500 (50 r/s²): v²/2a = 2025 steps past the edge,
     within the step tick's rounding."""
     fw = start_fw(board, "--ccw-limit", "10000")
-    m = Master(fw.client())
-    m.enable()
-    m.write(MODE, 3)
-    m.write(ACCELERATION, 1000)
-    m.write(DECELERATION, 1000)
-    m.write(QUICK_STOP_DECELERATION, 500)
-    m.write32(PROFILE_VELOCITY, 45)
-    m.wait(lambda s: s & CCW_LIMIT, 5, "the CCW limit")
-    deadline = time.monotonic() + 5
-    while m.read32(ACTUAL_VELOCITY) != 0:
-        assert time.monotonic() < deadline, "still moving"
-        time.sleep(0.02)
-    over = m.read32(ACTUAL_POSITION) - 10000
-    assert 2025 - 18 - 4 <= over <= 2025 + 18 + 2, f"{board}: {over}"
-    assert m.statusword() & CCW_LIMIT
+    limits.run_into_the_ccw_limit_at_10000(Master(fw.client()), f"{board}: ")
 
 
 def test_a_saved_parameter_survives_a_restart(start_fw, board, tmp_path):
