@@ -48,6 +48,10 @@ pub const PARAM_FLASH_START: u32 = 0x1_F000;
 pub const PARAM_FLASH_LEN: u32 = 0x1000;
 
 pub const UART: pac::usart::Usart = pac::USART1;
+/// USART1_DE (PA12), taken over as a GPIO when PA57 / PA58 exceed what the
+/// USART's DEAT / DEDT can time (rs485.rs).
+pub const DE_PORT: pac::gpio::Gpio = pac::GPIOA;
+pub const DE_PIN: usize = 12;
 pub const STEP_TIMER: pac::timer::TimGp16 = pac::TIM3;
 pub type UartIrq = interrupt::typelevel::USART1;
 pub type StepIrq = interrupt::typelevel::TIM3;

@@ -13,9 +13,12 @@
 //!   timestamps.
 //!
 //! Transmit: [`send`] hands the reply to the interrupt, which feeds the data
-//! register on TXE (one burst, no gaps) and finishes at TC. DE is the
-//! USART's hardware driver-enable on the G431 and a GPIO raised before the
-//! first byte and dropped at TC on the F103.
+//! register on TXE (one burst, no gaps) and finishes at TC. DE leads the
+//! first start bit and trails the last stop bit by PA57 / PA58
+//! ([`set_driver_enable`], `calc::DeDrive`): on the G431 the USART's
+//! hardware driver-enable does it (DEAT / DEDT) while they fit, beyond that
+//! [`send`] drives the pin itself; on the F103 DE is always a GPIO raised
+//! by [`send`] the lead before the first byte and dropped the tail after TC.
 //!
 //! Shared state: [`LINK`] (assembler + transmit buffer) behind a critical
 //! section; [`FRAMES`], [`TX_DONE`] are embassy-sync primitives on a
@@ -34,10 +37,11 @@ use embassy_sync::once_lock::OnceLock;
 use embassy_sync::signal::Signal;
 use heapless::Vec;
 use modbus_drive::rtu::{
-    CharFormat, FrameAssembler, FrameTiming, LineConfig, RxEvent, RxFlags, MAX_FRAME,
+    CharFormat, DriverEnable, FrameAssembler, FrameTiming, LineConfig, RxEvent, RxFlags, MAX_FRAME,
 };
 
 use super::board;
+use super::calc::DeDrive;
 
 /// A closed frame (or frame error), owned, on its way to the dispatcher.
 pub struct Received {
@@ -114,6 +118,8 @@ struct Link {
     tx_len: usize,
     tx_pos: usize,
     transmitting: bool,
+    /// PA57 / PA58 as this board makes them.
+    de_drive: DeDrive,
     #[cfg(feature = "board-f103")]
     de: Option<embassy_stm32::gpio::Output<'static>>,
 }
@@ -140,6 +146,11 @@ fn link() -> &'static Mutex<RefCell<Link>> {
             tx_len: 0,
             tx_pos: 0,
             transmitting: false,
+            de_drive: DeDrive::new(
+                DriverEnable::new(0, 0),
+                LineConfig::DEFAULT,
+                DE_SAMPLES_PER_BIT,
+            ),
             #[cfg(feature = "board-f103")]
             de: None,
         }))
@@ -180,24 +191,49 @@ pub fn apply_line(
     with_link(|link| {
         link.assembler.set_timing(line.timing());
         link.t35_us = line.timing().t35_us;
-        arm_receiver(line);
+        arm_receiver(line, link.de_drive);
     });
     Ok(())
 }
 
-/// STM32G4 (RM0440 USART chapter): FIFO off so that each byte gets its own
-/// interrupt and timestamp; DE assertion/deassertion one bit time (DEAT /
-/// DEDT in 1/16 bit; embassy-stm32 0.6.0 writes DEAT into both, so set them
-/// here); receiver timeout = t3.5 in bit times. FIFOEN, DEAT and DEDT may
-/// only be written with UE = 0.
+/// USART samples per bit for its hardware DE timing; 0: no hardware DE.
 #[cfg(feature = "board-g431")]
-fn arm_receiver(line: LineConfig) {
+const DE_SAMPLES_PER_BIT: u32 = 16;
+#[cfg(feature = "board-f103")]
+const DE_SAMPLES_PER_BIT: u32 = 0;
+
+/// PA57 / PA58 on `line` (the line in force), from the next reply on. Call
+/// it between frames, after [`apply_line`].
+pub fn set_driver_enable(de: DriverEnable, line: LineConfig) {
+    with_link(|link| {
+        #[cfg(feature = "board-g431")]
+        let spb = if board::UART.cr1().read().over8() == embassy_stm32::pac::usart::vals::Over8::OVERSAMPLING8 {
+            8
+        } else {
+            DE_SAMPLES_PER_BIT
+        };
+        #[cfg(feature = "board-f103")]
+        let spb = DE_SAMPLES_PER_BIT;
+        link.de_drive = DeDrive::new(de, line, spb);
+        // the G431's DEAT / DEDT are written with the USART disabled
+        #[cfg(feature = "board-g431")]
+        arm_receiver(line, link.de_drive);
+    });
+}
+
+/// STM32G4 (RM0440 USART chapter): FIFO off so that each byte gets its own
+/// interrupt and timestamp; DE assertion/deassertion times from PA57 /
+/// PA58 (DEAT / DEDT in sample times; embassy-stm32 0.6.0 writes DEAT into
+/// both, so set them here); receiver timeout = t3.5 in bit times. FIFOEN,
+/// DEAT and DEDT may only be written with UE = 0.
+#[cfg(feature = "board-g431")]
+fn arm_receiver(line: LineConfig, de: DeDrive) {
     let r = board::UART;
     r.cr1().modify(|w| w.set_ue(false));
     r.cr1().modify(|w| {
         w.set_fifoen(false);
-        w.set_deat(16);
-        w.set_dedt(16);
+        w.set_deat(de.deat);
+        w.set_dedt(de.dedt);
     });
     r.rtor()
         .write(|w| w.set_rto(super::calc::t35_rto_bits(line)));
@@ -220,7 +256,7 @@ fn arm_receiver(line: LineConfig) {
 /// STM32F103 (RM0008 USART chapter): RXNE interrupt only; t3.5 is timed by
 /// [`frame_gap_task`]. Error flags are read with RXNE (SR then DR clears them).
 #[cfg(feature = "board-f103")]
-fn arm_receiver(_line: LineConfig) {
+fn arm_receiver(_line: LineConfig, _de: DeDrive) {
     board::UART.cr1().modify(|w| w.set_rxneie(true));
 }
 
@@ -313,11 +349,9 @@ fn on_uart(link: &mut Link, at_us: u32) {
         }
     }
     if cr1.tcie() && sr.tc() {
-        // the last stop bit has left: release the bus (SPEC §1)
+        // the last stop bit has left: `send` releases the bus after the
+        // DE tail (SPEC §1)
         r.cr1().modify(|w| w.set_tcie(false));
-        if let Some(de) = link.de.as_mut() {
-            de.set_low();
-        }
         link.transmitting = false;
         TX_DONE.signal(());
     }
@@ -340,23 +374,57 @@ fn deliver(rx: Received) {
 }
 
 /// Sends `bytes` (≤ 256) in one burst and returns once the last stop bit has
-/// left the wire.
+/// left the wire and DE is released.
 pub async fn send(bytes: &[u8]) {
     let n = bytes.len().min(MAX_FRAME);
     TX_DONE.reset();
-    with_link(|link| {
+    let de = with_link(|link| {
         link.tx[..n].copy_from_slice(&bytes[..n]);
         link.tx_len = n;
         link.tx_pos = 0;
         link.transmitting = true;
-        #[cfg(feature = "board-f103")]
-        if let Some(de) = link.de.as_mut() {
-            de.set_high();
+        if link.de_drive.software {
+            drive_de(link, true);
         }
-        // inside the critical section: the interrupt modifies CR1 too
-        board::UART.cr1().modify(|w| w.set_txeie(true));
+        link.de_drive
     });
+    // One time-driver tick more: a wait of n ticks may start late in a tick.
+    if de.software && de.lead_us > 0 {
+        embassy_time::Timer::after_micros(u64::from(de.lead_us) + 1).await;
+    }
+    // inside the critical section: the interrupt modifies CR1 too
+    with_link(|_| board::UART.cr1().modify(|w| w.set_txeie(true)));
     TX_DONE.wait().await;
+    if de.software {
+        if de.tail_us > 0 {
+            embassy_time::Timer::after_micros(u64::from(de.tail_us) + 1).await;
+        }
+        with_link(|link| drive_de(link, false));
+    }
+}
+
+/// DE driven by software (`calc::DeDrive::software`). The F103: its GPIO.
+#[cfg(feature = "board-f103")]
+fn drive_de(link: &mut Link, high: bool) {
+    if let Some(de) = link.de.as_mut() {
+        de.set_level(high.into());
+    }
+}
+
+/// DE driven by software on the G431: the USART's DE pin taken over as a
+/// GPIO (output data set first, so the switch from the alternate function,
+/// low between frames, is glitch-free) and handed back to the USART low.
+#[cfg(feature = "board-g431")]
+fn drive_de(_link: &mut Link, high: bool) {
+    use embassy_stm32::pac::gpio::vals::Moder;
+    let (port, pin) = (board::DE_PORT, board::DE_PIN);
+    port.bsrr().write(|w| {
+        w.set_bs(pin, high);
+        w.set_br(pin, !high);
+    });
+    port.moder().modify(|w| {
+        w.set_moder(pin, if high { Moder::OUTPUT } else { Moder::ALTERNATE })
+    });
 }
 
 /// The F103's DE GPIO, driven by [`send`] and the TC interrupt.

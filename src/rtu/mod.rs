@@ -2,10 +2,12 @@
 
 mod assembler;
 mod crc16;
+mod driver_enable;
 mod timing;
 
 pub use assembler::{FrameAssembler, RxEvent, RxFlags};
 pub use crc16::{crc16, with_crc};
+pub use driver_enable::{DriverEnable, DEFAULT_DE_BITS, MAX_DE_BITS};
 pub use timing::{CharFormat, FrameTiming, LineConfig};
 
 /// Largest RTU frame (address + PDU of 253 + CRC).
