@@ -20,6 +20,14 @@ venv=.venv/e2e
 "$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/e2e/requirements.txt
 
 cargo build --release --bin modbus-drive
+# The binary is where cargo put it: CARGO_TARGET_DIR or .cargo/config.toml
+# may move the target directory away from ./target.
+if [ -z "${MODBUS_DRIVE_BIN:-}" ]; then
+  target_dir=$(cargo metadata --format-version 1 --no-deps |
+    python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+  export MODBUS_DRIVE_BIN="$target_dir/release/modbus-drive"
+fi
+[ -x "$MODBUS_DRIVE_BIN" ] || { echo "e2e: no binary at $MODBUS_DRIVE_BIN" >&2; exit 1; }
 
 set +e
 "$venv/bin/python" -m pytest tests/e2e -p no:cacheprovider -v "$@"

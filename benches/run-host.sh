@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Host instruction counts (issue 7, README "Proof"): the workloads of
+# Host instruction counts (docs/benchmarks.md): the workloads of
 # benches/workloads under valgrind's callgrind through gungraun
 # (`cargo bench -p host-bench`), then the per-frame / per-step figures and
 # the drive-vs-competitor ratios. Needs valgrind and
@@ -9,7 +9,11 @@ cd "$(dirname "$0")"
 export RUSTFLAGS=""
 export GUNGRAUN_SAVE_SUMMARY=json
 cargo bench -q -p host-bench >/dev/null
-python3 - <<'PY'
+# The figures live in one place: the file this script writes (docs/generated/).
+out=../docs/generated/bench-host.md
+tmp="$(mktemp)"
+trap 'rm -f "$tmp"' EXIT
+python3 - <<'PY' | tee "$tmp"
 import json, glob, os
 ir = {}
 for f in glob.glob("target/gungraun/host-bench/instructions/*/*/summary.json"):
@@ -38,3 +42,12 @@ print(f'{"modbus-drive planner, amortised":<38}{planner / steps:>7.1f} /step  (M
 fixed, f32 = net["ramp_maker_fixed.fixed"] / steps, net["ramp_maker_f32.f32"] / steps
 print(f'{"  planner + interrupt vs ramp-maker":<38}{(isr + planner) / steps / fixed:>7.2f} x fixed, {(isr + planner) / steps / f32:.2f} x f32')
 PY
+{
+  echo "# Host instruction counts (generated)"
+  echo
+  echo "Written by \`benches/run-host.sh\` at $(git rev-parse --short HEAD 2>/dev/null || echo '?')$(git diff --quiet HEAD -- ../src ../benches 2>/dev/null || echo ' + local changes'); do not edit. Method: [../benchmarks.md](../benchmarks.md)."
+  echo
+  echo '```text'
+  cat "$tmp"
+  echo '```'
+} >"$out"

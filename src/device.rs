@@ -23,7 +23,11 @@
 //!   the flash failed, nothing for a broadcast. Send it like any reply
 //!   (step 3, no earlier than `reply_delay_us` after the request) and call
 //!   [`Device::reply_sent`] after it: an address or line changed by EE-rd /
-//!   EE-rS / EE-dEF takes effect then, as after a PA51..53 write.
+//!   EE-rS / EE-dEF takes effect then, as after a PA51..53 write;
+//! - under a moving axis (statusword bit 9) an EE request is refused with
+//!   exception 6 and changes nothing, at the request and again when it is
+//!   to run; glue that sees its step output busy by its own means refuses
+//!   it with [`Device::refuse_storage`] instead of running it.
 
 use heapless::Deque;
 
@@ -158,27 +162,53 @@ impl Device {
     /// Runs the waiting EE operation (if any) on `store` and returns its
     /// deferred reply: `None` when nothing was waiting, `Some(Silent)` after
     /// a broadcast, else `Some(Reply(n))` with the reply in `reply` — the
-    /// request's own success reply, or exception 4 when the flash failed or
-    /// EE-rS found no backup (§5.2 step 10). Call [`Self::reply_sent`] after
-    /// sending it.
+    /// request's own success reply, exception 4 when the flash failed or
+    /// EE-rS found no backup (§5.2 step 10), or exception 6 with nothing
+    /// changed when steps are being generated now (statusword bit 9, SPEC
+    /// §9: flash work stalls the processor, and with it the step
+    /// interrupt). Call [`Self::reply_sent`] after sending it.
     pub fn poll_storage<F: NorFlash>(
         &mut self,
         store: &mut ParamStore<F>,
         reply: &mut [u8; MAX_FRAME],
     ) -> Option<Response> {
-        let pending = self.ee_pending?;
+        if self.drive.generating_steps() {
+            return self.refuse_storage(reply);
+        }
+        let pending = self.ee_pending.take()?;
         let result = execute(pending.op, &mut self.pa, &mut self.od, store);
-        self.ee_pending = None;
-        let s = &mut self.store_status;
-        s.flash_failed = matches!(result, Err(EeError::Storage(_)));
-        let saved = matches!(
-            pending.op,
-            EeOp::Save | EeOp::RestoreBackup | EeOp::RestoreDefaults
-        );
-        if result.is_ok() && saved {
-            // The store holds a valid saved set now.
-            s.defaulted_blank = false;
-            s.defaulted_unreadable = false;
+        Some(self.finish_ee(pending, result, reply))
+    }
+
+    /// Refuses the waiting EE operation (if any) with exception 6 and
+    /// changes nothing, as [`Self::poll_storage`] does under a moving axis:
+    /// for glue that sees steps queued or the step output busy by its own
+    /// means (the firmware checks its step schedule before any flash work).
+    pub fn refuse_storage(&mut self, reply: &mut [u8; MAX_FRAME]) -> Option<Response> {
+        let pending = self.ee_pending.take()?;
+        Some(self.finish_ee(pending, Err(EeError::StepsRunning), reply))
+    }
+
+    /// The deferred reply of an EE operation that ran (or was refused).
+    fn finish_ee(
+        &mut self,
+        pending: PendingEe,
+        result: Result<(), EeError>,
+        reply: &mut [u8; MAX_FRAME],
+    ) -> Response {
+        let refused = result == Err(EeError::StepsRunning);
+        if !refused {
+            let s = &mut self.store_status;
+            s.flash_failed = matches!(result, Err(EeError::Storage(_)));
+            let saved = matches!(
+                pending.op,
+                EeOp::Save | EeOp::RestoreBackup | EeOp::RestoreDefaults
+            );
+            if result.is_ok() && saved {
+                // The store holds a valid saved set now.
+                s.defaulted_blank = false;
+                s.defaulted_unreadable = false;
+            }
         }
         self.push_event(Event::EeDone {
             op: pending.op,
@@ -188,7 +218,7 @@ impl Device {
             self.configuration_changed();
         }
         let Some(ok_reply) = pending.reply() else {
-            return Some(Response::Silent);
+            return Response::Silent;
         };
         let n = match result {
             Ok(()) => {
@@ -196,15 +226,20 @@ impl Device {
                 ok_reply.len()
             }
             Err(_) => {
-                // Code 4 is the same in both PA55 profiles.
-                self.slave.count_deferred_exception();
+                // Codes 4 and 6 are the same in both PA55 profiles.
+                let exception = if refused {
+                    crate::rtu::Exception::Busy
+                } else {
+                    crate::rtu::Exception::DeviceFailure
+                };
+                self.slave.count_deferred_exception(exception);
                 reply[0] = ok_reply[0];
                 reply[1] = ok_reply[1] | 0x80;
-                reply[2] = crate::slave::Exception::DeviceFailure as u8;
+                reply[2] = exception as u8;
                 with_crc(reply, 3)
             }
         };
-        Some(Response::Reply(n))
+        Response::Reply(n)
     }
 
     /// The working set was replaced (boot, EE-rd / EE-rS / EE-dEF): the

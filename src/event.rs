@@ -8,8 +8,8 @@
 
 use crate::drive::DriveEvent;
 use crate::params::{BootOutcome, EeError, EeOp};
+use crate::rtu::Exception;
 use crate::rtu::LineConfig;
-use crate::slave::Exception;
 
 /// Why a received frame was not used (SPEC §1, §3, §6).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

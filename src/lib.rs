@@ -20,6 +20,7 @@ pub mod device;
 pub mod dictionary;
 pub mod drive;
 pub mod event;
+pub mod mbap;
 pub mod motion;
 pub mod params;
 pub mod rtu;

@@ -24,57 +24,9 @@ use crate::rtu::{crc16, with_crc, RxEvent, MAX_FRAME, MIN_FRAME};
 /// Broadcast address (§2).
 pub const BROADCAST: u8 = 0;
 
-/// Function codes (§4).
-pub mod function {
-    pub const READ_HOLDING_REGISTERS: u8 = 0x03;
-    pub const WRITE_SINGLE_REGISTER: u8 = 0x06;
-    pub const DIAGNOSTICS: u8 = 0x08;
-    pub const WRITE_MULTIPLE_REGISTERS: u8 = 0x10;
-    pub const ENCAPSULATED_INTERFACE: u8 = 0x2B;
-}
-
-/// Largest quantity of a 0x03 read (§4).
-pub const MAX_READ_QUANTITY: u16 = 125;
-/// Largest quantity of a 0x10 write (§4).
-pub const MAX_WRITE_QUANTITY: u16 = 123;
-
-/// The exception codes of seed 000 (SPEC §5.2).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Exception {
-    IllegalFunction = 1,
-    IllegalDataAddress = 2,
-    IllegalDataValue = 3,
-    DeviceFailure = 4,
-    WriteReadOnly = 5,
-    Busy = 6,
-    ReadWriteOnly = 7,
-    ByteCountMismatch = 8,
-    Parity = 9,
-    Crc = 10,
-    NoSuchRegister = 11,
-}
-
-impl Exception {
-    /// The vendor code (PA55 = 0).
-    pub const fn vendor_code(self) -> u8 {
-        self as u8
-    }
-
-    /// The code sent under the profile PA55 selects; `None` when the
-    /// standard profile sends nothing (9 and 10, §5.2).
-    pub const fn code(self, standard_profile: bool) -> Option<u8> {
-        if !standard_profile {
-            return Some(self as u8);
-        }
-        match self {
-            Self::WriteReadOnly | Self::ReadWriteOnly | Self::NoSuchRegister => Some(2),
-            Self::ByteCountMismatch => Some(3),
-            Self::Parity | Self::Crc => None,
-            other => Some(other as u8),
-        }
-    }
-}
+pub use crate::rtu::pdu::{function, MAX_READ_QUANTITY, MAX_WRITE_QUANTITY};
+use crate::rtu::pdu::{ReadRequest, WriteMultipleRequest, WriteSingleRequest};
+pub use crate::rtu::Exception;
 
 /// What to do after a frame was handled.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -133,9 +85,14 @@ impl Slave {
     }
 
     /// An exception reply produced after the request (a failed EE
-    /// operation's exception 4, `Device::poll_storage`) is counted (§6).
-    pub fn count_deferred_exception(&mut self) {
-        self.counters.exceptions = self.counters.exceptions.wrapping_add(1);
+    /// operation's exception 4, or 6 for one refused under a moving axis,
+    /// `Device::poll_storage`) is counted (§6).
+    pub fn count_deferred_exception(&mut self, exception: Exception) {
+        let c = &mut self.counters;
+        c.exceptions = c.exceptions.wrapping_add(1);
+        if exception == Exception::Busy {
+            c.busy = c.busy.wrapping_add(1);
+        }
     }
 
     /// Listen-only mode (diagnostics 0x04) is on.
@@ -337,31 +294,15 @@ impl Slave {
     }
 }
 
-/// Start address and quantity (or value) of a 0x03 / 0x06 / 0x10 PDU.
-fn address_and_word(pdu: &[u8]) -> Option<(u16, u16)> {
-    match pdu {
-        [_, a0, a1, q0, q1, ..] => Some((
-            u16::from_be_bytes([*a0, *a1]),
-            u16::from_be_bytes([*q0, *q1]),
-        )),
-        _ => None,
-    }
-}
-
 /// 0x03: `03 start quantity` → `03 bytecount words…`.
 fn read_holding_registers<D: DriveLayer>(
     pdu: &[u8],
     regs: &Registers<'_, D>,
     out: &mut [u8],
 ) -> Handled {
-    let (start, quantity) = address_and_word(pdu)
-        .filter(|_| pdu.len() == 5)
-        .ok_or(Exception::ByteCountMismatch)?;
-    if quantity == 0 || quantity > MAX_READ_QUANTITY {
-        return Err(Exception::IllegalDataValue);
-    }
-    let bytes = 2 * usize::from(quantity);
-    regs.read(start, quantity, &mut out[2..])?;
+    let request = ReadRequest::new_checked(pdu)?;
+    let bytes = 2 * usize::from(request.quantity());
+    regs.read(request, &mut out[2..])?;
     out[0] = function::READ_HOLDING_REGISTERS;
     out[1] = bytes as u8;
     Ok(Reply::Pdu(2 + bytes))
@@ -369,10 +310,8 @@ fn read_holding_registers<D: DriveLayer>(
 
 /// 0x06: `06 address value` → the same frame.
 fn write_single_register<D: DriveLayer>(pdu: &[u8], regs: &mut Registers<'_, D>) -> Handled {
-    let (address, value) = address_and_word(pdu)
-        .filter(|_| pdu.len() == 5)
-        .ok_or(Exception::ByteCountMismatch)?;
-    regs.write_single(address, value)?;
+    let request = WriteSingleRequest::new_checked(pdu)?;
+    regs.write_single(request.address(), request.value())?;
     Ok(Reply::Echo)
 }
 
@@ -382,16 +321,9 @@ fn write_multiple_registers<D: DriveLayer>(
     regs: &mut Registers<'_, D>,
     out: &mut [u8],
 ) -> Handled {
-    let (start, quantity) = address_and_word(pdu).ok_or(Exception::ByteCountMismatch)?;
-    let data = pdu.get(6..).ok_or(Exception::ByteCountMismatch)?;
-    let byte_count = usize::from(pdu[5]);
-    if byte_count != 2 * usize::from(quantity) || byte_count != data.len() {
-        return Err(Exception::ByteCountMismatch);
-    }
-    if quantity == 0 || quantity > MAX_WRITE_QUANTITY {
-        return Err(Exception::IllegalDataValue);
-    }
-    regs.write(start, quantity, data)?;
+    let request = WriteMultipleRequest::new_checked(pdu)?;
+    regs.write(request)?;
+    // a checked request is at least six bytes long
     out[..5].copy_from_slice(&pdu[..5]);
     Ok(Reply::Pdu(5))
 }
@@ -402,46 +334,4 @@ fn exception_reply(reply: &mut [u8; MAX_FRAME], address: u8, function: u8, code:
     reply[1] = function | 0x80;
     reply[2] = code;
     with_crc(reply, 3)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn standard_profile_maps_vendor_codes() {
-        // SPEC §5.2: PA55 = 1 → 5, 7, 11 → 2; 8 → 3; 9/10 never sent.
-        use Exception::*;
-        let all = [
-            IllegalFunction,
-            IllegalDataAddress,
-            IllegalDataValue,
-            DeviceFailure,
-            WriteReadOnly,
-            Busy,
-            ReadWriteOnly,
-            ByteCountMismatch,
-            Parity,
-            Crc,
-            NoSuchRegister,
-        ];
-        let standard = [
-            Some(1),
-            Some(2),
-            Some(3),
-            Some(4),
-            Some(2),
-            Some(6),
-            Some(2),
-            Some(3),
-            None,
-            None,
-            Some(2),
-        ];
-        for (i, (e, s)) in all.iter().zip(standard).enumerate() {
-            assert_eq!(e.code(false), Some(i as u8 + 1));
-            assert_eq!(e.vendor_code(), i as u8 + 1);
-            assert_eq!(e.code(true), s, "{e:?}");
-        }
-    }
 }

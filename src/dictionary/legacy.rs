@@ -16,9 +16,9 @@
 //! ranges, all-or-nothing, word order) is shared with the §5 table in
 //! [`super::Registers`].
 
+use super::{dp_value, EeOp, Params, DP_BASE, DP_LAST, PA, PA_COUNT};
 use super::{DriveLayer, Registers};
-use crate::params::{dp_value, EeOp, Params, DP_BASE, DP_LAST, PA, PA_COUNT};
-use crate::slave::Exception;
+use crate::rtu::Exception;
 
 /// First address of PA0.
 pub const PA_BASE: u16 = 0x0064;
@@ -69,6 +69,12 @@ impl Block {
             Self::EeCommand => false,
             Self::Params => PA[pa_number(address)].read_only,
         }
+    }
+
+    /// An accepted write of this block is an EE operation (the only
+    /// writable address of [`Self::Monitor`] is the old EE command).
+    pub const fn runs_ee_operation(self) -> bool {
+        matches!(self, Self::Monitor | Self::EeCommand)
     }
 
     /// A read of `address` gets exception 7 (§5.2 step 7).

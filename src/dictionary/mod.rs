@@ -7,17 +7,23 @@
 //! everything the master writes is stored in [`OdValues`] / [`Params`] and
 //! handed to the drive layer as [`Config`].
 
+mod ee_command;
 mod legacy;
+mod monitor;
+mod pa;
 mod table;
 
+pub use ee_command::EeOp;
 pub use legacy::{Block as LegacyBlock, PA_BASE, PA_LAST};
+pub use monitor::{dp_value, DriveMonitor, StoreStatus, DP_BASE, DP_ERR, DP_LAST};
+pub use pa::{PaDef, Params, FIRMWARE_VERSION, PA, PA_COUNT};
 pub use table::{
     position, string_bytes, Access, DataType, Entry, Object, Span, STRING_BYTES, STRING_WORDS,
     TABLE,
 };
 
-use crate::params::{DriveMonitor, EeOp, Params, StoreStatus};
-use crate::slave::Exception;
+use crate::rtu::pdu::{ReadRequest, WriteMultipleRequest};
+use crate::rtu::Exception;
 
 /// The RW/WO values of the SPEC §5 table as last written by the master.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -71,6 +77,11 @@ pub struct Config<'a> {
 pub trait DriveLayer {
     /// 0x6041 (§8.2).
     fn statusword(&self) -> u16;
+    /// Steps are being generated (statusword bit 9): EE operations are
+    /// refused with exception 6 (SPEC §9).
+    fn generating_steps(&self) -> bool {
+        self.statusword() & STATUS_STEPS_RUNNING != 0
+    }
     /// 0x6061: the mode in force.
     fn mode_display(&self) -> i16;
     /// 0x6064, steps.
@@ -92,6 +103,10 @@ pub trait DriveLayer {
     /// 0x6040 was written.
     fn controlword_written(&mut self, controlword: u16, cfg: Config<'_>);
 }
+
+/// Statusword bit 9: the motor is running, steps are being generated
+/// (SPEC §8.2).
+pub const STATUS_STEPS_RUNNING: u16 = 1 << 9;
 
 /// Strings of 0x1008 / 0x1009 / 0x100A (SPEC §5), 16 ASCII bytes at most
 /// (longer ones are cut).
@@ -173,11 +188,13 @@ fn put_word(out: &mut [u8], i: usize, w: u16) {
 
 /// The last address of a legacy request, if it stays inside `block`.
 fn legacy_span(block: LegacyBlock, start: u16, quantity: u16) -> Result<u16, Exception> {
-    let last = u32::from(start) + u32::from(quantity) - 1;
-    if quantity == 0 || last > u32::from(block.last()) {
-        Err(Exception::IllegalDataAddress)
-    } else {
-        Ok(last as u16)
+    // quantity ≥ 1 before it is used: `start + quantity - 1` never wraps
+    let Some(extra) = quantity.checked_sub(1) else {
+        return Err(Exception::IllegalDataAddress);
+    };
+    match start.checked_add(extra) {
+        Some(last) if last <= block.last() => Ok(last),
+        _ => Err(Exception::IllegalDataAddress),
     }
 }
 
@@ -192,9 +209,10 @@ fn join_words(first: u16, second: u16, low_word_first: bool) -> u32 {
 }
 
 impl<D: DriveLayer> Registers<'_, D> {
-    /// Function 0x03 after the length and quantity checks: §5.2 steps 4, 6,
+    /// Function 0x03 (length and quantity checked by [`ReadRequest`]): §5.2 steps 4, 6,
     /// 7 and 9, then `quantity` words big-endian into `out`.
-    pub fn read(&self, start: u16, quantity: u16, out: &mut [u8]) -> Result<(), Exception> {
+    pub fn read(&self, request: ReadRequest, out: &mut [u8]) -> Result<(), Exception> {
+        let (start, quantity) = (request.start(), request.quantity());
         let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
         match region {
             Region::Table(first) => {
@@ -295,15 +313,14 @@ impl<D: DriveLayer> Registers<'_, D> {
         Ok(())
     }
 
-    /// Function 0x10 after the length and quantity checks: §5.2 steps
+    /// Function 0x10 (length, byte count and quantity checked by
+    /// [`WriteMultipleRequest`]): §5.2 steps
     /// 4..=10, all-or-nothing. `data` holds `quantity` big-endian words.
     /// Stores every value, then tells the drive layer: values, then mode,
     /// then controlword (§5.2).
-    pub fn write(&mut self, start: u16, quantity: u16, data: &[u8]) -> Result<(), Exception> {
+    pub fn write(&mut self, request: WriteMultipleRequest<'_>) -> Result<(), Exception> {
+        let (start, quantity, data) = (request.start(), request.quantity(), request.data());
         let region = Region::at(start).ok_or(Exception::NoSuchRegister)?;
-        if data.len() != 2 * usize::from(quantity) {
-            return Err(Exception::ByteCountMismatch);
-        }
         match region {
             Region::Table(first) => {
                 // Checked in the §5.2 order (range 2, access 5, value 3,
@@ -373,6 +390,11 @@ impl<D: DriveLayer> Registers<'_, D> {
             return Err(Exception::IllegalDataValue);
         }
         if self.busy {
+            return Err(Exception::Busy);
+        }
+        // SPEC §9: an EE operation under a moving axis is refused (step 9)
+        // and changes nothing; the check at the run is Device::poll_storage.
+        if block.runs_ee_operation() && self.drive.generating_steps() {
             return Err(Exception::Busy);
         }
         for (a, v) in (start..=last).zip(words()) {

@@ -627,7 +627,11 @@ impl Drive {
         match sched.limit_brake() {
             Some(b) if !self.limit_braked => {
                 self.limit_braked = true;
-                self.limit_stop(!b.forward);
+                // the control loop may have seen the limit first (a call at
+                // the edge step, before the interrupt's next step): one stop
+                if !self.limit_stopping {
+                    self.limit_stop(!b.forward);
+                }
                 self.planner.stop_at_once(sched);
             }
             Some(_) => {}

@@ -17,6 +17,12 @@
 //!   origin is the step where the edge was seen).
 //! - [`SimAxis::kick`]`(sched)`: what the glue does after each control call:
 //!   start the idle interrupt when the schedule holds segments.
+//! - [`SimAxis::with_limit_interrupt`], [`SimAxis::set_limit_enable`]`(pa14)`:
+//!   the limit-switch interrupt too (the firmware's EXTI handler): the
+//!   enabled limits go to [`StepSchedule::set_limits`] right after the step
+//!   that changed them and at every [`SimAxis::run_until`], so the step
+//!   interrupt's limit brake (SPEC §8.7) begins at the edge step, as on
+//!   the board. Without it the caller plays that interrupt.
 //! - [`SimAxis::switches`]: the logical switch states at the current
 //!   position; [`SimAxis::position`], [`SimAxis::now_ticks`],
 //!   [`SimAxis::now_us`], [`SimAxis::us_to_ticks`].
@@ -67,6 +73,8 @@ pub struct SimAxis {
     cw_limit: Option<i64>,
     ccw_limit: Option<i64>,
     home: Option<(i64, i64)>,
+    /// The limit-switch interrupt with PA14's enable bits, if simulated.
+    limit_interrupt: Option<u16>,
     /// Steps made.
     pub steps: u64,
 }
@@ -82,6 +90,7 @@ impl SimAxis {
             cw_limit: None,
             ccw_limit: None,
             home: None,
+            limit_interrupt: None,
             steps: 0,
         }
     }
@@ -99,6 +108,32 @@ impl SimAxis {
     pub fn with_home(mut self, from: i64, to: i64) -> Self {
         self.home = Some((from, to));
         self
+    }
+
+    /// Simulates the limit-switch interrupt (module docs), both limits
+    /// enabled (PA14's default) until [`Self::set_limit_enable`].
+    pub fn with_limit_interrupt(mut self) -> Self {
+        self.limit_interrupt = Some(0b11);
+        self
+    }
+
+    /// PA14 (bit 0 CW, bit 1 CCW) as the limit-switch interrupt applies it;
+    /// the glue passes the drive's value before each run.
+    pub fn set_limit_enable(&mut self, pa14: u16) {
+        if self.limit_interrupt.is_some() {
+            self.limit_interrupt = Some(pa14);
+        }
+    }
+
+    /// The limit-switch interrupt: the enabled limits active now.
+    fn limit_interrupt(&self, sched: &StepSchedule) {
+        if let Some(enable) = self.limit_interrupt {
+            let s = self.switches();
+            sched.set_limits(
+                s.cw_limit && enable & 1 != 0,
+                s.ccw_limit && enable & 2 != 0,
+            );
+        }
     }
 
     pub fn at(mut self, position: i64) -> Self {
@@ -157,6 +192,7 @@ impl SimAxis {
         until: u64,
         mut on_step: impl FnMut(StepRecord),
     ) -> RunStop {
+        self.limit_interrupt(sched);
         loop {
             let Some((tick, forward)) = self.next else {
                 self.now = self.now.max(until);
@@ -181,6 +217,7 @@ impl SimAxis {
                 .advance(sched)
                 .map(|s| (tick + u64::from(s.delay_ticks), s.forward));
             if self.switches() != before {
+                self.limit_interrupt(sched);
                 return RunStop::SwitchChanged;
             }
         }

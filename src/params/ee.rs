@@ -16,47 +16,14 @@
 
 use embedded_storage::nor_flash::NorFlash;
 
-use crate::dictionary::OdValues;
+pub use crate::dictionary::EeOp;
+use crate::dictionary::{OdValues, Params};
 
 use super::record::ParamSet;
 use super::storage::{ParamStore, Slot, StorageError};
-use super::Params;
 
-/// An EE operation code (register 0x003A, or the old 0x06 to 0x0000).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum EeOp {
-    /// EE-Set (1).
-    Save = 1,
-    /// EE-rd (2).
-    Reload = 2,
-    /// EE-bA (3).
-    Backup = 3,
-    /// EE-rS (4).
-    RestoreBackup = 4,
-    /// EE-dEF (5).
-    RestoreDefaults = 5,
-}
-
-impl EeOp {
-    /// From the register value; `None` outside 1..=5 (→ exception 3).
-    pub fn from_code(v: u16) -> Option<Self> {
-        Some(match v {
-            1 => Self::Save,
-            2 => Self::Reload,
-            3 => Self::Backup,
-            4 => Self::RestoreBackup,
-            5 => Self::RestoreDefaults,
-            _ => return None,
-        })
-    }
-
-    pub fn code(self) -> u16 {
-        self as u16
-    }
-}
-
-/// Why an EE operation failed (the master sees exception 4).
+/// Why an EE operation failed (the master sees exception 4, or 6 for
+/// [`EeError::StepsRunning`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum EeError {
@@ -64,6 +31,9 @@ pub enum EeError {
     Storage(StorageError),
     /// EE-rS without a backup ever made with EE-bA.
     NoBackup,
+    /// Refused, nothing changed: steps were being generated when it was to
+    /// run (SPEC §9; flash work would stall the step interrupt).
+    StepsRunning,
 }
 
 impl From<StorageError> for EeError {

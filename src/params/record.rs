@@ -16,10 +16,8 @@
 //! The write-only 0x6040 / 0x6060 and the target position 0x607A are not
 //! saved (SPEC §9); a loaded set leaves them as they are in the working set.
 
-use crate::dictionary::OdValues;
+use crate::dictionary::{OdValues, Params, PA_COUNT};
 use crate::rtu::crc16;
-
-use super::{Params, PA_COUNT};
 
 /// Format version written into every record; a record of another version is
 /// not loaded (the store then reports it unreadable and defaults apply).
@@ -279,7 +277,7 @@ mod tests {
         let (d, fixed) = ParamSet::decode(&s.encode()).expect("crc is good");
         assert_eq!(fixed, 2);
         assert_eq!(d.pa.get(51), 1);
-        assert_eq!(d.pa.get(2), super::super::pa::FIRMWARE_VERSION);
+        assert_eq!(d.pa.get(2), crate::dictionary::FIRMWARE_VERSION);
         assert_eq!(d.od.homing_method, 0);
     }
 }

@@ -19,12 +19,25 @@ TRANSPORTS (both may be used at once):
                              open it like a serial port (any baud, 8N1).
     --pty-link PATH          Also make a symlink PATH -> the pseudo-terminal
                              (replaces an existing symlink, refuses other files).
-    --no-pty                 No pseudo-terminal (then --tcp is required).
+    --no-pty                 No pseudo-terminal (then --tcp or --modbus-tcp
+                             is required).
     --tcp ADDR:PORT          Listen for Modbus-RTU frames over TCP (same bytes,
                              same CRC as on the serial line; not Modbus-TCP).
                              Each connection is its own line to the drives;
                              several at once. Repeatable. Port 0 picks a free
                              port (printed on stderr).
+    --modbus-tcp ADDR:PORT   Listen for Modbus TCP (MBAP header, no CRC: what
+                             HMI/SCADA tools and PLCs speak). The unit id
+                             selects the drive with that address; 0 and 255
+                             reach the drive when there is only one. Several
+                             clients at once. Repeatable; port 0 as --tcp.
+
+COMMISSIONING PAGE:
+    --web ADDR:PORT          Serve a page on ADDR:PORT (only there; e.g.
+                             127.0.0.1:8080): live scope, status, dictionary
+                             and PA table, jog / move / homing, switches.
+                             Its requests go through the drive's dispatcher
+                             as a second port. Port 0 picks a free port.
 
 DRIVES AND AXES:
     --board g431|f103        The board whose step timer the drives run on, so
@@ -44,6 +57,9 @@ DRIVES AND AXES:
                              (a wiring fault, e.g. a cut cable to normally
                              closed switches), and the drive faults there
                              (error register bit 0, SPEC §8.7).
+    --standard-exceptions    Answer with the standard Modbus exception codes
+                             only (PA55 = 1 on every drive at start-up):
+                             vendor codes 5, 7, 11 become 2, code 8 becomes 3.
 
 FILES:
     --state FILE             The drives' parameter flash lives in FILE (created
@@ -84,12 +100,15 @@ pub struct Options {
     pub pty: bool,
     pub pty_link: Option<PathBuf>,
     pub tcp: Vec<SocketAddr>,
+    pub modbus_tcp: Vec<SocketAddr>,
+    pub standard_exceptions: bool,
     pub drives: Vec<u8>,
     pub axis: AxisLayout,
     pub state: Option<PathBuf>,
     pub trace: Option<PathBuf>,
     pub plot: Option<PathBuf>,
     pub status_line: bool,
+    pub web: Option<SocketAddr>,
     pub board: Board,
 }
 
@@ -99,12 +118,15 @@ impl Default for Options {
             pty: true,
             pty_link: None,
             tcp: Vec::new(),
+            modbus_tcp: Vec::new(),
+            standard_exceptions: false,
             drives: vec![1],
             axis: AxisLayout::default(),
             state: None,
             trace: None,
             plot: None,
             status_line: true,
+            web: None,
             board: Board::G431,
         }
     }
@@ -148,24 +170,30 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
                 None => err(format!("{name} needs a value (see --help)")),
             }
         };
+        const SWITCHES: [&str; 6] = [
+            "--help",
+            "--version",
+            "--no-pty",
+            "--no-status",
+            "--allow-limit-overlap",
+            "--standard-exceptions",
+        ];
+        if inline.is_some() && SWITCHES.contains(&flag.as_str()) {
+            return err(format!("{flag} takes no value (got `{arg}`)"));
+        }
         match flag.as_str() {
             "-h" | "--help" => return Ok(Command::Help),
             "-V" | "--version" => return Ok(Command::Version),
             "--no-pty" => o.pty = false,
             "--no-status" => o.status_line = false,
             "--allow-limit-overlap" => limit_overlap = true,
+            "--standard-exceptions" => o.standard_exceptions = true,
             "--pty-link" => o.pty_link = Some(PathBuf::from(value("--pty-link")?)),
-            "--tcp" => {
-                let v = value("--tcp")?;
-                match v.parse::<SocketAddr>() {
-                    Ok(a) => o.tcp.push(a),
-                    Err(_) => {
-                        return err(format!(
-                            "--tcp {v}: expected ADDR:PORT, e.g. 127.0.0.1:5020 or [::1]:5020"
-                        ))
-                    }
-                }
-            }
+            "--tcp" => o.tcp.push(parse_socket("--tcp", &value("--tcp")?)?),
+            "--modbus-tcp" => o
+                .modbus_tcp
+                .push(parse_socket("--modbus-tcp", &value("--modbus-tcp")?)?),
+            "--web" => o.web = Some(parse_socket("--web", &value("--web")?)?),
             "--drives" => o.drives = parse_drives(&value("--drives")?)?,
             "--board" => {
                 let v = value("--board")?;
@@ -190,8 +218,8 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
     if !o.pty && o.pty_link.is_some() {
         return err("--pty-link and --no-pty contradict each other");
     }
-    if !o.pty && o.tcp.is_empty() {
-        return err("--no-pty leaves no transport: add --tcp ADDR:PORT");
+    if !o.pty && o.tcp.is_empty() && o.modbus_tcp.is_empty() {
+        return err("--no-pty leaves no transport: add --tcp or --modbus-tcp ADDR:PORT");
     }
     if let (Some(cw), Some(ccw)) = (o.axis.cw_limit_steps, o.axis.ccw_limit_steps) {
         if cw >= ccw && !limit_overlap {
@@ -202,6 +230,15 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
         }
     }
     Ok(Command::Run(o))
+}
+
+fn parse_socket(flag: &str, v: &str) -> Result<SocketAddr, UsageError> {
+    v.parse::<SocketAddr>().or_else(|_| {
+        err(format!(
+            "{flag} {v}: expected ADDR:PORT with a numeric address, e.g. 127.0.0.1:5020 \
+             or [::1]:5020"
+        ))
+    })
 }
 
 fn parse_drives(v: &str) -> Result<Vec<u8>, UsageError> {
@@ -270,6 +307,9 @@ mod tests {
             "--tcp",
             "127.0.0.1:5020",
             "--tcp=[::1]:0",
+            "--modbus-tcp",
+            "127.0.0.1:5502",
+            "--standard-exceptions",
             "--drives",
             "3,1,247",
             "--cw-limit",
@@ -284,12 +324,17 @@ mod tests {
             "--plot",
             "p.svg",
             "--no-status",
+            "--web",
+            "127.0.0.1:8080",
             "--board=F103",
         ])
         .unwrap();
+        assert_eq!(o.web, Some("127.0.0.1:8080".parse().unwrap()));
         assert_eq!(o.board, Board::F103);
         assert_eq!(o.pty_link, Some(PathBuf::from("/tmp/x")));
         assert_eq!(o.tcp.len(), 2);
+        assert_eq!(o.modbus_tcp, vec!["127.0.0.1:5502".parse().unwrap()]);
+        assert!(o.standard_exceptions);
         assert_eq!(o.drives, vec![3, 1, 247]);
         assert_eq!(o.axis.cw_limit_steps, Some(-50000));
         assert_eq!(o.axis.ccw_limit_steps, Some(50000));
@@ -322,6 +367,14 @@ mod tests {
             (&["--bogus"][..], "--bogus"),
             (&["--tcp"], "--tcp needs a value"),
             (&["--tcp", "localhost"], "ADDR:PORT"),
+            (
+                &["--modbus-tcp", "localhost:502"],
+                "--modbus-tcp localhost:502",
+            ),
+            (&["--modbus-tcp"], "--modbus-tcp needs a value"),
+            (&["--no-pty=yes"], "--no-pty takes no value"),
+            (&["--standard-exceptions=1"], "takes no value"),
+            (&["--web", "8080"], "--web 8080: expected ADDR:PORT"),
             (&["--drives", "0"], "1..=247"),
             (&["--drives", "248"], "1..=247"),
             (&["--drives", "1,x"], "`x`"),
@@ -349,6 +402,9 @@ mod tests {
             "--pty-link",
             "--no-pty",
             "--tcp",
+            "--modbus-tcp",
+            "--standard-exceptions",
+            "--allow-limit-overlap",
             "--drives",
             "--board",
             "--cw-limit",
@@ -358,6 +414,7 @@ mod tests {
             "--trace",
             "--plot",
             "--no-status",
+            "--web",
             "--help",
             "--version",
         ] {

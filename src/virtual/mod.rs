@@ -6,7 +6,8 @@
 //! Files, in the order a request travels: `cli.rs` (flags) → `transport.rs`
 //! (pty / TCP byte streams) → `run.rs` (event loop: framing, replies,
 //! control loop) → `console.rs` (status line, logs), `trace.rs` (CSV, SVG),
-//! `flash.rs` (`--state` file as NOR flash).
+//! `flash.rs` (`--state` file as NOR flash), `web/` (`--web`, the
+//! commissioning page).
 
 mod cli;
 mod console;
@@ -14,6 +15,7 @@ mod flash;
 mod run;
 mod trace;
 mod transport;
+mod web;
 
 use std::io::Write;
 use std::process::ExitCode;

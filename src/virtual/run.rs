@@ -37,6 +37,9 @@ use super::console::Console;
 use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
 use super::transport::{Listener, Pty, ReadOutcome, Stream};
+use super::web::{self, ExceptionLog, Forced, WebPort};
+
+mod modbus_tcp;
 
 /// Longest sleep of the loop: the status line and trace keep ticking.
 const IDLE_WAKE_US: u64 = 20_000;
@@ -72,6 +75,10 @@ struct DriveSlot {
     next_control_us: u64,
     last_statusword: u16,
     last_mode: i16,
+    /// Switches forced from the page (`--web`).
+    forced: Forced,
+    /// The last exceptions answered, for the page.
+    exceptions: ExceptionLog,
 }
 
 impl DriveSlot {
@@ -123,6 +130,8 @@ impl DriveSlot {
             next_control_us: 0,
             last_statusword,
             last_mode,
+            forced: Forced::default(),
+            exceptions: ExceptionLog::new(),
         })
     }
 
@@ -147,14 +156,16 @@ impl DriveSlot {
     /// the axis made every step up to then.
     fn control_at(&mut self, t_us: u64) {
         let until = self.axis.us_to_ticks(t_us);
+        // the simulated limit-switch interrupt applies PA14 as the board's
+        self.axis.set_limit_enable(self.device.pa.limit_enable());
         while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
             let at = self.axis.now_us();
-            self.device
-                .control(at, self.axis.switches(), &self.schedule);
+            let switches = self.forced.apply(self.axis.switches());
+            self.device.control(at, switches, &self.schedule);
             self.axis.kick(&self.schedule);
         }
-        self.device
-            .control(t_us, self.axis.switches(), &self.schedule);
+        let switches = self.forced.apply(self.axis.switches());
+        self.device.control(t_us, switches, &self.schedule);
         self.axis.kick(&self.schedule);
     }
 
@@ -166,7 +177,9 @@ impl DriveSlot {
 /// The simulated axis with the `--cw-limit` / `--ccw-limit` /
 /// `--home-switch` switches, at the step timer frequency the planner uses.
 fn sim_axis(layout: AxisLayout, tick_hz: u32) -> SimAxis {
-    let mut axis = SimAxis::new(tick_hz);
+    // with the limit-switch interrupt: the step interrupt brakes at the
+    // edge step, as on the board (SPEC §8.7)
+    let mut axis = SimAxis::new(tick_hz).with_limit_interrupt();
     if let Some(edge) = layout.cw_limit_steps {
         axis = axis.with_cw_limit(i64::from(edge));
     }
@@ -231,6 +244,9 @@ pub struct VirtualDrive {
     listeners: Vec<Listener>,
     console: Console,
     trace: Trace,
+    /// `--modbus-tcp` (`run/modbus_tcp.rs`).
+    mbap: modbus_tcp::ModbusTcp,
+    web: Option<WebPort>,
 }
 
 /// Startup failure, reported with exit status 1.
@@ -265,7 +281,33 @@ impl VirtualDrive {
             console.log(&format!("tcp: listening on {} (RTU framing)", l.addr));
             listeners.push(l);
         }
+        let mut mbap = modbus_tcp::ModbusTcp::default();
+        for &addr in &opts.modbus_tcp {
+            let l = Listener::bind(addr)
+                .map_err(|e| StartError(format!("--modbus-tcp {addr}: cannot listen: {e}")))?;
+            console.log(&format!(
+                "modbus-tcp: listening on {} (MBAP framing)",
+                l.addr
+            ));
+            mbap.listeners.push(l);
+        }
+        let web = match opts.web {
+            Some(addr) => {
+                let w = WebPort::start(addr, drives.len())
+                    .map_err(|e| StartError(format!("cannot serve the page on {addr}: {e}")))?;
+                console.log(&format!("web: page on http://{}/", w.addr));
+                Some(w)
+            }
+            None => None,
+        };
         for d in &mut drives {
+            if opts.standard_exceptions {
+                const PA55: usize = 55;
+                d.device.pa.set_unchecked(PA55, 1);
+            }
+            // The first control call: a fault the drive starts in (both
+            // limits active) is reported now, not with the first frame.
+            d.advance(0);
             log_events(&mut console, d, None);
         }
         let trace = Trace::new(opts.trace.as_deref(), opts.plot.as_deref(), drives.len())
@@ -287,6 +329,8 @@ impl VirtualDrive {
             listeners,
             console,
             trace,
+            mbap,
+            web,
         })
     }
 
@@ -294,11 +338,15 @@ impl VirtualDrive {
     pub fn run(mut self, stop: &Arc<AtomicBool>) -> Result<(), String> {
         while !stop.load(Ordering::SeqCst) {
             let now = self.clock.now_us();
-            for d in &mut self.drives {
-                d.advance(now);
+            for di in 0..self.drives.len() {
+                self.drives[di].advance(now);
+                // what the control loop reports belongs to no line
+                self.log_events(di, None);
             }
+            self.serve_web(now);
             self.close_frames(now);
             self.send_due_replies(now);
+            self.modbus_tcp_send_due(now);
             self.observe(now);
             let timeout = self.next_deadline(now).saturating_sub(self.clock.now_us());
             self.wait_and_read(timeout)?;
@@ -312,6 +360,25 @@ impl VirtualDrive {
                 Ok(())
             }
             Err(e) => Err(e),
+        }
+    }
+
+    /// The page's commands, between two frames of any line (`web/`).
+    fn serve_web(&mut self, now: u64) {
+        let Some(web) = &mut self.web else {
+            return;
+        };
+        for di in web.serve(now, &mut self.drives) {
+            log_events(&mut self.console, &mut self.drives[di], Some("web"));
+            // A bus reply still queued for this drive applies a deferred
+            // address or line change when it leaves; else it applies now.
+            let queued = self
+                .lines
+                .iter()
+                .any(|l| l.pending.iter().any(|p| p.drive == di));
+            if !queued {
+                self.reply_done(di);
+            }
         }
     }
 
@@ -439,8 +506,21 @@ impl VirtualDrive {
             .iter()
             .filter(|l| matches!(l.stream, Stream::Tcp(_)))
             .count();
-        self.console
-            .status(format!("{} | tcp conns {conns}", status.join(" | ")));
+        let mb = &self.mbap;
+        let modbus_tcp = if mb.listeners.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " | modbus-tcp conns {} requests {} bad ADUs {}",
+                mb.connections(),
+                mb.stats.requests,
+                mb.stats.bad_adus()
+            )
+        };
+        self.console.status(format!(
+            "{} | tcp conns {conns}{modbus_tcp}",
+            status.join(" | ")
+        ));
     }
 
     /// The next time the loop must run even without input.
@@ -463,12 +543,15 @@ impl VirtualDrive {
         if self.trace.is_active() {
             at = at.min(now + super::trace::SAMPLE_PERIOD_US);
         }
+        if let Some(due) = self.mbap.next_due() {
+            at = at.min(due);
+        }
         at
     }
 
     /// Waits up to `timeout_us` for input, then reads and frames it.
     fn wait_and_read(&mut self, timeout_us: u64) -> Result<(), String> {
-        let (readable, writable, accept) = {
+        let (readable, writable, accept, modbus_tcp) = {
             let mut fds: Vec<PollFd> = Vec::new();
             for line in &self.lines {
                 let mut ev = PollFlags::POLLIN;
@@ -481,6 +564,8 @@ impl VirtualDrive {
                 let fd: BorrowedFd<'_> = std::os::fd::AsFd::as_fd(&l.socket);
                 fds.push(PollFd::new(fd, PollFlags::POLLIN));
             }
+            let m = fds.len();
+            fds.extend(self.mbap.poll_fds());
             // Round up so a deadline is never missed by sleeping too little.
             let ms = timeout_us.div_ceil(1000).min(u64::from(u16::MAX)) as u16;
             match poll(&mut fds, PollTimeout::from(ms)) {
@@ -500,10 +585,11 @@ impl VirtualDrive {
                     .iter()
                     .map(|f| ready(f, PollFlags::POLLOUT))
                     .collect::<Vec<_>>(),
-                fds[n..]
+                fds[n..m]
                     .iter()
                     .map(|f| ready(f, PollFlags::POLLIN))
                     .collect::<Vec<_>>(),
+                fds[m..].iter().map(|f| f.revents()).collect::<Vec<_>>(),
             )
         };
 
@@ -530,6 +616,7 @@ impl VirtualDrive {
                 self.accept(i);
             }
         }
+        self.modbus_tcp_ready(&modbus_tcp);
         Ok(())
     }
 
@@ -610,11 +697,24 @@ fn handle(
     now_us: u64,
     pending: &mut VecDeque<PendingReply>,
 ) -> bool {
+    let due_us = last_rx_us + u64::from(slot.device.reply_delay_us());
+    handle_due(slot, di, ev, due_us, now_us, pending)
+}
+
+/// [`handle`] with the reply's earliest time given (Modbus TCP has no
+/// serial-line reply delay).
+fn handle_due(
+    slot: &mut DriveSlot,
+    di: usize,
+    ev: RxEvent<'_>,
+    mut due_us: u64,
+    now_us: u64,
+    pending: &mut VecDeque<PendingReply>,
+) -> bool {
     // The drive acts on a frame at the time it closed (SPEC §8: control
     // after each handled frame), with its axis up to date.
     slot.advance(now_us);
     let mut reply = [0u8; MAX_FRAME];
-    let mut due_us = last_rx_us + u64::from(slot.device.reply_delay_us());
     let mut response = slot.device.handle_rx(ev, &mut reply);
     let mut ee = false;
     if let Some(r) = slot.device.poll_storage(&mut slot.store, &mut reply) {
@@ -645,6 +745,17 @@ fn handle(
 /// flash operation, which the core only knows as "flash failed").
 fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
     while let Some(ev) = slot.device.take_event() {
+        if let Event::Exception {
+            function,
+            exception,
+            answered,
+        } = ev
+        {
+            let standard = slot.device.pa.standard_exceptions();
+            let code = exception.code(standard).unwrap_or(exception.vendor_code());
+            let port = line.unwrap_or("-");
+            slot.exceptions.record(port, function, code, answered);
+        }
         let on = line.map_or(String::new(), |l| format!(" on {l}"));
         let failed = matches!(
             ev,
@@ -718,6 +829,45 @@ fn describe(ev: &Event) -> String {
         Event::EeDone { op, error: None } => format!("EE operation {op:?} done"),
         Event::EeDone { op, error: Some(e) } => format!("EE operation {op:?} failed ({e:?})"),
         other => format!("{other:?}"),
+    }
+}
+
+/// The page reaches a drive through its dispatcher only (`web/modbus.rs`).
+impl web::Dispatch for DriveSlot {
+    fn device(&mut self) -> &mut Device {
+        &mut self.device
+    }
+
+    fn run_storage(&mut self, reply: &mut [u8; MAX_FRAME]) -> Option<Response> {
+        let r = self.device.poll_storage(&mut self.store, reply);
+        // The page's answer waits for nothing: the flash's time is not
+        // simulated for it, so its tally starts afresh.
+        self.store.flash().take_busy_us();
+        r
+    }
+
+    fn advance(&mut self, now_us: u64) {
+        DriveSlot::advance(self, now_us);
+    }
+
+    fn control_at(&mut self, now_us: u64) {
+        DriveSlot::control_at(self, now_us);
+    }
+}
+
+impl web::Target for DriveSlot {
+    fn view<'a>(&'a self, port: &'a modbus_drive::slave::Slave) -> web::View<'a> {
+        web::View {
+            device: &self.device,
+            port,
+            axis_switches: self.axis.switches(),
+            forced: self.forced,
+            exceptions: &self.exceptions,
+        }
+    }
+
+    fn force(&mut self, switch: web::Switch, state: Option<bool>) {
+        self.forced.set(switch, state);
     }
 }
 

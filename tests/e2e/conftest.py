@@ -11,6 +11,7 @@ import select
 import signal
 import socket
 import struct
+import json
 import subprocess
 import time
 from pathlib import Path
@@ -21,7 +22,20 @@ from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
 ROOT = Path(__file__).resolve().parents[2]
-BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
+
+
+def target_dir() -> Path:
+    """Where cargo puts the build: `cargo metadata` knows (it honours
+    CARGO_TARGET_DIR and .cargo/config.toml); ./target without cargo."""
+    try:
+        out = subprocess.run(["cargo", "metadata", "--format-version", "1", "--no-deps"],
+                             cwd=ROOT, capture_output=True, check=True, timeout=60).stdout
+        return Path(json.loads(out)["target_directory"])
+    except (OSError, subprocess.SubprocessError, ValueError, KeyError):
+        return Path(os.environ.get("CARGO_TARGET_DIR", ROOT / "target"))
+
+
+BIN = Path(os.environ.get("MODBUS_DRIVE_BIN") or target_dir() / "release" / "modbus-drive")
 READY_TIMEOUT_S = 10.0
 STOP_TIMEOUT_S = 5.0
 BAUD = 115200
@@ -62,6 +76,7 @@ class VirtualDrive:
         self.stderr_path = workdir / f"stderr-{time.monotonic_ns()}.log"
         self.proc: subprocess.Popen | None = None
         self.tcp_port: int | None = None
+        self.modbus_tcp_port: int | None = None
         self.returncode: int | None = None
 
     def start(self) -> "VirtualDrive":
@@ -84,9 +99,12 @@ class VirtualDrive:
         if line != b"ready\n":
             self.stop()
             raise RuntimeError(f"no `ready` from {self.args}: {line!r}\n{self.stderr()}")
-        m = re.search(r"tcp: listening on 127\.0\.0\.1:(\d+)", self.stderr())
+        m = re.search(r"\] tcp: listening on 127\.0\.0\.1:(\d+)", self.stderr())
         if m:
             self.tcp_port = int(m.group(1))
+        m = re.search(r"\] modbus-tcp: listening on 127\.0\.0\.1:(\d+)", self.stderr())
+        if m:
+            self.modbus_tcp_port = int(m.group(1))
         return self
 
     def stderr(self) -> str:

@@ -39,12 +39,56 @@ def test_mbpoll_writes_the_acceleration(start_drive):
 
 
 def readme_session() -> str:
-    """The mbpoll block of the README's "First commands", as a newcomer
-    copies it."""
-    readme = (ROOT / "README.md").read_text()
-    m = re.search(r"```sh\n(M=\"mbpoll.*?)```", readme, re.S)
-    assert m, "README: the mbpoll session block is gone"
+    """The mbpoll block of the first session (docs/first-commands.md, which
+    the README links to), as a newcomer copies it."""
+    doc = (ROOT / "docs" / "first-commands.md").read_text()
+    m = re.search(r"```sh\n(M=\"mbpoll.*?)```", doc, re.S)
+    assert m, "docs/first-commands.md: the mbpoll session block is gone"
     return m.group(1)
+
+
+def readme_console(program: str) -> tuple[str, str]:
+    """The README's first `$ program ...` console block: the command line
+    and the output it shows."""
+    readme = (ROOT / "README.md").read_text()
+    for block in re.findall(r"```console\n(.*?)```", readme, re.S):
+        lines = block.splitlines()
+        if lines and lines[0].startswith(f"$ {program} "):
+            return lines[0][2:], "\n".join(lines[1:])
+    raise AssertionError(f"README: no console block starting with `$ {program}`")
+
+
+def test_the_readmes_first_read_prints_what_the_readme_shows(start_drive):
+    """README's second first command, run unchanged but for the link path,
+    prints exactly the output the README shows under it."""
+    d = start_drive("--no-status")
+    command, shown = readme_console("mbpoll")
+    command = command.replace("/tmp/ttyDRIVE", str(d.link))
+    r = subprocess.run(["bash", "-euo", "pipefail", "-c", command],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert r.stdout.strip() == shown.strip(), r.stdout
+
+
+def test_the_readmes_drive_prints_what_the_readme_shows(start_drive):
+    """README's first command: the drive prints `ready` (the fixture waits
+    for exactly that line) and then the lines the README shows, the pty's
+    own name and the timestamps aside."""
+    command, shown = readme_console("cargo")
+    assert command.startswith("cargo run --release -- --pty-link /tmp/ttyDRIVE")
+    lines = shown.splitlines()
+    assert lines[0] == "ready", lines
+    d = start_drive()
+    time.sleep(0.3)
+    got = d.stderr().splitlines()
+    d.stop(signal.SIGINT)
+    for want in lines[1:]:
+        stamped = re.fullmatch(r"\[ *\d+\.\d{3}\] (.*)", want)
+        pattern = re.escape(stamped.group(1) if stamped else want)
+        pattern = pattern.replace("/dev/pts/0", r"/dev/pts/\d+").replace("/tmp/ttyDRIVE", ".*")
+        if stamped:
+            pattern = r"\[ *\d+\.\d{3}\] " + pattern
+        assert any(re.fullmatch(pattern, line) for line in got), (want, got)
 
 
 def test_the_readme_session_works_as_written(start_drive, tmp_path):

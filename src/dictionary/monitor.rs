@@ -31,9 +31,7 @@
 //! Signed values are two's complement; 32-bit ones are split in address
 //! order low word, high word (seed 001 "DP-PoS / DP-PoS."), whatever 0x6000.
 
-use crate::dictionary::DriveLayer;
-
-use super::Params;
+use super::{DriveLayer, Params};
 
 /// First DP item.
 pub const DP_BASE: u16 = 0x0000;

@@ -1,0 +1,176 @@
+#!/usr/bin/env python3
+"""Fails when the core's modules import each other in a cycle.
+
+The core is `src/` without its hosts: `src/firmware/`, `src/virtual/` and
+`src/main.rs` may import every layer, so they are left out (and nothing in
+the core may import them). A module is a top-level part of the crate:
+`src/rtu/` or `src/rtu.rs` is `rtu`, `src/slave.rs` with `src/slave/` is
+`slave`. Every `crate::…` path in code (comments and doc comments skipped)
+and every `use super::…` that climbs out of its module is an edge.
+
+Prints the module graph in layer order (lowest first), then either `no
+cycle` or each cycle with one file:line that makes each of its edges.
+docs/architecture.md states the layer rule this guards.
+
+Usage: python3 .ci/layers.py [SRC_DIR]   (default: src)
+"""
+
+import re
+import sys
+from pathlib import Path
+
+HOSTS = {"firmware", "virtual", "main"}
+
+CRATE_PATH = re.compile(r"\bcrate::(\{?)\s*([A-Za-z_][A-Za-z0-9_]*)")
+CRATE_GROUP = re.compile(r"\bcrate::\{([^}]*)\}")
+SUPER_PATH = re.compile(r"\b((?:super::)+)([A-Za-z_][A-Za-z0-9_]*)?")
+
+
+def module_path(src: Path, file: Path):
+    """The module path of `file` as a list (`src/rtu/crc16.rs` → [rtu, crc16])."""
+    parts = list(file.relative_to(src).with_suffix("").parts)
+    if parts[-1] == "mod":
+        parts.pop()
+    return parts
+
+
+def strip_comments(line: str) -> str:
+    """Code part of a line: `//` comments (and doc comments) removed; string
+    literals are rare enough in `use` positions not to matter."""
+    at = line.find("//")
+    return line if at < 0 else line[:at]
+
+
+def edges_of(src: Path, file: Path):
+    """(target module, line number) for every cross-module path in `file`."""
+    here = module_path(src, file)
+    top = here[0]
+    in_block_comment = False
+    for n, raw in enumerate(file.read_text(encoding="utf-8").splitlines(), 1):
+        line = raw
+        if in_block_comment:
+            end = line.find("*/")
+            if end < 0:
+                continue
+            line = line[end + 2 :]
+            in_block_comment = False
+        start = line.find("/*")
+        if start >= 0 and line.find("*/", start) < 0:
+            in_block_comment = True
+            line = line[:start]
+        code = strip_comments(line)
+        targets = []
+        for group in CRATE_GROUP.finditer(code):
+            for item in group.group(1).split(","):
+                name = item.strip().split("::")[0].strip()
+                if name:
+                    targets.append(name)
+        for m in CRATE_PATH.finditer(code):
+            if m.group(1) != "{":
+                targets.append(m.group(2))
+        for m in SUPER_PATH.finditer(code):
+            ups = m.group(1).count("super::")
+            # `super` of a module file (src/x/mod.rs or src/x.rs) is its
+            # parent; of any other file (src/x/y.rs) it is the module itself.
+            base = here[: len(here) - ups]
+            if not base:
+                # climbed to the crate root: the next segment names the module
+                if m.group(2):
+                    targets.append(m.group(2))
+            else:
+                targets.append(base[0])
+        for t in targets:
+            if t != top:
+                yield t, n
+
+
+def graph(src: Path):
+    modules = set()
+    for f in src.iterdir():
+        name = f.stem if f.suffix == ".rs" else f.name
+        if name not in ("lib",) and (f.suffix == ".rs" or f.is_dir()):
+            modules.add(name)
+    core = sorted(modules - HOSTS)
+    edges = {m: {} for m in core}
+    for f in sorted(src.rglob("*.rs")):
+        parts = module_path(src, f)
+        if not parts or parts[0] in HOSTS or parts[0] == "lib":
+            continue
+        for target, n in edges_of(src, f):
+            if target in HOSTS:
+                sys.exit(f"{f}:{n}: the core imports the host module `{target}`")
+            if target in edges[parts[0]] or target not in modules:
+                continue
+            edges[parts[0]][target] = f"{f}:{n}"
+    return core, edges
+
+
+def cycles(core, edges):
+    """Strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+    counter = [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in core:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def layers(core, edges):
+    """Layer of each module: 0 for one that imports nothing of the core,
+    else one more than the highest layer it imports (acyclic graphs only)."""
+    layer = {}
+
+    def of(v):
+        if v not in layer:
+            layer[v] = 1 + max((of(w) for w in edges[v]), default=-1)
+        return layer[v]
+
+    for v in core:
+        of(v)
+    return layer
+
+
+def main():
+    src = Path(sys.argv[1] if len(sys.argv) > 1 else "src")
+    core, edges = graph(src)
+    found = cycles(core, edges)
+    if found:
+        for comp in found:
+            print("import cycle between: " + ", ".join(comp))
+            for v in comp:
+                for w, where in sorted(edges[v].items()):
+                    if w in comp:
+                        print(f"  {v} -> {w}  ({where})")
+        sys.exit(1)
+    layer = layers(core, edges)
+    for v in sorted(core, key=lambda v: (layer[v], v)):
+        below = ", ".join(sorted(edges[v])) or "-"
+        print(f"layer {layer[v]}: {v:<12} imports {below}")
+    print("no cycle")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,247 @@
+//! `--web ADDR:PORT`: the commissioning page, served by the drive process.
+//!
+//! Two sides, joined by channels so that the drive loop never waits on a
+//! browser:
+//! - the HTTP side (`http.rs`, threads of its own) serves the page, hands
+//!   every command to the loop as a [`Job`] and waits for its answer, and
+//!   streams the scope samples the loop published (server-sent events);
+//! - the loop side ([`WebPort::serve`], called by the drive loop between
+//!   two wake-ups) runs the jobs — as Modbus requests through the drive's
+//!   dispatcher (`modbus.rs`), never by writing drive state — and publishes
+//!   samples and the page's view of each drive.
+//!
+//! The page's requests never touch a bus line: they do not pass any line's
+//! frame assembler, so they cannot break a frame a master is sending, and
+//! they run between the loop's frame handling steps, so a master's frame
+//! and a page request never interleave inside the dispatcher.
+
+mod commands;
+mod exceptions;
+mod force;
+mod http;
+mod modbus;
+mod state;
+
+use std::collections::VecDeque;
+use std::fmt::Write;
+use std::io;
+use std::net::SocketAddr;
+use std::sync::mpsc::{self, Receiver, Sender};
+use std::sync::{Arc, Condvar, Mutex};
+
+use modbus_drive::slave::Slave;
+
+pub use exceptions::ExceptionLog;
+pub use force::{Forced, Switch};
+pub use modbus::Dispatch;
+pub use state::View;
+
+use commands::{requests, Command};
+use modbus::{transact, Answer};
+
+/// Scope sample period: 100 samples per second.
+const SAMPLE_PERIOD_US: u64 = 10_000;
+/// Samples kept for a page that connects: the scope's 10 s, and a margin.
+const SAMPLES_KEPT: usize = 1_200;
+/// How often the page's view of the drives is rebuilt.
+const STATE_PERIOD_US: u64 = 100_000;
+
+/// A drive as the page needs it.
+pub trait Target: Dispatch {
+    fn view<'a>(&'a self, port: &'a Slave) -> View<'a>;
+    fn force(&mut self, switch: Switch, state: Option<bool>);
+}
+
+/// A command from the page for drive `drive`, and where its answer goes.
+pub struct Job {
+    drive: usize,
+    command: Command,
+    answer: Sender<String>,
+}
+
+/// What the loop publishes for the HTTP side.
+#[derive(Default)]
+struct Published {
+    /// Number of the newest sample.
+    seq: u64,
+    /// `(seq, JSON array)`, oldest first.
+    samples: VecDeque<(u64, String)>,
+    /// JSON of every drive's view.
+    state: String,
+}
+
+#[derive(Default)]
+struct Shared {
+    published: Mutex<Published>,
+    changed: Condvar,
+}
+
+/// The loop's end of the page.
+pub struct WebPort {
+    pub addr: SocketAddr,
+    jobs: Receiver<Job>,
+    shared: Arc<Shared>,
+    /// Per drive, the page's own slave state (its §6 counters).
+    ports: Vec<Slave>,
+    next_sample_us: u64,
+    next_state_us: u64,
+}
+
+impl WebPort {
+    /// Listens on `addr` (only there) and starts the HTTP side.
+    pub fn start(addr: SocketAddr, drives: usize) -> io::Result<Self> {
+        let server = tiny_http::Server::http(addr).map_err(io::Error::other)?;
+        let addr = server
+            .server_addr()
+            .to_ip()
+            .ok_or_else(|| io::Error::other("not an IP listener"))?;
+        let (tx, jobs) = mpsc::channel();
+        let shared = Arc::new(Shared::default());
+        http::spawn(server, tx, Arc::clone(&shared))?;
+        Ok(Self {
+            addr,
+            jobs,
+            shared,
+            ports: vec![Slave::new(); drives],
+            next_sample_us: 0,
+            next_state_us: 0,
+        })
+    }
+
+    /// Runs the page's waiting commands and publishes what is due. Returns
+    /// the drives that handled requests: the caller logs their events and
+    /// applies a deferred address or line change, as after a bus reply.
+    pub fn serve<T: Target>(&mut self, now_us: u64, drives: &mut [T]) -> Vec<usize> {
+        let mut touched = Vec::new();
+        while let Ok(job) = self.jobs.try_recv() {
+            let answer = self.execute(job.drive, &job.command, now_us, drives);
+            if !touched.contains(&job.drive) && job.drive < drives.len() {
+                touched.push(job.drive);
+            }
+            // The page may have given up waiting; nothing to do then.
+            let _ = job.answer.send(answer);
+        }
+        if now_us >= self.next_sample_us {
+            self.publish_sample(now_us, drives);
+            self.next_sample_us = (self.next_sample_us + SAMPLE_PERIOD_US).max(now_us);
+        }
+        if now_us >= self.next_state_us || !touched.is_empty() {
+            self.publish_state(drives);
+            self.next_state_us = now_us + STATE_PERIOD_US;
+        }
+        touched
+    }
+
+    fn execute<T: Target>(
+        &mut self,
+        di: usize,
+        command: &Command,
+        now_us: u64,
+        drives: &mut [T],
+    ) -> String {
+        let (Some(drive), Some(port)) = (drives.get_mut(di), self.ports.get_mut(di)) else {
+            return error_json(&format!("there is no drive number {di}"));
+        };
+        if let Command::Force { switch, state } = *command {
+            drive.force(switch, state);
+            return "{\"ok\":true,\"steps\":[]}".into();
+        }
+        let steps = match requests(command, drive.device()) {
+            Ok(s) => s,
+            Err(why) => return error_json(&why),
+        };
+        let mut ok = true;
+        let mut out = String::from("[");
+        for (i, step) in steps.iter().enumerate() {
+            let answer = transact(drive, port, &step.pdu, now_us);
+            let address = drive.device().address();
+            let (kind, code, reply) = match &answer {
+                Answer::Ok(pdu) => ("ok", 0, hex(pdu)),
+                Answer::Exception(c) => ("exception", *c, String::new()),
+                Answer::Silent => ("silent", 0, String::new()),
+                Answer::Malformed(r) => ("malformed", 0, hex(r)),
+            };
+            let _ = write!(
+                out,
+                "{}{{\"label\":{},\"request\":{},\"answer\":\"{kind}\",\"code\":{code},\"reply\":{}}}",
+                if i > 0 { "," } else { "" },
+                state::quote(&step.label),
+                state::quote(&hex(&step.pdu.frame(address))),
+                state::quote(&reply),
+            );
+            if !matches!(answer, Answer::Ok(_)) {
+                ok = false;
+                break;
+            }
+        }
+        out.push(']');
+        format!("{{\"ok\":{ok},\"steps\":{out}}}")
+    }
+
+    fn publish_sample<T: Target>(&mut self, now_us: u64, drives: &[T]) {
+        let mut line = format!("[{:.3}", now_us as f64 / 1e6);
+        for (di, d) in drives.iter().enumerate() {
+            let v = d.view(&self.ports[di]);
+            let dev = v.device;
+            use modbus_drive::dictionary::DriveLayer;
+            let _ = write!(
+                line,
+                ",[{},{},{},{}]",
+                dev.drive.actual_position(),
+                dev.drive.actual_velocity_rpm(),
+                state::entry_value(dev, state::FOLLOWING_ERROR)
+                    .map_or("null".into(), |v| v.to_string()),
+                dev.drive.statusword()
+            );
+        }
+        line.push(']');
+        let mut p = lock(&self.shared);
+        p.seq += 1;
+        let seq = p.seq;
+        if p.samples.len() == SAMPLES_KEPT {
+            p.samples.pop_front();
+        }
+        p.samples.push_back((seq, line));
+        drop(p);
+        self.shared.changed.notify_all();
+    }
+
+    fn publish_state<T: Target>(&mut self, drives: &[T]) {
+        let mut s = format!(
+            "{{\"sample_period_ms\":{},\"drives\":[",
+            SAMPLE_PERIOD_US / 1000
+        );
+        for (di, d) in drives.iter().enumerate() {
+            if di > 0 {
+                s.push(',');
+            }
+            s.push_str(&state::drive_json(&d.view(&self.ports[di])));
+        }
+        s.push_str("]}");
+        lock(&self.shared).state = s;
+    }
+}
+
+/// The lock, also after a panicking HTTP thread (the data stays whole:
+/// every writer replaces values, none leaves them half-made).
+fn lock(shared: &Shared) -> std::sync::MutexGuard<'_, Published> {
+    shared
+        .published
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+fn error_json(why: &str) -> String {
+    format!("{{\"ok\":false,\"error\":{},\"steps\":[]}}", state::quote(why))
+}
+
+fn hex(bytes: &[u8]) -> String {
+    let mut s = String::with_capacity(3 * bytes.len());
+    for (i, b) in bytes.iter().enumerate() {
+        if i > 0 {
+            s.push(' ');
+        }
+        let _ = write!(s, "{b:02X}");
+    }
+    s
+}

@@ -1,0 +1,283 @@
+//! What the page shows of a drive, as JSON: status, counters, the last
+//! exceptions, the object dictionary and the PA set with their values.
+//! Built on the drive loop from the drive as it is (reading only).
+
+use std::fmt::Write;
+
+use modbus_drive::dictionary::{position, Access, DataType, DriveLayer, Object, TABLE};
+use modbus_drive::motion::Switches;
+use modbus_drive::params::{PA, PA_COUNT};
+use modbus_drive::slave::{Counters, Slave};
+use modbus_drive::Device;
+
+use super::exceptions::ExceptionLog;
+use super::force::{Forced, Switch};
+
+/// Following error actual value (SPEC §8.8), shown once the table has it.
+pub const FOLLOWING_ERROR: u16 = 0x60F4;
+
+/// Everything of one drive the page shows.
+pub struct View<'a> {
+    pub device: &'a Device,
+    pub port: &'a Slave,
+    pub axis_switches: Switches,
+    pub forced: Forced,
+    pub exceptions: &'a ExceptionLog,
+}
+
+/// The value of a numeric dictionary entry, read as a master would see it
+/// (signed types sign-extended); `None` for strings.
+pub fn entry_value(device: &Device, index: u16) -> Option<i64> {
+    let e = &TABLE[position(index)?];
+    let raw = e.object.read_raw(&device.od, &device.drive);
+    Some(match e.data_type {
+        DataType::U16 => i64::from(raw as u16),
+        DataType::I16 => i64::from(raw as u16 as i16),
+        DataType::U32 => i64::from(raw),
+        DataType::I32 => i64::from(raw as i32),
+        DataType::Str => return None,
+    })
+}
+
+/// JSON string literal.
+pub fn quote(s: &str) -> String {
+    let mut out = String::with_capacity(s.len() + 2);
+    out.push('"');
+    for c in s.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            c if (c as u32) < 0x20 => {
+                let _ = write!(out, "\\u{:04x}", c as u32);
+            }
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+fn counters(c: &Counters) -> String {
+    format!(
+        "{{\"bus_messages\":{},\"bus_errors\":{},\"exceptions\":{},\"slave_messages\":{},\
+         \"no_response\":{},\"busy\":{},\"overruns\":{}}}",
+        c.bus_messages,
+        c.bus_errors,
+        c.exceptions,
+        c.slave_messages,
+        c.no_response,
+        c.busy,
+        c.overruns
+    )
+}
+
+/// Unit and range in words of a §5 entry (SPEC §5, §8).
+fn od_meta(index: u16) -> (&'static str, &'static str) {
+    match index {
+        0x1001 => ("bits", "bit 0 generic, 4 communication, 5 following error"),
+        0x6000 => ("", "0 high word first, 1 low word first"),
+        0x605A => ("", "0..=32767 (1: 0x6084, 2: 0x6085, else at once)"),
+        0x6040 => ("", "0..=0xFFFF"),
+        0x6060 => ("", "1 position, 3 velocity, 6 homing"),
+        0x6081 => ("0.1 rev/s", "i32 (signed in velocity mode)"),
+        0x6083 | 0x6084 | 0x6085 | 0x609A => ("0.1 rev/s²", "0..=65535"),
+        0x607A | 0x607C | 0x6064 => ("steps", "i32"),
+        0x6098 => ("", "1..=8"),
+        0x6099 | 0x609B => ("0.1 rev/s", "0..=100000"),
+        0x6041 => ("bits", "§8.2"),
+        0x6061 => ("", "1, 3, 6"),
+        0x606C => ("r/min", "i32"),
+        0x6065 => ("steps", "0xFFFFFFFF = off"),
+        0x6066 => ("ms", "0..=65535"),
+        0x60F4 => ("steps", "i32"),
+        _ => ("", ""),
+    }
+}
+
+/// Name and unit of an assigned PA (SPEC §7).
+pub fn pa_meta(n: usize) -> (&'static str, &'static str) {
+    match n {
+        2 => ("firmware version", ""),
+        10 => ("steps per revolution", "steps"),
+        11 => ("direction invert", ""),
+        12 => ("maximum speed", "r/min"),
+        13 => ("switch polarity (bit 0 CW, 1 CCW, 2 home; 1 = NC)", "bits"),
+        14 => ("limit switch enable (bit 0 CW, 1 CCW)", "bits"),
+        17 => ("encoder counts per revolution (0 = none)", "counts"),
+        18 => ("encoder direction invert", ""),
+        20 => ("communication-loss timeout (0 = off)", "ms"),
+        51 => ("slave address", ""),
+        52 => ("baud (0 9600 … 4 115200)", ""),
+        53 => ("format (0 8N1, 1 8E1, 2 8O1, 3 8N2)", ""),
+        54 => ("answer frame errors with 9/10", ""),
+        55 => ("exception profile (0 vendor, 1 standard)", ""),
+        56 => ("minimum response delay", "ms"),
+        _ => ("reserved", ""),
+    }
+}
+
+fn access(a: Access) -> &'static str {
+    match a {
+        Access::Ro => "RO",
+        Access::Rw => "RW",
+        Access::Wo => "WO",
+    }
+}
+
+fn opt_bool(v: Option<bool>) -> &'static str {
+    match v {
+        None => "null",
+        Some(true) => "true",
+        Some(false) => "false",
+    }
+}
+
+/// The page's JSON for one drive.
+pub fn drive_json(v: &View<'_>) -> String {
+    let d = v.device;
+    let seen = v.forced.apply(v.axis_switches);
+    let mut s = String::with_capacity(8 * 1024);
+    let _ = write!(
+        s,
+        "{{\"address\":{},\"state\":{},\"statusword\":{},\"error_register\":{},\"mode\":{},\
+         \"position\":{},\"velocity\":{},\"following_error\":{},\"listen_only\":{},\"busy\":{},",
+        d.address(),
+        quote(&format!("{:?}", d.drive.state())),
+        d.drive.statusword(),
+        d.drive.error_register(),
+        d.drive.mode_display(),
+        d.drive.actual_position(),
+        d.drive.actual_velocity_rpm(),
+        entry_value(d, FOLLOWING_ERROR).map_or("null".into(), |v| v.to_string()),
+        d.slave.listen_only(),
+        d.busy(),
+    );
+    let _ = write!(
+        s,
+        "\"switches\":{{\"cw\":{},\"ccw\":{},\"home\":{}}},\
+         \"axis_switches\":{{\"cw\":{},\"ccw\":{},\"home\":{}}},\
+         \"forced\":{{\"cw\":{},\"ccw\":{},\"home\":{}}},",
+        seen.cw_limit,
+        seen.ccw_limit,
+        seen.home,
+        v.axis_switches.cw_limit,
+        v.axis_switches.ccw_limit,
+        v.axis_switches.home,
+        opt_bool(v.forced.get(Switch::CwLimit)),
+        opt_bool(v.forced.get(Switch::CcwLimit)),
+        opt_bool(v.forced.get(Switch::Home)),
+    );
+    let _ = write!(
+        s,
+        "\"bus_counters\":{},\"page_counters\":{},\"exceptions\":[",
+        counters(d.slave.counters()),
+        counters(v.port.counters())
+    );
+    for (i, r) in v.exceptions.iter().enumerate() {
+        let _ = write!(
+            s,
+            "{}{{\"seq\":{},\"t\":{:.3},\"port\":{},\"function\":{},\"code\":{},\"answered\":{}}}",
+            if i > 0 { "," } else { "" },
+            r.seq,
+            r.time_s,
+            quote(&r.port),
+            r.function,
+            r.code,
+            r.answered
+        );
+    }
+    s.push_str("],\"od\":[");
+    for (i, e) in TABLE.iter().enumerate() {
+        let (unit, range) = od_meta(e.index);
+        let value = match e.object.string(&d.identity) {
+            Some(text) => quote(text),
+            None if e.access.readable() => entry_value(d, e.index).unwrap_or(0).to_string(),
+            // A master reads exception 7; the page shows the last write.
+            None => format!("{{\"written\":{}}}", written(e.object, d)),
+        };
+        let _ = write!(
+            s,
+            "{}{{\"index\":{},\"name\":{},\"access\":\"{}\",\"type\":\"{:?}\",\
+             \"unit\":{},\"range\":{},\"value\":{}}}",
+            if i > 0 { "," } else { "" },
+            e.index,
+            quote(&format!("{:?}", e.object)),
+            access(e.access),
+            e.data_type,
+            quote(unit),
+            quote(range),
+            value
+        );
+    }
+    s.push_str("],\"pa\":[");
+    for n in 0..PA_COUNT {
+        let def = PA[n];
+        let (name, unit) = pa_meta(n);
+        let _ = write!(
+            s,
+            "{}{{\"n\":{n},\"name\":{},\"unit\":{},\"min\":{},\"max\":{},\"default\":{},\
+             \"access\":\"{}\",\"value\":{}}}",
+            if n > 0 { "," } else { "" },
+            quote(name),
+            quote(unit),
+            def.min,
+            def.max,
+            def.default,
+            if def.read_only { "RO" } else { "RW" },
+            d.pa.get(n)
+        );
+    }
+    s.push_str("]}");
+    s
+}
+
+/// The last value written to a write-only entry (what the drive holds).
+fn written(object: Object, d: &Device) -> i64 {
+    let raw = object.read_raw(&d.od, &d.drive);
+    match object {
+        Object::ModeOfOperation => i64::from(raw as u16 as i16),
+        _ => i64::from(raw),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use modbus_drive::device::Identity;
+
+    #[test]
+    fn strings_are_escaped() {
+        assert_eq!(quote("a\"b\\c\n"), "\"a\\\"b\\\\c\\u000a\"");
+    }
+
+    #[test]
+    fn the_view_lists_every_entry_and_parameter_with_its_value() {
+        let mut d = Device::new(Identity::new("t"));
+        d.od.target_position = -7;
+        d.pa.set_unchecked(12, 1234);
+        let port = Slave::new();
+        let log = ExceptionLog::new();
+        let mut forced = Forced::default();
+        forced.set(Switch::Home, Some(true));
+        let json = drive_json(&View {
+            device: &d,
+            port: &port,
+            axis_switches: Switches::default(),
+            forced,
+            exceptions: &log,
+        });
+        assert_eq!(json.matches("\"index\":").count(), TABLE.len());
+        assert_eq!(json.matches("\"n\":").count(), PA_COUNT);
+        assert!(json.contains("\"name\":\"TargetPosition\""));
+        assert!(json.contains("\"value\":-7"));
+        assert!(json.contains("\"n\":12,\"name\":\"maximum speed\""));
+        assert!(json.contains("\"value\":1234"));
+        assert!(json.contains("\"switches\":{\"cw\":false,\"ccw\":false,\"home\":true}"));
+        assert!(json.contains("\"forced\":{\"cw\":null,\"ccw\":null,\"home\":true}"));
+        assert!(json.contains("\"value\":\"modbus-drive\""));
+        assert_eq!(
+            json.contains("\"following_error\":null"),
+            position(FOLLOWING_ERROR).is_none()
+        );
+    }
+}
