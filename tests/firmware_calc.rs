@@ -481,7 +481,10 @@ fn de_lead_and_tail_on_the_g431_hardware_de() {
     // 2 bits at 9600 baud: DEAT 31/16 bit, 1/16 bit (6.5 µs) in software
     let slow = line(9_600, CharFormat::N1);
     let d = DeDrive::new(DriverEnable::new(2, 1), slow, 16);
-    assert_eq!((d.deat, d.software, d.lead_us, d.tail_us), (31, true, 7, 105));
+    assert_eq!(
+        (d.deat, d.software, d.lead_us, d.tail_us),
+        (31, true, 7, 105)
+    );
     // the lead made is never shorter than asked: software + DEAT
     for baud in [9_600, 19_200, 38_400, 57_600, 115_200] {
         for bits in 0..=modbus_drive::rtu::MAX_DE_BITS {
@@ -495,7 +498,11 @@ fn de_lead_and_tail_on_the_g431_hardware_de() {
                     f64::from(d.deat) / f64::from(spb) * 1e6 / f64::from(baud)
                 };
                 let want = f64::from(bits) * 1e6 / f64::from(baud);
-                let sw = if d.software { f64::from(d.lead_us) } else { 0.0 };
+                let sw = if d.software {
+                    f64::from(d.lead_us)
+                } else {
+                    0.0
+                };
                 assert!(hw_us + sw >= want - 1e-9, "{baud} {bits} {spb}: {d:?}");
                 if !d.software {
                     assert!((hw_us - want).abs() < 1e-9, "{baud} {bits} {spb}: {d:?}");

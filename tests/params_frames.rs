@@ -143,7 +143,7 @@ fn unassigned_pas_store_any_value() {
 
 // ---- SPEC §7: effects -----------------------------------------------------
 
-/// PA57 / PA58, the RS-485 driver-enable lead and tail (docs/rs485-de.md):
+/// PA57 / PA58, the RS-485 driver-enable lead and tail (docs/firmware.md):
 /// one bit time by default, 0..=20 bit times, exception 3 beyond (nothing
 /// stored), saved by EE-Set and in force after a power cycle; a saved value
 /// out of that range (PA57/PA58 were unassigned before, any value) loads
@@ -156,7 +156,11 @@ fn pa57_pa58_driver_enable_lead_and_tail() {
     let mut bus = booted(&mut s);
     assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 1]));
     assert_eq!(bus.device.pa.driver_enable(), DriverEnable::new(1, 1));
-    for (n, v) in [(57u16, MAX_DE_BITS + 1), (58, MAX_DE_BITS + 1), (57, 0xFFFF)] {
+    for (n, v) in [
+        (57u16, MAX_DE_BITS + 1),
+        (58, MAX_DE_BITS + 1),
+        (57, 0xFFFF),
+    ] {
         assert_eq!(bus.write_single(pa_addr(n), v), Err(3), "PA{n} = {v}");
         assert_eq!(bus.write(pa_addr(n), &[v]), Err(3), "PA{n} = {v}");
     }
@@ -164,7 +168,10 @@ fn pa57_pa58_driver_enable_lead_and_tail() {
     assert_eq!(bus.write(pa_addr(57), &[4, MAX_DE_BITS + 1]), Err(3));
     assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 1]));
     assert_eq!(bus.write(pa_addr(57), &[4, MAX_DE_BITS]), Ok(()));
-    assert_eq!(bus.device.pa.driver_enable(), DriverEnable::new(4, MAX_DE_BITS));
+    assert_eq!(
+        bus.device.pa.driver_enable(),
+        DriverEnable::new(4, MAX_DE_BITS)
+    );
     ee_new_ok(&mut bus, &mut s, 1); // EE-Set
     assert_eq!(bus.write(pa_addr(57), &[0, 0]), Ok(()));
     assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![0, 0]));

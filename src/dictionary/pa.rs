@@ -50,9 +50,8 @@ pub const PA: [PaDef; PA_COUNT] = {
     t[54] = rw(0, 1, 1); // answer frame errors with 9/10
     t[55] = rw(0, 1, 0); // exception profile
     t[56] = rw(0, 100, 0); // minimum response delay, ms
-    // RS-485 driver enable lead / tail, bit times (rtu::DriverEnable)
-    t[57] = rw(0, MAX_DE_BITS, DEFAULT_DE_BITS);
-    t[58] = rw(0, MAX_DE_BITS, DEFAULT_DE_BITS);
+    t[57] = rw(0, MAX_DE_BITS, DEFAULT_DE_BITS); // RS-485 DE lead, bit times
+    t[58] = rw(0, MAX_DE_BITS, DEFAULT_DE_BITS); // RS-485 DE tail, bit times
     t
 };
 

@@ -4,7 +4,7 @@
 //! |---|---|---|
 //! | RS-485 RO → RX | PA10 | USART1_RX (AF7) |
 //! | RS-485 DI ← TX | PA9 | USART1_TX (AF7) |
-//! | RS-485 DE + /RE | PA12 | USART1_DE (AF7), driven by the USART (CR3.DEM) |
+//! | RS-485 DE + /RE | PA12 | USART1_DE (AF7), driven by the USART (CR3.DEM); a GPIO during a reply whose PA57 / PA58 exceed DEAT / DEDT |
 //! | STEP | PA6 | TIM3_CH1 (AF2), PWM mode 2 |
 //! | DIR | PB0 | GPIO, written by the step interrupt (`drive::io::DirectionOutput`, PA11) |
 //! | ENABLE | PB1 | GPIO, high = power stage enabled |
@@ -19,7 +19,7 @@
 //! otherwise. ENABLE / BRAKE go through `drive::io::PowerOutputs`.
 //!
 //! t3.5 comes from the USART's receiver timeout (RTOR), DE from its hardware
-//! driver-enable with assertion/deassertion times (rs485.rs).
+//! driver-enable with assertion/deassertion times PA57 / PA58 (rs485.rs).
 
 use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};

@@ -37,8 +37,10 @@ pub fn reply_wait_us(now_us: u32, last_byte_at_us: u32, delay_us: u32) -> u32 {
 /// with OVER8).
 pub const MAX_DE_SAMPLES: u32 = 31;
 
-/// How the glue drives DE for PA57 / PA58 (docs/rs485-de.md).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// How the glue drives DE for PA57 / PA58 (docs/firmware.md, "RS-485 driver enable").
+/// `Default`: the USART alone, no lead or tail (what the glue holds until
+/// the line is first applied, before any reply).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct DeDrive {
     /// `DEAT` / `DEDT` for the USART's hardware DE (sample times).
@@ -61,15 +63,24 @@ impl DeDrive {
         let lead = de.lead_bits() as u32 * samples_per_bit;
         let tail = de.tail_bits() as u32 * samples_per_bit;
         let fits = samples_per_bit > 0 && lead <= MAX_DE_SAMPLES && tail <= MAX_DE_SAMPLES;
-        let deat = if lead > MAX_DE_SAMPLES { MAX_DE_SAMPLES } else { lead };
-        let dedt = if tail > MAX_DE_SAMPLES { MAX_DE_SAMPLES } else { tail };
+        let deat = if lead > MAX_DE_SAMPLES {
+            MAX_DE_SAMPLES
+        } else {
+            lead
+        };
+        let dedt = if tail > MAX_DE_SAMPLES {
+            MAX_DE_SAMPLES
+        } else {
+            tail
+        };
         let (lead_us, tail_us) = if fits || samples_per_bit == 0 {
             (de.lead_us(line), de.tail_us(line))
         } else {
             // what DEAT does not cover, rounded up (µs = samples / (baud·spb))
-            let rest = (lead - deat) as u64 * 1_000_000;
-            let per_s = line.baud as u64 * samples_per_bit as u64;
-            (rest.div_ceil(per_s) as u32, de.tail_us(line))
+            // (u32: lead ≤ MAX_DE_BITS · 16 samples, so `rest` < 2^32)
+            let rest = (lead - deat) * 1_000_000;
+            let per_s = line.baud.saturating_mul(samples_per_bit);
+            (rest.div_ceil(per_s), de.tail_us(line))
         };
         Self {
             deat: deat as u8,

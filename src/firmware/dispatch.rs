@@ -19,7 +19,7 @@ use embassy_sync::once_lock::OnceLock;
 use modbus_drive::device::Response;
 use modbus_drive::event::Event;
 use modbus_drive::params::ParamStore;
-use modbus_drive::rtu::MAX_FRAME;
+use modbus_drive::rtu::{DriverEnable, MAX_FRAME};
 use modbus_drive::Device;
 
 use super::calc::{reply_wait_us, RateLimit};
@@ -91,7 +91,11 @@ impl EventLog {
 }
 
 #[embassy_executor::task]
-pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
+pub async fn dispatcher_task(
+    mut uart: Uart<'static, Blocking>,
+    mut store: Store,
+    mut de: DriverEnable,
+) {
     let mut reply = [0u8; MAX_FRAME];
     let mut log = EventLog::new();
     loop {
@@ -113,13 +117,18 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
         log.drain();
         if let Response::Reply(n) = response {
             let wait = reply_wait_us(rs485::now_us(), rx.last_byte_at_us, delay_us);
-            embassy_time::Timer::after_micros(u64::from(wait)).await;
-            rs485::send(&reply[..n.min(MAX_FRAME)]).await;
+            rs485::send(&reply[..n.min(MAX_FRAME)], wait).await;
         }
-        // a new address or line format takes effect after the reply (SPEC §7)
-        if let Some(Some(line)) = with_device(|d| d.reply_sent()) {
-            if let Err(e) = rs485::apply_line(&mut uart, line) {
-                defmt::error!("line {} refused by the USART: {}", line, e);
+        // a new address, line format or DE lead / tail takes effect after
+        // the reply (SPEC §7)
+        if let Some((changed, line, pa_de)) =
+            with_device(|d| (d.reply_sent(), d.line(), d.pa.driver_enable()))
+        {
+            if changed.is_some() || pa_de != de {
+                de = pa_de;
+                if let Err(e) = rs485::apply_line(&mut uart, line, de) {
+                    defmt::error!("line {} refused by the USART: {}", line, e);
+                }
             }
         }
         log.drain();

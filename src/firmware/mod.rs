@@ -74,7 +74,7 @@ async fn main(spawner: Spawner) {
     // In a block: a `Device` local of `main` would stay in main's future
     // (a static) after it has been moved to the dispatcher — 2.9 KiB of RAM
     // twice (llvm-nm of the F103 ELF).
-    let (line, address) = {
+    let (line, address, de) = {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks
         // (calc::step_prescaler).
@@ -83,15 +83,13 @@ async fn main(spawner: Spawner) {
             ..PlannerConfig::default()
         });
         device.apply_boot(&store.boot());
-        let at = (device.line(), device.address());
+        let at = (device.line(), device.address(), device.pa.driver_enable());
         dispatch::install(device);
         at
     };
 
     let mut uart = parts.uart;
-    defmt::unwrap!(rs485::apply_line(&mut uart, line));
-    #[cfg(feature = "board-f103")]
-    rs485::set_de_pin(parts.de);
+    defmt::unwrap!(rs485::apply_line(&mut uart, line, de));
     let timer_clock_hz = parts.step_timer.get_clock_frequency().0;
     let prescaler = defmt::unwrap!(
         calc::step_prescaler(timer_clock_hz, board::STEP_TICK_HZ),
@@ -116,12 +114,15 @@ async fn main(spawner: Spawner) {
     );
     dispatch::EventLog::new().drain(); // how the parameters were loaded
 
-    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart, store)));
+    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart, store, de)));
     #[cfg(feature = "board-f103")]
     spawner.spawn(defmt::unwrap!(rs485::frame_gap_task()));
 
-    // The step pin stays owned here for good.
+    // The step pin stays owned here for good, and so does the F103's DE
+    // pin (an output that rs485 drives through its set/reset register).
     let _step_pin = parts.step_pin;
+    #[cfg(feature = "board-f103")]
+    let _de_pin = parts.de;
     control::run(
         control::PowerPins {
             enable: parts.enable,

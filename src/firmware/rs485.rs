@@ -15,7 +15,7 @@
 //! Transmit: [`send`] hands the reply to the interrupt, which feeds the data
 //! register on TXE (one burst, no gaps) and finishes at TC. DE leads the
 //! first start bit and trails the last stop bit by PA57 / PA58
-//! ([`set_driver_enable`], `calc::DeDrive`): on the G431 the USART's
+//! ([`apply_line`], `calc::DeDrive`): on the G431 the USART's
 //! hardware driver-enable does it (DEAT / DEDT) while they fit, beyond that
 //! [`send`] drives the pin itself; on the F103 DE is always a GPIO raised
 //! by [`send`] the lead before the first byte and dropped the tail after TC.
@@ -120,8 +120,6 @@ struct Link {
     transmitting: bool,
     /// PA57 / PA58 as this board makes them.
     de_drive: DeDrive,
-    #[cfg(feature = "board-f103")]
-    de: Option<embassy_stm32::gpio::Output<'static>>,
 }
 
 /// Set up at first use. A `OnceLock` is zero-initialised (.bss); a `Link`
@@ -146,13 +144,8 @@ fn link() -> &'static Mutex<RefCell<Link>> {
             tx_len: 0,
             tx_pos: 0,
             transmitting: false,
-            de_drive: DeDrive::new(
-                DriverEnable::new(0, 0),
-                LineConfig::DEFAULT,
-                DE_SAMPLES_PER_BIT,
-            ),
-            #[cfg(feature = "board-f103")]
-            de: None,
+            // replaced by `apply_line` before the first reply
+            de_drive: DeDrive::default(),
         }))
     })
 }
@@ -179,11 +172,13 @@ pub fn usart_config(line: LineConfig) -> usart::Config {
     c
 }
 
-/// Applies a line (at boot and after `Device::reply_sent` changed it) and
-/// (re)arms the receive interrupts. Call it between frames.
+/// Applies a line and the DE lead / tail PA57 / PA58 (at boot, and after
+/// a reply when `Device::reply_sent` changed the line or the parameters
+/// changed) and (re)arms the receive interrupts. Call it between frames.
 pub fn apply_line(
     uart: &mut Uart<'static, Blocking>,
     line: LineConfig,
+    de: DriverEnable,
 ) -> Result<(), usart::ConfigError> {
     // embassy rewrites CR1/CR2 here (for the whole USART, whichever half is
     // asked), clearing our interrupt enables
@@ -191,34 +186,28 @@ pub fn apply_line(
     with_link(|link| {
         link.assembler.set_timing(line.timing());
         link.t35_us = line.timing().t35_us;
+        link.de_drive = DeDrive::new(de, line, de_samples_per_bit());
         arm_receiver(line, link.de_drive);
     });
     Ok(())
 }
 
-/// USART samples per bit for its hardware DE timing; 0: no hardware DE.
+/// USART samples per bit for its hardware DE timing (DEAT / DEDT count
+/// them): 16, or 8 when embassy chose 8× oversampling for the baud.
 #[cfg(feature = "board-g431")]
-const DE_SAMPLES_PER_BIT: u32 = 16;
-#[cfg(feature = "board-f103")]
-const DE_SAMPLES_PER_BIT: u32 = 0;
+fn de_samples_per_bit() -> u32 {
+    use embassy_stm32::pac::usart::vals::Over8;
+    if board::UART.cr1().read().over8() == Over8::OVERSAMPLING8 {
+        8
+    } else {
+        16
+    }
+}
 
-/// PA57 / PA58 on `line` (the line in force), from the next reply on. Call
-/// it between frames, after [`apply_line`].
-pub fn set_driver_enable(de: DriverEnable, line: LineConfig) {
-    with_link(|link| {
-        #[cfg(feature = "board-g431")]
-        let spb = if board::UART.cr1().read().over8() == embassy_stm32::pac::usart::vals::Over8::OVERSAMPLING8 {
-            8
-        } else {
-            DE_SAMPLES_PER_BIT
-        };
-        #[cfg(feature = "board-f103")]
-        let spb = DE_SAMPLES_PER_BIT;
-        link.de_drive = DeDrive::new(de, line, spb);
-        // the G431's DEAT / DEDT are written with the USART disabled
-        #[cfg(feature = "board-g431")]
-        arm_receiver(line, link.de_drive);
-    });
+/// The F103's USART has no hardware DE.
+#[cfg(feature = "board-f103")]
+fn de_samples_per_bit() -> u32 {
+    0
 }
 
 /// STM32G4 (RM0440 USART chapter): FIFO off so that each byte gets its own
@@ -373,64 +362,91 @@ fn deliver(rx: Received) {
     }
 }
 
-/// Sends `bytes` (≤ 256) in one burst and returns once the last stop bit has
-/// left the wire and DE is released.
-pub async fn send(bytes: &[u8]) {
+/// Sends `bytes` (≤ 256) in one burst, its first start bit no earlier than
+/// `not_before_us` from now, and returns once the last stop bit has left
+/// the wire and DE is released.
+pub async fn send(bytes: &[u8], not_before_us: u32) {
+    let [lead, tail] = load_reply(bytes);
+    // DE rises the lead before the earliest start (or now, and the start
+    // waits for the lead); the tail follows transmission complete. One
+    // await point for the three waits: each await of a timer is a state of
+    // its own in the dispatcher's future, and flash is short on the F103.
+    let waits = [not_before_us.saturating_sub(lead), lead, tail];
+    for (phase, us) in waits.into_iter().enumerate() {
+        if phase == 1 {
+            set_de(true);
+        } else if phase == 2 {
+            // inside the critical section: the interrupt modifies CR1 too
+            with_link(|_| board::UART.cr1().modify(|w| w.set_txeie(true)));
+            TX_DONE.wait().await;
+        }
+        // one time-driver tick more: a wait of n ticks may start late in
+        // a tick
+        if us > 0 {
+            embassy_time::Timer::after_micros(u64::from(us) + 1).await;
+        }
+    }
+    set_de(false);
+}
+
+/// Loads the reply for the interrupt. Returns the DE lead and tail that
+/// software times, µs (0 when the USART times them).
+fn load_reply(bytes: &[u8]) -> [u32; 2] {
     let n = bytes.len().min(MAX_FRAME);
     TX_DONE.reset();
-    let de = with_link(|link| {
+    with_link(|link| {
         link.tx[..n].copy_from_slice(&bytes[..n]);
         link.tx_len = n;
         link.tx_pos = 0;
         link.transmitting = true;
-        if link.de_drive.software {
-            drive_de(link, true);
+        let de = link.de_drive;
+        // (always software on the F103: it has no hardware DE)
+        if de.software || cfg!(feature = "board-f103") {
+            [de.lead_us, de.tail_us]
+        } else {
+            [0, 0]
         }
-        link.de_drive
-    });
-    // One time-driver tick more: a wait of n ticks may start late in a tick.
-    if de.software && de.lead_us > 0 {
-        embassy_time::Timer::after_micros(u64::from(de.lead_us) + 1).await;
-    }
-    // inside the critical section: the interrupt modifies CR1 too
-    with_link(|_| board::UART.cr1().modify(|w| w.set_txeie(true)));
-    TX_DONE.wait().await;
-    if de.software {
-        if de.tail_us > 0 {
-            embassy_time::Timer::after_micros(u64::from(de.tail_us) + 1).await;
-        }
-        with_link(|link| drive_de(link, false));
-    }
+    })
 }
 
-/// DE driven by software (`calc::DeDrive::software`). The F103: its GPIO.
-#[cfg(feature = "board-f103")]
-fn drive_de(link: &mut Link, high: bool) {
-    if let Some(de) = link.de.as_mut() {
-        de.set_level(high.into());
-    }
-}
-
-/// DE driven by software on the G431: the USART's DE pin taken over as a
-/// GPIO (output data set first, so the switch from the alternate function,
-/// low between frames, is glitch-free) and handed back to the USART low.
+/// Raises or drops DE if software drives it (on the G431 while PA57 /
+/// PA58 exceed DEAT / DEDT): the USART's DE pin taken over as a GPIO
+/// (output data set first, so the switch from the alternate function, low
+/// between frames, is glitch-free) and handed back to the USART low.
 #[cfg(feature = "board-g431")]
-fn drive_de(_link: &mut Link, high: bool) {
+#[inline(never)]
+fn set_de(high: bool) {
     use embassy_stm32::pac::gpio::vals::Moder;
-    let (port, pin) = (board::DE_PORT, board::DE_PIN);
-    port.bsrr().write(|w| {
-        w.set_bs(pin, high);
-        w.set_br(pin, !high);
-    });
-    port.moder().modify(|w| {
-        w.set_moder(pin, if high { Moder::OUTPUT } else { Moder::ALTERNATE })
+    with_link(|link| {
+        if !link.de_drive.software {
+            return;
+        }
+        let (port, pin) = (board::DE_PORT, board::DE_PIN);
+        port.bsrr().write(|w| {
+            w.set_bs(pin, high);
+            w.set_br(pin, !high);
+        });
+        port.moder().modify(|w| {
+            w.set_moder(
+                pin,
+                if high {
+                    Moder::OUTPUT
+                } else {
+                    Moder::ALTERNATE
+                },
+            )
+        });
     });
 }
 
-/// The F103's DE GPIO, driven by [`send`] and the TC interrupt.
+/// Raises or drops DE: always software on the F103 (a GPIO; one write to
+/// its set/reset register, atomic, so no critical section).
 #[cfg(feature = "board-f103")]
-pub fn set_de_pin(de: embassy_stm32::gpio::Output<'static>) {
-    with_link(|link| link.de = Some(de));
+fn set_de(high: bool) {
+    board::DE_PORT.bsrr().write(|w| {
+        w.set_bs(board::DE_PIN, high);
+        w.set_br(board::DE_PIN, !high);
+    });
 }
 
 /// STM32F103: closes a frame t3.5 after its last byte (no receiver timeout

@@ -1,20 +1,20 @@
 //! RS-485 driver enable (DE) timing: how long the transceiver's driver is
 //! switched on before the first start bit of a reply (lead, PA57) and
 //! kept on after its last stop bit (tail, PA58), in bit times of the line
-//! in force (SPEC §7 leaves PA57/PA58 to the drive; docs/rs485-de.md).
+//! in force (PA57/PA58 are unassigned in SPEC §7; docs/firmware.md, "RS-485
+//! driver enable", lists the transceivers each setting suits).
 //!
-//! A transceiver needs its driver-enable time (MAX485 tZH up to 3.5 µs,
-//! THVD/SN65HVD class about 0.1–1 µs) before the line carries our level:
-//! a start bit sent earlier is lost or shortened. One bit time (8.7 µs at
-//! the fastest line, 115200 baud) covers those at every baud; the tail
-//! keeps the last stop bit driven until the receivers have sampled it.
-//! Both stay far below t3.5, the silence after which a master may send.
+//! A transceiver needs its driver-enable time before the line carries our
+//! level: a start bit sent earlier is lost or shortened. A lead in bit
+//! times scales with the baud, so one setting holds at every PA52; the
+//! tail keeps the last stop bit driven until the receivers have sampled
+//! it. Both stay below t3.5, the silence after which a master may send.
 
 use super::LineConfig;
 
-/// Largest lead or tail, bit times: well below the shortest t3.5 (35 bit
-/// times at 9600 baud 8N1), so a held driver never meets the master's next
-/// request.
+/// Largest lead or tail, bit times: below the shortest t3.5 in bit times
+/// (`capped_below_the_shortest_t35` checks it), so a held driver never
+/// meets the master's next request.
 pub const MAX_DE_BITS: u16 = 20;
 
 /// PA57 / PA58 default: one bit time.
@@ -70,9 +70,10 @@ const fn cap(bits: u16) -> u16 {
     }
 }
 
+/// `bits` ≤ [`MAX_DE_BITS`], so the product stays far inside a `u32`.
 const fn bits_to_us(bits: u16, baud: u32) -> u32 {
-    let baud = if baud == 0 { 1 } else { baud as u64 };
-    (bits as u64 * 1_000_000).div_ceil(baud) as u32
+    let baud = if baud == 0 { 1 } else { baud };
+    (bits as u32 * 1_000_000).div_ceil(baud)
 }
 
 #[cfg(test)]
@@ -101,7 +102,12 @@ mod tests {
     fn capped_below_the_shortest_t35() {
         let de = DriverEnable::new(u16::MAX, 21);
         assert_eq!((de.lead_bits(), de.tail_bits()), (MAX_DE_BITS, MAX_DE_BITS));
-        let slowest = line(9_600);
-        assert!(de.tail_us(slowest) < slowest.timing().t35_us);
+        // every line PA52 / PA53 can select: the longest tail ends before t3.5
+        for pa52 in 0..=4 {
+            for pa53 in 0..=3 {
+                let l = LineConfig::from_params(pa52, pa53).unwrap();
+                assert!(de.tail_us(l) < l.timing().t35_us, "{l:?}");
+            }
+        }
     }
 }
