@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# fw-sim stage: both boards' unmodified release images (cargo fw, cargo
+# fw-f103) run on the emulated STM32 of fw-sim/ (docs/fw-sim.md) and are
+# driven over the emulated USART by the pytest tests in tests/fw_sim (seed
+# 000 frames byte for byte, exceptions, addressing, a position move counted
+# in step pulses, DE around every reply). Run by .ci/run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# unicorn-engine builds its C core with cmake; bindgen needs libclang
+missing=()
+command -v cmake >/dev/null || missing+=(cmake)
+ldconfig -p 2>/dev/null | grep -q libclang || missing+=(libclang-dev)
+command -v flip-link >/dev/null || cargo install flip-link --locked
+if [ ${#missing[@]} -gt 0 ]; then
+  sudo=""
+  [ "$(id -u)" -ne 0 ] && sudo="sudo"
+  $sudo apt-get update
+  $sudo apt-get install -y "${missing[@]}"
+fi
+rustup target add thumbv7em-none-eabihf thumbv7m-none-eabi
+
+venv=.venv/e2e
+[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
+"$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/e2e/requirements.txt
+
+target_of() {
+  cargo metadata --format-version 1 --no-deps "$@" |
+    python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])'
+}
+
+cargo fw
+cargo fw-f103
+( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings && cargo build --release )
+fw_target=$(target_of)
+export FW_SIM_ELF_G431="$fw_target/thumbv7em-none-eabihf/fw/modbus-drive"
+export FW_SIM_ELF_F103="$fw_target/thumbv7m-none-eabi/fw/modbus-drive"
+export FW_SIM_BIN="$(target_of --manifest-path fw-sim/Cargo.toml)/release/fw-sim"
+
+set +e
+"$venv/bin/python" -m pytest tests/fw_sim -p no:cacheprovider -v "$@"
+rc=$?
+set -e
+if [ "$rc" -eq 5 ]; then
+  echo "fw-sim: no tests ran" >&2
+  exit 1
+fi
+exit "$rc"

@@ -1,0 +1,132 @@
+//! Command line of the runner: the board, the firmware image and the same
+//! line and axis options as the virtual drive.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crate::chip::Kind;
+use crate::machine::Switches;
+
+pub const USAGE: &str = "\
+usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--pty-link PATH]
+              [--trace-steps FILE] [--trace-line FILE] [--state FILE] [--cw-limit STEPS] [--ccw-limit STEPS]
+              [--home-switch FROM:TO] [--run-for SECONDS] [--quiet]
+
+Runs the unmodified firmware image of a board on an emulated STM32.
+  --board       g431 (STM32G431CB, default) or f103 (STM32F103C8)
+  --elf         firmware ELF to run; default: build it (cargo fw / cargo fw-f103)
+  --tcp         raw RTU bytes over TCP (as the virtual drive's --tcp)
+  --pty-link    a pseudo-terminal, linked at PATH
+  --trace-steps CSV of every step pulse: time_ns,dir,width_ns
+  --trace-line  CSV of the line: time_ns,event (rx, tx, de),value
+  --state       file holding the parameter flash pages (kept across runs)
+  --cw-limit / --ccw-limit / --home-switch: switch positions in steps
+  --run-for     stop after this much emulated time (exit 0)
+  --quiet       do not print the firmware's defmt log";
+
+pub struct Args {
+    pub board: Kind,
+    pub elf: Option<PathBuf>,
+    pub tcp: Vec<SocketAddr>,
+    pub pty_link: Option<PathBuf>,
+    pub trace_steps: Option<PathBuf>,
+    pub trace_line: Option<PathBuf>,
+    pub state: Option<PathBuf>,
+    pub switches: Switches,
+    pub run_for_ps: Option<u64>,
+    pub quiet: bool,
+}
+
+fn num<T: std::str::FromStr>(flag: &str, v: &str) -> Result<T, String> {
+    v.parse().map_err(|_| format!("{flag}: not a number: {v}"))
+}
+
+impl Args {
+    pub fn parse(argv: impl Iterator<Item = String>) -> Result<Self, String> {
+        let mut a = Args {
+            board: Kind::G431,
+            elf: None,
+            tcp: Vec::new(),
+            pty_link: None,
+            trace_steps: None,
+            trace_line: None,
+            state: None,
+            switches: Switches::default(),
+            run_for_ps: None,
+            quiet: false,
+        };
+        let mut it = argv.peekable();
+        while let Some(flag) = it.next() {
+            if flag == "--" {
+                continue;
+            }
+            if flag == "--help" || flag == "-h" {
+                return Err(USAGE.into());
+            }
+            if flag == "--quiet" {
+                a.quiet = true;
+                continue;
+            }
+            let v = it
+                .next()
+                .ok_or_else(|| format!("{flag} needs a value\n{USAGE}"))?;
+            match flag.as_str() {
+                "--board" => {
+                    a.board = match v.as_str() {
+                        "g431" => Kind::G431,
+                        "f103" => Kind::F103,
+                        _ => return Err(format!("--board: g431 or f103, not {v}")),
+                    }
+                }
+                "--elf" => a.elf = Some(v.into()),
+                "--tcp" => a.tcp.push(
+                    v.parse()
+                        .map_err(|_| format!("--tcp: not HOST:PORT: {v}"))?,
+                ),
+                "--pty-link" => a.pty_link = Some(v.into()),
+                "--trace-steps" => a.trace_steps = Some(v.into()),
+                "--trace-line" => a.trace_line = Some(v.into()),
+                "--state" => a.state = Some(v.into()),
+                "--cw-limit" => a.switches.cw_limit = Some(num(&flag, &v)?),
+                "--ccw-limit" => a.switches.ccw_limit = Some(num(&flag, &v)?),
+                "--home-switch" => {
+                    let (f, t) = v.split_once(':').ok_or("--home-switch: FROM:TO")?;
+                    a.switches.home = Some((num(&flag, f)?, num(&flag, t)?));
+                }
+                "--run-for" => a.run_for_ps = Some((num::<f64>(&flag, &v)? * 1e12) as u64),
+                _ => return Err(format!("unknown option {flag}\n{USAGE}")),
+            }
+        }
+        Ok(a)
+    }
+}
+
+/// The board's release image, built with the repository's own alias.
+pub fn build_firmware(board: Kind) -> Result<PathBuf, String> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .ok_or("no repository root")?;
+    let (alias, target) = match board {
+        Kind::G431 => ("fw", "thumbv7em-none-eabihf"),
+        Kind::F103 => ("fw-f103", "thumbv7m-none-eabi"),
+    };
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let st = Command::new(cargo)
+        .arg(alias)
+        .arg("--quiet")
+        .current_dir(root)
+        // the outer `cargo run` of this runner must not steer the firmware build
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_MANIFEST_DIR")
+        .status()
+        .map_err(|e| format!("cargo {alias}: {e}"))?;
+    if !st.success() {
+        return Err(format!("cargo {alias} failed"));
+    }
+    Ok(root
+        .join("target")
+        .join(target)
+        .join("fw")
+        .join("modbus-drive"))
+}

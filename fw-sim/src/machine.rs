@@ -1,0 +1,473 @@
+//! The emulated chip outside the CPU: every modelled peripheral, the bus
+//! that routes an address to one of them (anything else is a fault), the
+//! interrupt lines into the NVIC, and the board around the chip (STEP/DIR
+//! outputs into an axis position, the switches that position drives, the
+//! RS-485 DE pin).
+
+use std::collections::BTreeSet;
+
+use crate::chip::{self, pins, Chip};
+use crate::clock::Clock;
+use crate::periph::bank::Bank;
+use crate::periph::exti::Exti;
+use crate::periph::flash::{Flash, FlashWrite};
+use crate::periph::gpio::{Mode, Port};
+use crate::periph::iwdg::Iwdg;
+use crate::periph::rcc::Rcc;
+use crate::periph::timer::{Access, Timer};
+use crate::periph::usart::Usart;
+use crate::scs::Scs;
+use crate::trace::StepTrace;
+
+/// Switch windows in steps (same meaning as the virtual drive's options).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Switches {
+    pub cw_limit: Option<i64>,
+    pub ccw_limit: Option<i64>,
+    pub home: Option<(i64, i64)>,
+}
+
+pub struct Machine {
+    pub chip: Chip,
+    pub clock: Clock,
+    pub rcc: Rcc,
+    pub pwr: Bank,
+    pub syscfg: Bank,
+    pub dbgmcu: Bank,
+    pub flash: Flash,
+    pub exti: Exti,
+    pub gpio: [Port; 2],
+    pub tim: [Timer; 3],
+    pub usart: Usart,
+    pub iwdg: Iwdg,
+    pub scs: Scs,
+    /// Set by a bus access the model refuses; the runner stops.
+    pub fault: Option<String>,
+    /// The program counter when the fault was raised.
+    pub fault_pc: Option<u32>,
+    /// Instructions of the current slice so far (block granularity).
+    pub slice_insns: u64,
+    pub budget: u64,
+    /// End the slice at the next block boundary.
+    pub stop_soon: bool,
+    /// Start address of the basic block being executed.
+    pub block_pc: u32,
+    pub block_cache: std::collections::HashMap<u64, u32>,
+    /// Registers the firmware touched (for --report-registers).
+    pub touched: BTreeSet<u32>,
+    pub switches: Switches,
+    pub position: i64,
+    pub steps_total: u64,
+    pub trace: Option<StepTrace>,
+    pending_rise: Option<(u64, bool)>,
+    /// Event register (WFE/SEV).
+    pub event: bool,
+    /// What the CPU hooks saw in the current slice.
+    pub events: crate::cpu::SliceEvents,
+}
+
+impl Machine {
+    pub fn new(chip: Chip, flash: Flash, switches: Switches, trace: Option<StepTrace>) -> Self {
+        let g4 = chip.is_g4();
+        let mut m = Self {
+            chip,
+            clock: Clock::new(chip.reset_sysclk),
+            rcc: Rcc::new(g4, chip.hse_hz),
+            pwr: Bank::pwr(g4),
+            syscfg: Bank::syscfg(g4),
+            dbgmcu: Bank::dbgmcu(g4, chip.dbgmcu_idcode),
+            flash,
+            exti: Exti::new(g4),
+            gpio: [Port::new(g4, 0), Port::new(g4, 1)],
+            tim: [
+                Timer::new(chip::IRQ_TIM2, g4, g4),
+                Timer::new(chip::IRQ_TIM3, g4, false),
+                Timer::new(chip::IRQ_TIM4, g4, false),
+            ],
+            usart: Usart::new(g4),
+            iwdg: Iwdg::new(g4, chip.lsi_hz),
+            scs: Scs::new(chip.has_fpu, chip.cpuid),
+            fault: None,
+            fault_pc: None,
+            slice_insns: 0,
+            budget: 0,
+            stop_soon: false,
+            block_pc: 0,
+            block_cache: Default::default(),
+            touched: BTreeSet::new(),
+            switches,
+            position: 0,
+            steps_total: 0,
+            trace,
+            pending_rise: None,
+            event: false,
+            events: Default::default(),
+        };
+        m.apply_clocks();
+        m.apply_switches();
+        m
+    }
+
+    /// A system reset (watchdog, SYSRESETREQ): every peripheral to its reset
+    /// state; SRAM, the flash file and the axis keep theirs.
+    pub fn reset_peripherals(&mut self) {
+        let fresh = Machine::new(
+            self.chip,
+            std::mem::replace(
+                &mut self.flash,
+                Flash::new(true, 0, 0, 1, 0, 0, None, 0, 0).unwrap(),
+            ),
+            self.switches,
+            self.trace.take(),
+        );
+        let (clock, position, steps) = (self.clock.clone(), self.position, self.steps_total);
+        *self = fresh;
+        self.clock = clock;
+        self.clock.set_sysclk(self.chip.reset_sysclk);
+        self.position = position;
+        self.steps_total = steps;
+        self.apply_clocks();
+        self.apply_switches();
+    }
+
+    /// Time now, inside a slice: the slice's start plus its instructions.
+    pub fn now(&self) -> u64 {
+        self.clock.after_cycles(self.slice_insns)
+    }
+    /// Core cycles since start, busy and asleep (CYCCNT).
+    fn cycles(&self) -> u64 {
+        self.clock.busy_cycles() + self.clock.sleep_cycles() + self.slice_insns
+    }
+
+    fn apply_clocks(&mut self) {
+        let c = self.rcc.clocks();
+        let now = self.now();
+        for t in &mut self.tim {
+            t.set_clock(c.tim_apb1 as u64, now);
+        }
+        self.usart.fck = c.usart1 as u64;
+    }
+    pub fn hclk(&self) -> u32 {
+        self.rcc.clocks().hclk
+    }
+
+    /// Brings every peripheral to time `t`.
+    pub fn sync(&mut self, t: u64) {
+        for i in 0..3 {
+            self.tim[i].sync(t);
+        }
+        self.step_edges();
+        let de = self.gpio_de();
+        // a GPIO DE pin: its changes (and a first rise) are edges
+        if let (Some(level), true) = (de, de != self.usart.gpio_de) {
+            if self.usart.gpio_de.is_some() || level {
+                self.usart.de_edges.push((t, level));
+            }
+        }
+        self.usart.gpio_de = de;
+        self.usart.sync(t);
+        if let Err(e) = self.flash.sync(t) {
+            self.fault = Some(format!("--state file: {e}"));
+        }
+        let hclk = self.hclk();
+        self.scs.systick_sync(t, hclk);
+        self.update_irqs();
+    }
+
+    /// The DE pin as a GPIO (F1 always; G4 when PA12 is not in its AF).
+    fn gpio_de(&self) -> Option<bool> {
+        let (port, pin) = if self.chip.is_g4() {
+            pins::DE_G431
+        } else {
+            pins::DE_F103
+        };
+        let p = &self.gpio[port];
+        match p.mode(pin) {
+            Mode::Alternate if self.chip.is_g4() => None,
+            _ => Some(p.level(pin, None)),
+        }
+    }
+
+    fn step_edges(&mut self) {
+        let edges = std::mem::take(&mut self.tim[1].edges1);
+        let (sp, spin) = pins::STEP;
+        for (t, level) in edges {
+            if self.gpio[sp].mode(spin) != Mode::Alternate {
+                continue;
+            }
+            if level {
+                let dir = self.gpio[pins::DIR.0].level(pins::DIR.1, None);
+                self.pending_rise = Some((t, dir));
+                self.position += if dir { 1 } else { -1 };
+                self.steps_total += 1;
+                self.apply_switches();
+            } else if let Some((t0, dir)) = self.pending_rise.take() {
+                if let Some(tr) = self.trace.as_mut() {
+                    tr.step(t0, dir, t - t0);
+                }
+            }
+        }
+    }
+
+    /// Switch contacts from the axis position, into the GPIO inputs (and
+    /// EXTI on a change).
+    pub fn apply_switches(&mut self) {
+        let p = self.position;
+        let s = self.switches;
+        let levels = [
+            (pins::CW_LIMIT, s.cw_limit.is_some_and(|c| p <= c)),
+            (pins::CCW_LIMIT, s.ccw_limit.is_some_and(|c| p >= c)),
+            (pins::HOME, s.home.is_some_and(|(a, b)| a <= p && p <= b)),
+        ];
+        for ((port, pin), active) in levels {
+            let before = self.gpio[port].level(pin, None);
+            self.gpio[port].external[pin as usize] = Some(active);
+            let after = self.gpio[port].level(pin, None);
+            if before != after {
+                self.exti.edge(port, pin, after);
+            }
+        }
+    }
+
+    pub fn update_irqs(&mut self) {
+        for i in 0..3 {
+            let (irq, l) = (self.tim[i].irq, self.tim[i].irq_level());
+            self.scs.set_level(irq, l);
+        }
+        let l = self.usart.irq_level();
+        self.scs.set_level(chip::IRQ_USART1, l);
+        let l = self.flash.irq_level();
+        self.scs.set_level(chip::IRQ_FLASH, l);
+        let p = self.exti.pending();
+        for line in 0..5 {
+            self.scs
+                .set_level(chip::IRQ_EXTI0 + line, p & (1 << line) != 0);
+        }
+        self.scs.set_level(chip::IRQ_EXTI9_5, p & 0x3E0 != 0);
+        self.scs.set_level(chip::IRQ_EXTI15_10, p & 0xFC00 != 0);
+    }
+
+    /// The next time a peripheral changes something the CPU may see.
+    pub fn next_event(&self) -> Option<u64> {
+        let hclk = self.hclk();
+        [
+            self.tim[0].next_event(),
+            self.tim[1].next_event(),
+            self.tim[2].next_event(),
+            self.usart.next_event(),
+            self.flash.next_event(),
+            self.iwdg.next_event(),
+            self.scs.systick_next(hclk),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
+    }
+
+    fn idr(&self, port: usize) -> u32 {
+        let mut v = 0;
+        for pin in 0..16u8 {
+            let af = self.af_output(port, pin);
+            if self.gpio[port].level(pin, af) {
+                v |= 1 << pin;
+            }
+        }
+        v
+    }
+    fn af_output(&self, port: usize, pin: u8) -> Option<bool> {
+        match (port, pin) {
+            (0, 6) => Some(self.tim[1].edges1.last().is_some_and(|e| e.1)),
+            (0, 12) if self.chip.is_g4() => self.usart.de_output(),
+            _ => None,
+        }
+    }
+
+    /// A read by the CPU from peripheral space.
+    pub fn read(&mut self, a: u32, size: usize) -> u64 {
+        let t = self.now();
+        self.sync(t);
+        let word = a & !3;
+        let r = self.dispatch_read(word, t);
+        match r {
+            Access::Ok(v) => {
+                self.touched.insert(word);
+                ((v >> (8 * (a & 3))) as u64) & mask(size)
+            }
+            Access::Unmodelled => {
+                self.fail(format!(
+                    "read of unmodelled register {a:#010x} ({})",
+                    self.region_name(a)
+                ));
+                0
+            }
+            Access::Unsupported(w) => {
+                self.fail(format!("{w} at {a:#010x} is not modelled"));
+                0
+            }
+        }
+    }
+
+    pub fn write(&mut self, a: u32, size: usize, v: u64) {
+        let t = self.now();
+        self.sync(t);
+        let word = a & !3;
+        let v32 = (v as u32) << (8 * (a & 3));
+        let r = self.dispatch_write(word, v32, size, a, t);
+        match r {
+            Access::Ok(_) => {
+                self.touched.insert(word);
+            }
+            Access::Unmodelled => self.fail(format!(
+                "write of {v:#x} to unmodelled register {a:#010x} ({})",
+                self.region_name(a)
+            )),
+            Access::Unsupported(w) => self.fail(format!("{w} at {a:#010x} is not modelled")),
+        }
+        self.apply_clocks();
+        let hz = self.hclk();
+        if hz != self.clock.sysclk() {
+            // the instructions so far ran at the old clock
+            self.clock.run_cycles(self.slice_insns);
+            self.budget = self.budget.saturating_sub(self.slice_insns);
+            self.slice_insns = 0;
+            self.clock.set_sysclk(hz);
+        }
+        self.sync(t);
+    }
+
+    pub fn fail(&mut self, msg: String) {
+        if self.fault.is_none() {
+            self.fault = Some(msg);
+        }
+    }
+
+    fn region_name(&self, a: u32) -> &'static str {
+        let g4 = self.chip.is_g4();
+        match a {
+            0x4000_0000..=0x4000_03FF => "TIM2",
+            0x4000_0400..=0x4000_07FF => "TIM3",
+            0x4000_0800..=0x4000_0BFF => "TIM4",
+            0x4000_3000..=0x4000_33FF => "IWDG",
+            0x4000_7000..=0x4000_73FF => "PWR",
+            0x4001_0000..=0x4001_03FF => {
+                if g4 {
+                    "SYSCFG"
+                } else {
+                    "AFIO"
+                }
+            }
+            0x4001_0400..=0x4001_07FF => "EXTI",
+            0x4001_3800..=0x4001_3BFF => "USART1",
+            0x4002_1000..=0x4002_13FF => "RCC",
+            0x4002_2000..=0x4002_23FF => "FLASH",
+            0xE000_0000..=0xE00F_FFFF => "Cortex-M private peripheral bus",
+            _ if a == self.chip.gpioa & !0x3FF || (a & !0x3FF) == self.chip.gpioa => "GPIOA",
+            _ if (a & !0x3FF) == self.chip.gpiob => "GPIOB",
+            _ => "no peripheral modelled here",
+        }
+    }
+
+    fn dispatch_read(&mut self, a: u32, t: u64) -> Access {
+        let off = a & 0x3FF;
+        let ga = self.chip.gpioa;
+        let gb = self.chip.gpiob;
+        match a & !0x3FF {
+            chip::TIM2 => self.tim[0].read(off, t),
+            chip::TIM3 => self.tim[1].read(off, t),
+            chip::TIM4 => self.tim[2].read(off, t),
+            chip::IWDG => self.iwdg.read(off, t),
+            chip::PWR => self.pwr.read(off),
+            chip::SYSCFG_AFIO => self.syscfg.read(off),
+            chip::EXTI => self.exti.read(off),
+            chip::USART1 => self.usart.read(off),
+            chip::RCC => self.rcc.read(off),
+            chip::FLASH_IF => self.flash.read(off, t),
+            chip::DBGMCU => self.dbgmcu.read(off),
+            x if x == ga => {
+                let idr = self.idr(0);
+                self.gpio[0].read(off, idr)
+            }
+            x if x == gb => {
+                let idr = self.idr(1);
+                self.gpio[1].read(off, idr)
+            }
+            _ if (0xE000_0000..0xE010_0000).contains(&a) => {
+                let (hclk, cyc) = (self.hclk(), self.cycles());
+                self.scs.read(a, t, hclk, cyc)
+            }
+            _ => Access::Unmodelled,
+        }
+    }
+
+    fn dispatch_write(&mut self, a: u32, v: u32, size: usize, exact: u32, t: u64) -> Access {
+        let off = a & 0x3FF;
+        let ga = self.chip.gpioa;
+        let gb = self.chip.gpiob;
+        match a & !0x3FF {
+            chip::TIM2 => self.tim[0].write(off, v, t),
+            chip::TIM3 => self.tim[1].write(off, v, t),
+            chip::TIM4 => self.tim[2].write(off, v, t),
+            chip::IWDG => self.iwdg.write(off, v, t),
+            chip::PWR => self.pwr.write(off, v),
+            chip::SYSCFG_AFIO => {
+                let r = self.syscfg.write(off, v);
+                for i in 0..4 {
+                    self.exti.exticr[i] = self.syscfg.get(0x08 + 4 * i as u32);
+                }
+                r
+            }
+            chip::EXTI => self.exti.write(off, v),
+            chip::USART1 => self.usart.write(off, v, t),
+            chip::RCC => self.rcc.write(off, v),
+            chip::FLASH_IF => match self.flash.write(off, v, t) {
+                Ok(r) => r,
+                Err(e) => {
+                    self.fail(e);
+                    Access::Ok(0)
+                }
+            },
+            chip::DBGMCU => self.dbgmcu.write(off, v),
+            x if x == ga || x == gb => {
+                let port = usize::from(x == gb);
+                let before = self.idr(port);
+                let r = self.gpio[port].write(off, v);
+                let after = self.idr(port);
+                for pin in 0..16u8 {
+                    if (before ^ after) & (1 << pin) != 0 {
+                        self.exti.edge(port, pin, after & (1 << pin) != 0);
+                    }
+                }
+                r
+            }
+            _ if (0xE000_0000..0xE010_0000).contains(&a) => {
+                let (hclk, cyc) = (self.hclk(), self.cycles());
+                self.scs
+                    .write(exact, v >> (8 * (exact & 3)), size, t, hclk, cyc)
+            }
+            _ => Access::Unmodelled,
+        }
+    }
+
+    /// The CPU wrote to the flash memory array (a program attempt).
+    pub fn flash_store(&mut self, a: u32, size: usize, v: u64) {
+        let t = self.now();
+        self.sync(t);
+        if let FlashWrite::Fault(m) = self.flash.write_data(a, size, v, t) {
+            self.fail(m);
+        }
+        self.sync(t);
+    }
+
+    /// Whether the firmware has its receiver armed (boot finished).
+    pub fn line_ready(&self) -> bool {
+        self.usart.rx_armed()
+    }
+}
+
+fn mask(size: usize) -> u64 {
+    if size >= 8 {
+        u64::MAX
+    } else {
+        (1u64 << (8 * size)) - 1
+    }
+}

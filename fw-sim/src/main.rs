@@ -1,0 +1,392 @@
+//! fw-sim: runs a board's unmodified firmware ELF on an emulated STM32 and
+//! connects its USART1 to TCP or a pseudo-terminal, like the virtual drive.
+//! See docs/fw-sim.md.
+
+mod chip;
+mod cli;
+mod clock;
+mod cpu;
+mod elf;
+mod line;
+mod machine;
+mod periph;
+mod rtt;
+mod scs;
+mod trace;
+
+use std::cell::RefCell;
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use unicorn_engine::RegisterARM as R;
+
+use chip::{Chip, Kind};
+use cli::Args;
+use cpu::Uc;
+use elf::Image;
+use line::Line;
+use machine::Machine;
+use periph::flash::Flash;
+use periph::usart::RxChar;
+use rtt::Rtt;
+use trace::{LineTrace, StepTrace};
+
+/// The longest slice of instructions between two looks at the line and the
+/// interrupt controller.
+const MAX_SLICE: u64 = 20_000;
+/// How often (wall time) the line is polled while the core is busy.
+const POLL_EVERY: Duration = Duration::from_millis(1);
+
+fn main() {
+    let code = match run() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("fw-sim: {e}");
+            2
+        }
+    };
+    std::process::exit(code);
+}
+
+/// The parameter pages of each board (src/firmware/board_*.rs).
+fn param_pages(kind: Kind) -> (u32, u32) {
+    match kind {
+        Kind::G431 => (0x1_F000, 0x1000),
+        Kind::F103 => (0xF000, 0x1000),
+    }
+}
+
+fn run() -> Result<i32, String> {
+    let args = Args::parse(std::env::args().skip(1))?;
+    let elf = match &args.elf {
+        Some(p) => p.clone(),
+        None => cli::build_firmware(args.board)?,
+    };
+    let bytes = std::fs::read(&elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let image = Image::load(bytes)?;
+    let chip = Chip::new(args.board);
+    let (poff, plen) = param_pages(args.board);
+    let flash = Flash::new(
+        chip.is_g4(),
+        chip.flash_base,
+        chip.flash_end(),
+        chip.page,
+        chip.flash_base + poff,
+        plen,
+        args.state.clone(),
+        chip.t_prog_ps,
+        chip.t_erase_ps,
+    )
+    .map_err(|e| format!("--state: {e}"))?;
+    let trace = match &args.trace_steps {
+        Some(p) => Some(StepTrace::create(p).map_err(|e| format!("{}: {e}", p.display()))?),
+        None => None,
+    };
+    let line_trace = match &args.trace_line {
+        Some(p) => Some(LineTrace::create(p).map_err(|e| format!("{}: {e}", p.display()))?),
+        None => None,
+    };
+    let machine = Machine::new(chip, flash, args.switches, trace);
+    let mut uc = cpu::create(&image, machine)?;
+    let rtt = if args.quiet {
+        None
+    } else {
+        image.rtt.and_then(|cb| Rtt::new(&image.bytes, cb))
+    };
+    let line = Line::new(&args.tcp, args.pty_link.as_ref()).map_err(|e| format!("line: {e}"))?;
+    eprintln!("fw-sim: {} running {}", chip.name, elf.display());
+    let pc = cpu::reset(&mut uc)?;
+    let mut r = Runner {
+        uc,
+        image,
+        rtt,
+        line,
+        pc,
+        sleeping: None,
+        ready: None,
+        rx_tail: 0,
+        last_poll: Instant::now(),
+        run_for: args.run_for_ps,
+        line_trace,
+    };
+    r.run()
+}
+
+struct Runner {
+    uc: Uc,
+    image: Image,
+    rtt: Option<Rtt>,
+    line: Line,
+    pc: u32,
+    /// Asleep in WFI (false) or WFE (true).
+    sleeping: Option<bool>,
+    /// Boot finished: (emulated time, wall time) then; emulated time is
+    /// kept from running ahead of wall time after it.
+    ready: Option<(u64, Instant)>,
+    /// End of the last character queued on the RX wire.
+    rx_tail: u64,
+    last_poll: Instant,
+    run_for: Option<u64>,
+    line_trace: Option<LineTrace>,
+}
+
+impl Runner {
+    fn m(&mut self) -> &mut Machine {
+        self.uc.get_data_mut()
+    }
+    fn now(&self) -> u64 {
+        self.uc.get_data().clock.now()
+    }
+
+    /// Emulated time that corresponds to wall time now (after boot).
+    fn wall_now(&self) -> Option<u64> {
+        self.ready
+            .map(|(t0, w0)| t0 + w0.elapsed().as_nanos() as u64 * 1000)
+    }
+
+    fn run(&mut self) -> Result<i32, String> {
+        loop {
+            if let Some(msg) = self.m().fault.take() {
+                return Ok(self.report(&msg));
+            }
+            let now = self.now();
+            if self.uc.get_data().scs.reset_request || self.uc.get_data().iwdg.expired(now) {
+                eprintln!("fw-sim: system reset at {} µs", now / 1_000_000);
+                self.m().reset_peripherals();
+                self.pc = cpu::reset(&mut self.uc)?;
+                self.sleeping = None;
+                continue;
+            }
+            if self.ready.is_none() && self.uc.get_data().line_ready() {
+                self.ready = Some((now, Instant::now()));
+                println!("ready");
+                let _ = std::io::stdout().flush();
+            }
+            if self.run_for.is_some_and(|l| now >= l) {
+                self.poll_rtt();
+                return Ok(0);
+            }
+            if self.last_poll.elapsed() >= POLL_EVERY {
+                self.input(Duration::ZERO);
+            }
+            let primask = self.uc.reg_read(R::PRIMASK).unwrap_or(1) & 1 != 0;
+            let basepri = self.uc.reg_read(R::BASEPRI).unwrap_or(0) as u8;
+            if let Some(e) = self.uc.get_data().scs.take(primask, basepri) {
+                match cpu::enter(&mut self.uc, e, self.pc) {
+                    Ok(h) => self.pc = h,
+                    Err(msg) => return Ok(self.report(&msg)),
+                }
+                self.sleeping = None;
+                continue;
+            }
+            if let Some(wfe) = self.sleeping {
+                let m = self.m();
+                let awake = if wfe {
+                    std::mem::take(&mut m.event)
+                } else {
+                    m.scs.wakes(basepri)
+                };
+                if awake {
+                    self.sleeping = None;
+                } else {
+                    self.idle()?;
+                    continue;
+                }
+            }
+            self.slice();
+            self.after_slice();
+        }
+    }
+
+    /// Runs instructions until the next peripheral event (at most
+    /// MAX_SLICE), a WFI/WFE, an exception return or a fault.
+    fn slice(&mut self) {
+        let m = self.m();
+        let budget = m
+            .next_event()
+            .map_or(MAX_SLICE, |t| m.clock.cycles_until(t))
+            .clamp(1, MAX_SLICE);
+        m.budget = budget;
+        m.stop_soon = false;
+        m.slice_insns = 0;
+        m.events = Default::default();
+        let res = self.uc.emu_start(self.pc as u64 | 1, 0, 0, 0);
+        let m = self.m();
+        let n = m.slice_insns;
+        m.clock.run_cycles(n);
+        m.slice_insns = 0;
+        let ev = m.events;
+        self.pc = self.uc.reg_read(R::PC).unwrap_or(0) as u32;
+        // unicorn's core raises an internal exception for a branch into
+        // 0xFFFF_xxxx (the EXC_RETURN range) in M profile
+        if ev.exc_return || (res.is_err() && self.pc >= 0xFFFF_FF00) {
+            let exc = self.pc | 1;
+            match cpu::exit(&mut self.uc, exc) {
+                Ok(pc) => self.pc = pc,
+                Err(msg) => self.m().fail(msg),
+            }
+        } else if let Some((kind, addr, size)) = ev.bad_access {
+            let what = format!("{kind:?}").to_lowercase().replace('_', " ");
+            self.m().fail(format!(
+                "{size}-byte {what} at {addr:#010x}: outside this chip's memories"
+            ));
+        } else if let Err(e) = res {
+            let op = self
+                .uc
+                .mem_read_as_vec(self.pc as u64, 2)
+                .unwrap_or_default();
+            let msg = if op.len() == 2 && op[1] == 0xDE {
+                "the firmware stopped on a UDF instruction (panic-probe after a panic, or a HardFault)".to_string()
+            } else {
+                format!("the CPU stopped ({e:?}): an instruction faulted (HardFault)")
+            };
+            self.m().fail(msg);
+        }
+        if let Some(wfe) = ev.sleep {
+            self.sleeping = Some(wfe);
+        }
+    }
+
+    fn after_slice(&mut self) {
+        let t = self.now();
+        self.m().sync(t);
+        self.output();
+        self.poll_rtt();
+        // never ahead of wall time once booted
+        if let Some(w) = self.wall_now() {
+            if t > w + 1_000_000_000 {
+                self.input(Duration::from_nanos((t - w) / 1000));
+            }
+        }
+    }
+
+    /// Asleep with nothing to take: time jumps to the next event, at wall
+    /// speed once booted (the line is watched meanwhile).
+    fn idle(&mut self) -> Result<(), String> {
+        let now = self.now();
+        let next = self.uc.get_data().next_event();
+        let next = match (next, self.run_for) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        match self.wall_now() {
+            None => {
+                let Some(t) = next else {
+                    return Err("the firmware sleeps before it armed its receiver, with no event to wake it".into());
+                };
+                self.sleep_to(t.max(now));
+            }
+            Some(wall) => {
+                if let Some(t) = next.filter(|&t| t <= wall) {
+                    self.sleep_to(t.max(now));
+                } else {
+                    let wait = next.map_or(Duration::from_millis(200), |t| {
+                        Duration::from_nanos((t - wall) / 1000)
+                    });
+                    let chunks = self.line.poll(wait);
+                    let wall = self.wall_now().unwrap_or(now);
+                    let t = next.map_or(wall, |n| n.min(wall)).max(now);
+                    self.sleep_to(t);
+                    self.queue(chunks);
+                }
+            }
+        }
+        self.output();
+        Ok(())
+    }
+
+    fn sleep_to(&mut self, t: u64) {
+        let m = self.m();
+        m.clock.sleep_until(t);
+        m.sync(t);
+    }
+
+    /// Reads the line (waiting up to `wait`) and queues what came.
+    fn input(&mut self, wait: Duration) {
+        let chunks = self.line.poll(wait);
+        self.queue(chunks);
+    }
+
+    /// Characters from the master onto the RX wire, back to back from now,
+    /// each one character time long at the USART's current format.
+    fn queue(&mut self, chunks: Vec<Vec<u8>>) {
+        self.last_poll = Instant::now();
+        let now = self.now();
+        let m = self.uc.get_data_mut();
+        let cps = m.usart.char_ps();
+        for chunk in chunks {
+            if cps == 0 {
+                continue;
+            }
+            for b in chunk {
+                let start = self.rx_tail.max(now);
+                self.rx_tail = start + cps;
+                m.usart.rx.push_back((
+                    self.rx_tail,
+                    RxChar {
+                        byte: b,
+                        ..Default::default()
+                    },
+                ));
+                if let Some(lt) = self.line_trace.as_mut() {
+                    lt.event(self.rx_tail, "rx", b as u32);
+                }
+            }
+        }
+    }
+
+    /// Characters that left the emulated TX wire while the driver was on.
+    fn output(&mut self) {
+        let m = self.uc.get_data_mut();
+        if let Some(lt) = self.line_trace.as_mut() {
+            for (t, level) in m.usart.de_edges.drain(..) {
+                lt.event(t, "de", level as u32);
+            }
+            for c in &m.usart.tx_out {
+                lt.event(c.0, "tx", c.2 as u32);
+            }
+        } else {
+            m.usart.de_edges.clear();
+        }
+        let out: Vec<u8> = m
+            .usart
+            .tx_out
+            .drain(..)
+            .filter(|c| c.3)
+            .map(|c| c.2)
+            .collect();
+        if !out.is_empty() {
+            self.line.send(&out);
+        }
+    }
+
+    fn poll_rtt(&mut self) {
+        let Some(rtt) = self.rtt.as_mut() else { return };
+        let uc = RefCell::new(&mut self.uc);
+        rtt.poll(
+            &mut |a, n| uc.borrow().mem_read_as_vec(a as u64, n).ok(),
+            &mut |a, v| {
+                let _ = uc.borrow_mut().mem_write(a as u64, &v.to_le_bytes());
+            },
+        );
+    }
+
+    /// Prints a fault with the firmware's registers named by symbol.
+    fn report(&mut self, msg: &str) -> i32 {
+        self.poll_rtt();
+        let m = self.uc.get_data();
+        let pc = m.fault_pc.unwrap_or(self.pc);
+        let lr = self.uc.reg_read(R::LR).unwrap_or(0) as u32;
+        let sp = self.uc.reg_read(R::SP).unwrap_or(0) as u32;
+        let t = m.clock.now();
+        eprintln!("fw-sim: FAULT: {msg}");
+        eprintln!("  pc {pc:#010x} {}", self.image.symbol(pc));
+        eprintln!("  lr {lr:#010x} {}", self.image.symbol(lr));
+        eprintln!(
+            "  sp {sp:#010x}, emulated time {}.{:06} s",
+            t / 1_000_000_000_000,
+            (t / 1_000_000) % 1_000_000
+        );
+        1
+    }
+}

@@ -1,0 +1,176 @@
+"""Harness for the firmware-in-the-loop tests: each board's release image
+run by fw-sim (docs/fw-sim.md), talked to over raw RTU-over-TCP exactly as
+tests/e2e talks to the virtual drive. The frames, exception table and
+client helpers are the e2e tests' own (imported, not copied). A runner that
+stopped on a fault fails the test that used it, with its message."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import select
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pymodbus import FramerType
+from pymodbus.client import ModbusTcpClient
+
+ROOT = Path(__file__).resolve().parents[2]
+E2E = ROOT / "tests" / "e2e"
+SIM = Path(os.environ.get("FW_SIM_BIN") or ROOT / "fw-sim" / "target" / "release" / "fw-sim")
+ELF = {
+    "g431": Path(os.environ.get("FW_SIM_ELF_G431")
+                 or ROOT / "target" / "thumbv7em-none-eabihf" / "fw" / "modbus-drive"),
+    "f103": Path(os.environ.get("FW_SIM_ELF_F103")
+                 or ROOT / "target" / "thumbv7m-none-eabi" / "fw" / "modbus-drive"),
+}
+BOARDS = ["g431", "f103"]
+READY_TIMEOUT_S = 30.0
+NO_REPLY_WAIT_S = 0.3
+
+
+def _load(name: str, path: Path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+# the e2e harness's helpers and register names; its test modules import
+# them as `conftest`, which is this module while these tests run
+e2e = _load("e2e_conftest", E2E / "conftest.py")
+crc16, with_crc, hexb, Master = e2e.crc16, e2e.with_crc, e2e.hexb, e2e.Master
+for _name in dir(e2e):
+    if _name.isupper():
+        globals()[_name] = getattr(e2e, _name)
+
+
+def e2e_module(name: str):
+    """A test module of tests/e2e, for its data tables."""
+    return _load("e2e_" + name, E2E / f"{name}.py")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Firmware:
+    """One fw-sim process running one board's image."""
+
+    def __init__(self, workdir: Path, board: str, flags: list[str]):
+        self.board = board
+        self.port = free_port()
+        self.workdir = workdir
+        self.err_path = workdir / f"fw-sim-{board}-{self.port}.stderr"
+        cmd = [str(SIM), "--board", board, "--elf", str(ELF[board]),
+               "--tcp", f"127.0.0.1:{self.port}", *flags]
+        self.err = open(self.err_path, "wb")
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self.err)
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        line = b""
+        while time.monotonic() < deadline:
+            r, _, _ = select.select([self.proc.stdout], [], [], 0.1)
+            if r:
+                line += os.read(self.proc.stdout.fileno(), 64)
+                if b"ready\n" in line:
+                    return
+            if self.proc.poll() is not None:
+                break
+        self.stop()
+        raise AssertionError(f"fw-sim {board} did not print ready:\n{self.stderr()}")
+
+    def stderr(self) -> str:
+        self.err.flush()
+        return self.err_path.read_text(errors="replace")
+
+    def alive(self):
+        """Fails if the runner stopped (a fault it found in the firmware)."""
+        rc = self.proc.poll()
+        assert rc is None, f"fw-sim {self.board} exited with {rc}:\n{self.stderr()}"
+
+    def stop(self) -> int | None:
+        rc = self.proc.poll()
+        if rc is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.err.close()
+        return rc
+
+    def client(self) -> ModbusTcpClient:
+        c = ModbusTcpClient("127.0.0.1", port=self.port, framer=FramerType.RTU, timeout=1.0,
+                            retries=0)
+        assert c.connect()
+        return c
+
+    def raw(self) -> "RawBus":
+        return RawBus(self)
+
+
+class RawBus:
+    """Raw bytes to and from the emulated line."""
+
+    def __init__(self, fw: Firmware):
+        self.fw = fw
+        self.sock = socket.create_connection(("127.0.0.1", fw.port), timeout=2)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.sock.close()
+
+    def exchange(self, frame: bytes, timeout: float = 1.0, quiet: float = 0.05) -> bytes:
+        """Sends `frame` and returns what comes back until `quiet` seconds of
+        silence after the first byte (or nothing after `timeout`)."""
+        self.sock.sendall(frame)
+        got = b""
+        deadline = time.monotonic() + timeout
+        while True:
+            wait = quiet if got else deadline - time.monotonic()
+            if wait <= 0:
+                break
+            r, _, _ = select.select([self.sock], [], [], wait)
+            if not r:
+                break
+            chunk = self.sock.recv(256)
+            if not chunk:
+                break
+            got += chunk
+        self.fw.alive()
+        return got
+
+
+@pytest.fixture(params=BOARDS)
+def board(request) -> str:
+    return request.param
+
+
+@pytest.fixture
+def start_fw(tmp_path):
+    """`start_fw(board, *flags)` starts a runner; all are stopped after the
+    test, and one that had stopped on a fault fails it."""
+    started: list[Firmware] = []
+
+    def start(board: str, *flags: str) -> Firmware:
+        fw = Firmware(tmp_path, board, list(flags))
+        started.append(fw)
+        return fw
+
+    try:
+        yield start
+    finally:
+        for fw in started:
+            rc = fw.stop()
+            assert rc is None, f"fw-sim {fw.board} exited with {rc}:\n{fw.stderr()}"

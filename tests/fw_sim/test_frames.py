@@ -1,0 +1,54 @@
+"""Both firmware images on the bus: every worked frame of seed 000 byte for
+byte (SPEC §10), the exception codes of SPEC §5.2 / §3 and addressing
+(SPEC §2), on the emulated USART at 115200 baud."""
+
+import pytest
+
+from conftest import NO_REPLY_WAIT_S, e2e_module, hexb, with_crc
+
+seed = e2e_module("test_seed_frames")
+bus_tests = e2e_module("test_bus")
+
+
+def exception(addr: int, function: int, code: int) -> bytes:
+    return with_crc(bytes([addr, function | 0x80, code]))
+
+
+def test_every_worked_frame_gets_the_manuals_reply(start_fw, board):
+    fw = start_fw(board)
+    with fw.raw() as bus:
+        for req, rep in seed.SEED_000:
+            got = bus.exchange(hexb(req))
+            want = seed.expected(req, rep)
+            assert got.hex(" ").upper() == want.hex(" ").upper(), f"{board}: request {req}"
+
+
+def test_exception_codes(start_fw, board):
+    fw = start_fw(board)
+    with fw.raw() as bus:
+        for code, body, why in bus_tests.EXCEPTIONS:
+            req = with_crc(hexb(body))
+            assert bus.exchange(req) == exception(1, req[1], code), f"{board}: {why}"
+
+
+def test_bad_crc_gets_exception_10(start_fw, board):
+    fw = start_fw(board)
+    with fw.raw() as bus:
+        bad = bytearray(with_crc(hexb("01 03 60 41 00 01")))
+        bad[-1] ^= 0xFF
+        assert bus.exchange(bytes(bad)) == exception(1, 0x03, 10)  # SPEC §3, PA54 = 1
+        # PA54 = 0: strict Modbus, a bad CRC is silence
+        pa54 = with_crc(hexb("01 06 00 9A 00 00"))
+        assert bus.exchange(pa54) == pa54
+        assert bus.exchange(bytes(bad), timeout=NO_REPLY_WAIT_S) == b""
+
+
+def test_other_addresses_and_broadcast_get_no_reply(start_fw, board):
+    fw = start_fw(board)
+    with fw.raw() as bus:
+        read = hexb("03 60 83 00 01")
+        assert bus.exchange(with_crc(b"\x02" + read), timeout=NO_REPLY_WAIT_S) == b""
+        assert bus.exchange(with_crc(b"\xF8" + read), timeout=NO_REPLY_WAIT_S) == b""
+        # a broadcast write is done and not answered (SPEC §2)
+        assert bus.exchange(with_crc(hexb("00 06 60 83 00 C8")), timeout=NO_REPLY_WAIT_S) == b""
+        assert bus.exchange(with_crc(b"\x01" + read)) == with_crc(hexb("01 03 02 00 C8"))
