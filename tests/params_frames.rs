@@ -144,7 +144,7 @@ fn unassigned_pas_store_any_value() {
 // ---- SPEC §7: effects -----------------------------------------------------
 
 /// PA57 / PA58, the RS-485 driver-enable lead and tail (docs/firmware.md):
-/// one bit time by default, 0..=20 bit times, exception 3 beyond (nothing
+/// one bit time by default, 0..=MAX_DE_BITS bit times, exception 3 beyond (nothing
 /// stored), saved by EE-Set and in force after a power cycle; a saved value
 /// out of that range (PA57/PA58 were unassigned before, any value) loads
 /// as the default.

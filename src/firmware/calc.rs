@@ -48,7 +48,8 @@ pub struct DeDrive {
     pub dedt: u8,
     /// The glue drives DE as a GPIO: raised `lead_us` before the first byte
     /// is handed to the USART (whose `deat` adds to it), dropped `tail_us`
-    /// after transmission complete. Otherwise the USART alone drives it.
+    /// after transmission complete. Otherwise the USART alone drives it,
+    /// and the glue still waits `tail_us` before touching the USART again.
     pub software: bool,
     pub lead_us: u32,
     pub tail_us: u32,

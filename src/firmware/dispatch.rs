@@ -19,7 +19,7 @@ use embassy_sync::once_lock::OnceLock;
 use modbus_drive::device::Response;
 use modbus_drive::event::Event;
 use modbus_drive::params::ParamStore;
-use modbus_drive::rtu::{DriverEnable, MAX_FRAME};
+use modbus_drive::rtu::MAX_FRAME;
 use modbus_drive::Device;
 
 use super::calc::{reply_wait_us, RateLimit};
@@ -91,11 +91,7 @@ impl EventLog {
 }
 
 #[embassy_executor::task]
-pub async fn dispatcher_task(
-    mut uart: Uart<'static, Blocking>,
-    mut store: Store,
-    mut de: DriverEnable,
-) {
+pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
     let mut reply = [0u8; MAX_FRAME];
     let mut log = EventLog::new();
     loop {
@@ -121,14 +117,11 @@ pub async fn dispatcher_task(
         }
         // a new address, line format or DE lead / tail takes effect after
         // the reply (SPEC §7)
-        if let Some((changed, line, pa_de)) =
-            with_device(|d| (d.reply_sent(), d.line(), d.pa.driver_enable()))
+        if let Some(Some((line, de))) =
+            with_device(|d| d.reply_sent().map(|line| (line, d.driver_enable())))
         {
-            if changed.is_some() || pa_de != de {
-                de = pa_de;
-                if let Err(e) = rs485::apply_line(&mut uart, line, de) {
-                    defmt::error!("line {} refused by the USART: {}", line, e);
-                }
+            if let Err(e) = rs485::apply_line(&mut uart, line, de) {
+                defmt::error!("line {} refused by the USART: {}", line, e);
             }
         }
         log.drain();

@@ -83,7 +83,7 @@ async fn main(spawner: Spawner) {
             ..PlannerConfig::default()
         });
         device.apply_boot(&store.boot());
-        let at = (device.line(), device.address(), device.pa.driver_enable());
+        let at = (device.line(), device.address(), device.driver_enable());
         dispatch::install(device);
         at
     };
@@ -114,7 +114,7 @@ async fn main(spawner: Spawner) {
     );
     dispatch::EventLog::new().drain(); // how the parameters were loaded
 
-    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart, store, de)));
+    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart, store)));
     #[cfg(feature = "board-f103")]
     spawner.spawn(defmt::unwrap!(rs485::frame_gap_task()));
 

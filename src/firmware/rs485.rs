@@ -16,9 +16,9 @@
 //! register on TXE (one burst, no gaps) and finishes at TC. DE leads the
 //! first start bit and trails the last stop bit by PA57 / PA58
 //! ([`apply_line`], `calc::DeDrive`): on the G431 the USART's
-//! hardware driver-enable does it (DEAT / DEDT) while they fit, beyond that
-//! [`send`] drives the pin itself; on the F103 DE is always a GPIO raised
-//! by [`send`] the lead before the first byte and dropped the tail after TC.
+//! hardware driver-enable does it (DEAT / DEDT) while they fit; beyond
+//! that, and always on the F103, DE is a GPIO that [`send`] raises the
+//! lead before the first byte and the interrupt drops the tail after TC.
 //!
 //! Shared state: [`LINK`] (assembler + transmit buffer) behind a critical
 //! section; [`FRAMES`], [`TX_DONE`] are embassy-sync primitives on a
@@ -111,15 +111,18 @@ static TX_DONE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 #[cfg(feature = "board-f103")]
 static RX_ACTIVITY: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
+/// `repr(C)`, the fields that start at zero together: one fill sets them
+/// up (flash is short on the F103).
+#[repr(C)]
 struct Link {
     assembler: FrameAssembler,
     t35_us: u32,
-    tx: [u8; MAX_FRAME],
     tx_len: usize,
     tx_pos: usize,
-    transmitting: bool,
     /// PA57 / PA58 as this board makes them.
     de_drive: DeDrive,
+    transmitting: bool,
+    tx: [u8; MAX_FRAME],
 }
 
 /// Set up at first use. A `OnceLock` is zero-initialised (.bss); a `Link`
@@ -183,9 +186,10 @@ pub fn apply_line(
     // embassy rewrites CR1/CR2 here (for the whole USART, whichever half is
     // asked), clearing our interrupt enables
     uart.split_ref().1.set_config(&usart_config(line))?;
+    let timing = line.timing();
     with_link(|link| {
-        link.assembler.set_timing(line.timing());
-        link.t35_us = line.timing().t35_us;
+        link.assembler.set_timing(timing);
+        link.t35_us = timing.t35_us;
         link.de_drive = DeDrive::new(de, line, de_samples_per_bit());
         arm_receiver(line, link.de_drive);
     });
@@ -255,12 +259,22 @@ pub struct UartHandler;
 impl Handler<board::UartIrq> for UartHandler {
     unsafe fn on_interrupt() {
         let at_us = now_us();
-        with_link(|link| on_uart(link, at_us));
+        if let Some(tail_us) = with_link(|link| on_uart(link, at_us)) {
+            // The software DE tail, here rather than in `send`: the
+            // dispatcher task may wake much later (thread mode shares the
+            // CPU with the control loop), and a master may send its next
+            // request soon after our last stop bit. Outside the critical
+            // section, so the step interrupt runs meanwhile.
+            while now_us().wrapping_sub(at_us) <= tail_us {}
+            set_de(false);
+        }
     }
 }
 
+/// Serves the USART; returns the DE tail to hold (µs) when a reply that
+/// software drives DE for has just left the wire.
 #[cfg(feature = "board-g431")]
-fn on_uart(link: &mut Link, at_us: u32) {
+fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
     let r = board::UART;
     let isr = r.isr().read();
     if isr.rxne() {
@@ -301,15 +315,20 @@ fn on_uart(link: &mut Link, at_us: u32) {
     }
     if cr1.tcie() && isr.tc() {
         // last stop bit sent; the USART drops DE after DEDT by itself
+        // unless software drives it
         r.cr1().modify(|w| w.set_tcie(false));
         r.icr().write(|w| w.set_tc(true));
         link.transmitting = false;
         TX_DONE.signal(());
+        return link.de_drive.software.then_some(link.de_drive.tail_us);
     }
+    None
 }
 
+/// Serves the USART; returns the DE tail to hold (µs) when a reply has
+/// just left the wire (DE is always software's here).
 #[cfg(feature = "board-f103")]
-fn on_uart(link: &mut Link, at_us: u32) {
+fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
     let r = board::UART;
     let sr = r.sr().read();
     if sr.rxne() || sr.ore() {
@@ -338,12 +357,14 @@ fn on_uart(link: &mut Link, at_us: u32) {
         }
     }
     if cr1.tcie() && sr.tc() {
-        // the last stop bit has left: `send` releases the bus after the
-        // DE tail (SPEC §1)
+        // the last stop bit has left: the bus is released after the DE
+        // tail (SPEC §1)
         r.cr1().modify(|w| w.set_tcie(false));
         link.transmitting = false;
         TX_DONE.signal(());
+        return Some(link.de_drive.tail_us);
     }
+    None
 }
 
 fn on_byte(link: &mut Link, byte: u8, at_us: u32, flags: RxFlags) {
@@ -368,9 +389,11 @@ fn deliver(rx: Received) {
 pub async fn send(bytes: &[u8], not_before_us: u32) {
     let [lead, tail] = load_reply(bytes);
     // DE rises the lead before the earliest start (or now, and the start
-    // waits for the lead); the tail follows transmission complete. One
-    // await point for the three waits: each await of a timer is a state of
-    // its own in the dispatcher's future, and flash is short on the F103.
+    // waits for the lead); the tail follows transmission complete, and
+    // whatever follows the reply (`apply_line` disables the USART) waits
+    // for it. One await point for the three waits: each await of a timer
+    // is a state of its own in the dispatcher's future, and flash is short
+    // on the F103.
     let waits = [not_before_us.saturating_sub(lead), lead, tail];
     for (phase, us) in waits.into_iter().enumerate() {
         if phase == 1 {
@@ -386,11 +409,11 @@ pub async fn send(bytes: &[u8], not_before_us: u32) {
             embassy_time::Timer::after_micros(u64::from(us) + 1).await;
         }
     }
-    set_de(false);
 }
 
-/// Loads the reply for the interrupt. Returns the DE lead and tail that
-/// software times, µs (0 when the USART times them).
+/// Loads the reply for the interrupt. Returns the DE lead software times
+/// (0 when the USART times it) and the tail, µs; whether the USART or the
+/// interrupt drops DE after the tail, `send` waits for it.
 fn load_reply(bytes: &[u8]) -> [u32; 2] {
     let n = bytes.len().min(MAX_FRAME);
     TX_DONE.reset();
@@ -401,11 +424,8 @@ fn load_reply(bytes: &[u8]) -> [u32; 2] {
         link.transmitting = true;
         let de = link.de_drive;
         // (always software on the F103: it has no hardware DE)
-        if de.software || cfg!(feature = "board-f103") {
-            [de.lead_us, de.tail_us]
-        } else {
-            [0, 0]
-        }
+        let software = de.software || cfg!(feature = "board-f103");
+        [if software { de.lead_us } else { 0 }, de.tail_us]
     })
 }
 

@@ -12,10 +12,13 @@
 
 use super::LineConfig;
 
-/// Largest lead or tail, bit times: below the shortest t3.5 in bit times
+/// Largest lead or tail, bit times: one character. Below the shortest t3.5
 /// (`capped_below_the_shortest_t35` checks it), so a held driver never
-/// meets the master's next request.
-pub const MAX_DE_BITS: u16 = 20;
+/// meets a master that keeps to t3.5; and the firmware holds the tail in
+/// its USART interrupt (a wake-up of its dispatcher could come much later),
+/// which keeps the control loop waiting that long, well inside the
+/// planner's horizon at every baud.
+pub const MAX_DE_BITS: u16 = 10;
 
 /// PA57 / PA58 default: one bit time.
 pub const DEFAULT_DE_BITS: u16 = 1;
