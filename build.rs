@@ -28,4 +28,7 @@ fn main() {
     println!("cargo:rustc-link-arg-bins=--nmagic");
     println!("cargo:rustc-link-arg-bins=-Tlink.x");
     println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
+    // Identical code folding: functions whose machine code is the same
+    // (monomorphisations that differ only in a type) are kept once.
+    println!("cargo:rustc-link-arg-bins=--icf=all");
 }

@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# Benchmark stage of .ci/run (issue 7, README "Proof"): instruction counts
+# Benchmark stage of .ci/run (docs/benchmarks.md): instruction counts
 # of the drive core against rmodbus, the crc crate, ramp-maker and a
 # Klipper-style step event, on a Cortex-M4 (QEMU) and on the host
 # (valgrind). The benchmark commands fail when a figure misses its target;
 # this stage fails on any harness error, and on a missed target only with
-# BENCH_ENFORCE=1 (see README "Proof" for the figures that miss today).
+# BENCH_ENFORCE=1 (docs/generated/bench-cortex-m4.md shows what misses).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 enforce="${BENCH_ENFORCE:-0}"

@@ -1,13 +1,17 @@
 #!/usr/bin/env bash
 # e2e stage (issue 4): the release binary of the virtual drive, started as a
 # user starts it, driven by real Modbus masters (pymodbus over the pty and
-# over TCP, mbpoll and socat over the pty). Run by .ci/run.
+# over TCP, mbpoll and socat over the pty, pymodbus, mbpoll and Node
+# modbus-serial over Modbus TCP). Run by .ci/run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 missing=()
 command -v mbpoll >/dev/null || missing+=(mbpoll)
 command -v socat >/dev/null || missing+=(socat)
+# Node modbus-serial, the Node-RED / Node HMI client (tests/e2e/node)
+command -v node >/dev/null || missing+=(nodejs)
+command -v npm >/dev/null || missing+=(npm)
 if [ ${#missing[@]} -gt 0 ]; then
   sudo=""
   [ "$(id -u)" -ne 0 ] && sudo="sudo"
@@ -18,6 +22,8 @@ fi
 venv=.venv/e2e
 [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
 "$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/e2e/requirements.txt
+
+(cd tests/e2e/node && npm ci --omit=optional --no-audit --no-fund --loglevel=error)
 
 cargo build --release --bin modbus-drive
 # The binary is where cargo put it: CARGO_TARGET_DIR or .cargo/config.toml

@@ -4,13 +4,15 @@
 # driven over the emulated USART by the pytest tests in tests/fw_sim (seed
 # 000 frames byte for byte, exceptions, addressing, a position move counted
 # in step pulses, one at the acceleration limit, DE around every reply and
-# its lead / tail PA57 / PA58). Run by .ci/run.
+# its lead / tail PA57 / PA58, a limit through GPIO/EXTI, a parameter save
+# through the flash controller, mbpoll over the pty). Run by .ci/run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # unicorn-engine builds its C core with cmake; bindgen needs libclang
 missing=()
 command -v cmake >/dev/null || missing+=(cmake)
+command -v mbpoll >/dev/null || missing+=(mbpoll)
 ldconfig -p 2>/dev/null | grep -q libclang || missing+=(libclang-dev)
 command -v flip-link >/dev/null || cargo install flip-link --locked
 if [ ${#missing[@]} -gt 0 ]; then
@@ -32,10 +34,13 @@ target_of() {
 
 cargo fw
 cargo fw-f103
+# the core's step schedule for the same moves, to compare the pulses with
+cargo build --example step_schedule
 ( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings && cargo build --release )
 fw_target=$(target_of)
 export FW_SIM_ELF_G431="$fw_target/thumbv7em-none-eabihf/fw/modbus-drive"
 export FW_SIM_ELF_F103="$fw_target/thumbv7m-none-eabi/fw/modbus-drive"
+export FW_SIM_SCHEDULE_BIN="$fw_target/debug/examples/step_schedule"
 export FW_SIM_BIN="$(target_of --manifest-path fw-sim/Cargo.toml)/release/fw-sim"
 
 set +e

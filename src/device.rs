@@ -37,7 +37,7 @@ use embedded_storage::nor_flash::NorFlash;
 use crate::dictionary::{Config, DriveLayer, OdValues, Registers};
 use crate::drive::Drive;
 use crate::event::Event;
-use crate::motion::{StepSchedule, SwitchEdges, Switches};
+use crate::motion::{PlannerConfig, StepSchedule, SwitchEdges, Switches};
 use crate::params::{
     execute, Boot, BootOutcome, EeError, EeOp, ParamStore, Params, PendingEe, StoreStatus,
 };
@@ -51,16 +51,16 @@ pub const EVENT_QUEUE_LEN: usize = 16;
 
 /// One drive on the bus.
 pub struct Device {
-    pub identity: Identity,
-    pub od: OdValues,
-    pub pa: Params,
-    pub drive: Drive,
+    identity: Identity,
+    od: OdValues,
+    pa: Params,
+    drive: Drive,
     /// Dispatcher state: §6 counters and listen-only mode.
-    pub slave: Slave,
+    slave: Slave,
     /// Busy for a reason of the glue's own (or a test's): register requests
     /// get exception 6 (§5.2 step 9). The device is also busy on its own
     /// while an EE operation waits for [`Device::poll_storage`].
-    pub storage_busy: bool,
+    storage_busy: bool,
     /// The EE operation accepted and not yet run (§5.2 step 9: busy).
     ee_pending: Option<PendingEe>,
     /// What DP-Err says about the store.
@@ -92,6 +92,64 @@ impl Device {
             events: Deque::new(),
             events_dropped: 0,
         }
+    }
+
+    /// What the drive answers to Read Device Identification.
+    pub fn identity(&self) -> &Identity {
+        &self.identity
+    }
+
+    /// The working parameter set (PA01..PA56), read through its named
+    /// accessors ([`Params::steps_per_rev`], …).
+    pub fn params(&self) -> &Params {
+        &self.pa
+    }
+
+    /// The object dictionary's values as the master wrote them.
+    pub fn od(&self) -> &OdValues {
+        &self.od
+    }
+
+    /// The drive layer: power state, outputs, planner.
+    pub fn drive(&self) -> &Drive {
+        &self.drive
+    }
+
+    /// The dispatcher: §6 counters and listen-only mode.
+    pub fn slave(&self) -> &Slave {
+        &self.slave
+    }
+
+    /// Swaps the dispatcher state (§6 counters, listen-only mode) with
+    /// `other`: a second port to the same drive (a web page, a TCP front
+    /// end) keeps its own by swapping it in for its request and back.
+    pub fn swap_slave(&mut self, other: &mut Slave) {
+        core::mem::swap(&mut self.slave, other);
+    }
+
+    /// The planner's timing (step timer frequency, horizon): at start-up,
+    /// before the first control call ([`Drive::set_planner_config`]).
+    pub fn set_planner_config(&mut self, cfg: PlannerConfig) {
+        self.drive.set_planner_config(cfg);
+    }
+
+    /// Changes parameters before the first frame, from the glue's own
+    /// configuration (a command line, a board's wiring, a test's setup):
+    /// `set` edits the working set (parameters and OD values), then its
+    /// address and line are put in force at once and the drive layer
+    /// re-reads it, as after a boot. Values are not checked against the
+    /// table's ranges: the glue's settings are its own.
+    pub fn configure(&mut self, set: impl FnOnce(&mut Params, &mut OdValues)) {
+        set(&mut self.pa, &mut self.od);
+        self.address = self.pa.address();
+        self.line = self.pa.line();
+        self.configuration_changed();
+    }
+
+    /// Register requests get exception 6 while `busy` (§5.2 step 9), for a
+    /// reason of the glue's own (or a test's); see [`Self::busy`].
+    pub fn set_storage_busy(&mut self, busy: bool) {
+        self.storage_busy = busy;
     }
 
     /// A closed frame (or frame error) from the assembler. Writes any reply

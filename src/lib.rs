@@ -16,6 +16,7 @@
 #![forbid(unsafe_code)]
 
 pub mod boards;
+pub mod closed_loop;
 pub mod device;
 pub mod dictionary;
 pub mod drive;

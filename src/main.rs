@@ -8,6 +8,10 @@
 #[cfg(target_os = "none")]
 mod firmware;
 
+// The virtual drive runs on the simulation (the default feature `sim`).
+#[cfg(all(not(target_os = "none"), not(feature = "sim")))]
+compile_error!("the virtual drive needs the feature `sim` (a default feature)");
+
 // `virtual` is a reserved word, hence the module name.
 #[cfg(not(target_os = "none"))]
 #[path = "virtual/mod.rs"]

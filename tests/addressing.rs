@@ -3,6 +3,7 @@
 
 mod common;
 use common::*;
+use modbus_drive::dictionary::OdValues;
 use modbus_drive::event::{Event, FrameError};
 use modbus_drive::rtu::{CharFormat, LineConfig};
 
@@ -10,11 +11,11 @@ use modbus_drive::rtu::{CharFormat, LineConfig};
 fn broadcast_writes_are_executed_and_never_answered() {
     let mut bus = Bus::new();
     assert_eq!(bus.request(0, &[0x06, 0x60, 0x83, 0x00, 0x64]), None);
-    assert_eq!(bus.device.od.acceleration, 100);
+    assert_eq!(bus.device.od().acceleration, 100);
     assert_eq!(bus.request(0, &write_pdu(0x607A, &[0x0003, 0x0D40])), None);
-    assert_eq!(bus.device.od.target_position, 200_000);
+    assert_eq!(bus.device.od().target_position, 200_000);
     assert!(bus.sent.is_empty());
-    let c = bus.device.slave.counters().clone();
+    let c = bus.device.slave().counters().clone();
     assert_eq!((c.slave_messages, c.no_response, c.exceptions), (2, 2, 0));
 }
 
@@ -24,9 +25,9 @@ fn a_broadcast_that_fails_validation_changes_nothing_and_is_counted() {
     // 0x6083 = 5 valid, then 0x6060 … no: 0x605A = -1 refused (code 3).
     assert_eq!(bus.request(0, &write_pdu(0x605A, &[0xFFFF])), None);
     assert_eq!(bus.request(0, &[0x06, 0x60, 0x41, 0x00, 0x00]), None); // RO
-    assert_eq!(bus.device.od, Default::default());
+    assert_eq!(bus.device.od(), &OdValues::default());
     assert!(bus.sent.is_empty());
-    assert_eq!(bus.device.slave.counters().exceptions, 2);
+    assert_eq!(bus.device.slave().counters().exceptions, 2);
     let refused: Vec<_> = bus
         .events()
         .into_iter()
@@ -48,10 +49,10 @@ fn broadcast_reads_and_other_functions_are_ignored() {
     let mut bus = Bus::new();
     assert_eq!(bus.request(0, &[0x03, 0x60, 0x7A, 0x00, 0x02]), None);
     assert_eq!(bus.request(0, &[0x08, 0x00, 0x04, 0x00, 0x00]), None);
-    assert!(!bus.device.slave.listen_only(), "0x08/0x04 not executed");
+    assert!(!bus.device.slave().listen_only(), "0x08/0x04 not executed");
     assert_eq!(bus.request(0, &[0x2B, 0x0E, 0x01, 0x00]), None);
     assert_eq!(bus.request(0, &[0x41]), None, "no exception 1 either");
-    let c = bus.device.slave.counters().clone();
+    let c = bus.device.slave().counters().clone();
     assert_eq!((c.slave_messages, c.no_response, c.exceptions), (4, 4, 0));
     // Still answering unicast.
     assert_eq!(bus.read(0x6000, 1), Ok(vec![0]));
@@ -69,8 +70,8 @@ fn foreign_addresses_are_silent_even_with_a_bad_crc() {
         // a request that would be an exception at our address
         assert_eq!(bus.request(address, &[0x03, 0x60, 0x90, 0x00, 0x01]), None);
     }
-    assert_eq!(bus.device.od.acceleration, 0);
-    let c = bus.device.slave.counters().clone();
+    assert_eq!(bus.device.od().acceleration, 0);
+    let c = bus.device.slave().counters().clone();
     assert_eq!(c.bus_messages, 12, "good frames on the bus");
     assert_eq!(c.bus_errors, 6, "CRC errors on the bus");
     assert_eq!(c.slave_messages, 0);
@@ -123,7 +124,7 @@ fn address_in_force_is_used_until_the_reply_has_gone() {
     };
     assert_eq!(dev.handle_rx(rx, &mut reply), Response::Reply(8));
     assert_eq!(dev.address(), 1);
-    assert_eq!(dev.pa.address(), 5, "the parameter itself is written");
+    assert_eq!(dev.params().address(), 5, "the parameter itself is written");
     assert_eq!(dev.reply_sent(), None, "the line did not change");
     assert_eq!(dev.address(), 5);
 }
@@ -145,7 +146,7 @@ fn de_lead_and_tail_take_effect_after_the_reply() {
     };
     assert_eq!(dev.handle_rx(rx, &mut reply), Response::Reply(8));
     assert_eq!(dev.driver_enable(), DriverEnable::new(1, 1));
-    assert_eq!(dev.pa.driver_enable(), DriverEnable::new(3, 1));
+    assert_eq!(dev.params().driver_enable(), DriverEnable::new(3, 1));
     assert_eq!(
         dev.reply_sent(),
         Some(line),

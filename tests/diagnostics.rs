@@ -60,9 +60,9 @@ fn counters_follow_appendix_a() {
     assert_eq!(counter(&mut bus, 0x11), 0, "busy");
     assert_eq!(counter(&mut bus, 0x12), 1, "overruns");
 
-    bus.device.storage_busy = true;
+    bus.device.set_storage_busy(true);
     assert_eq!(bus.read(0x6000, 1), Err(6));
-    bus.device.storage_busy = false;
+    bus.device.set_storage_busy(false);
     assert_eq!(counter(&mut bus, 0x11), 1, "busy");
 }
 
@@ -84,13 +84,13 @@ fn clear_counters_0x0a_echoes_then_clears() {
 fn listen_only_mode_swallows_everything_until_restart() {
     let mut bus = Bus::new();
     assert_eq!(diag(&mut bus, 0x04, 0), None, "0x04 is never answered");
-    assert!(bus.device.slave.listen_only());
+    assert!(bus.device.slave().listen_only());
     assert!(bus.events().contains(&Event::ListenOnly(true)));
     // Nothing acts, nothing answers — not even exceptions or CRC errors.
     assert_eq!(bus.request(1, &[0x06, 0x60, 0x83, 0x00, 0x64]), None);
-    assert_eq!(bus.device.od.acceleration, 0);
+    assert_eq!(bus.device.od().acceleration, 0);
     assert_eq!(bus.request(0, &[0x06, 0x60, 0x83, 0x00, 0x64]), None);
-    assert_eq!(bus.device.od.acceleration, 0, "broadcasts neither");
+    assert_eq!(bus.device.od().acceleration, 0, "broadcasts neither");
     assert_eq!(bus.request(1, &[0x03, 0x60, 0x90, 0x00, 0x01]), None);
     let mut bad = frame(1, &[0x03, 0x60, 0x00, 0x00, 0x01]);
     bad[3] ^= 1;
@@ -98,13 +98,13 @@ fn listen_only_mode_swallows_everything_until_restart() {
     assert_eq!(diag(&mut bus, 0x0B, 0), None);
     assert_eq!(diag(&mut bus, 0x0A, 0), None);
     // Counters keep counting meanwhile.
-    assert_eq!(bus.device.slave.counters().no_response, 6);
-    assert_eq!(bus.device.slave.counters().bus_errors, 1);
+    assert_eq!(bus.device.slave().counters().no_response, 6);
+    assert_eq!(bus.device.slave().counters().bus_errors, 1);
     // Restart leaves the mode without a reply and clears the counters.
     assert_eq!(diag(&mut bus, 0x01, 0xFF00), None);
-    assert!(!bus.device.slave.listen_only());
+    assert!(!bus.device.slave().listen_only());
     assert!(bus.events().contains(&Event::ListenOnly(false)));
-    assert_eq!(bus.device.slave.counters(), &Default::default());
+    assert_eq!(bus.device.slave().counters(), &Default::default());
     assert_eq!(bus.write_single(0x6083, 100), Ok(()));
 }
 
@@ -117,11 +117,11 @@ fn restart_when_listening_normally_answers_then_clears() {
             diag(&mut bus, 0x01, data),
             Some(frame(1, &[0x08, 0x00, 0x01, (data >> 8) as u8, 0x00]))
         );
-        assert_eq!(bus.device.slave.counters(), &Default::default());
+        assert_eq!(bus.device.slave().counters(), &Default::default());
     }
     assert_eq!(diag(&mut bus, 0x01, 0x1234), Some(exception(1, 0x08, 3)));
     assert_eq!(diag(&mut bus, 0x04, 0x0001), Some(exception(1, 0x08, 3)));
-    assert!(!bus.device.slave.listen_only());
+    assert!(!bus.device.slave().listen_only());
 }
 
 #[test]

@@ -133,7 +133,7 @@ fn ee_accepted_at_rest_is_refused_when_steps_run_at_its_turn() {
     rig.control(); // the control loop queues the first steps
     rig.run_us(1_000);
     // (register reads get 6 while the operation waits: ask the drive layer)
-    assert_ne!(rig.bus.device.drive.statusword() & RUNNING, 0);
+    assert_ne!(rig.bus.device.drive().statusword() & RUNNING, 0);
     rig.bus.events();
     assert_eq!(rig.bus.poll_storage(&mut s), Some(exception(1, 0x10, 6)));
     assert!(rig.bus.events().contains(&Event::EeDone {

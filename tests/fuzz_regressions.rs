@@ -1,7 +1,8 @@
 //! Replays every input under `fuzz/regressions/<target>/` through the same
 //! checks the fuzz targets run (fuzz/harness/): hand-made seeds that walk
 //! each target's main paths, and every input a fuzzing run ever failed on.
-//! SPEC §1 (assembler), §2, §3, §5.2, §8.1 (dispatcher), §8 (drive).
+//! SPEC §1 (assembler), §2, §3, §5.2, §8.1 (dispatcher), §8 (drive); the
+//! MBAP rules of the Modbus TCP guide (mbap).
 
 #[path = "../fuzz/harness/mod.rs"]
 mod harness;
@@ -36,6 +37,11 @@ fn dispatcher_regressions_hold() {
 #[test]
 fn drive_regressions_hold() {
     replay("drive", harness::drive::run);
+}
+
+#[test]
+fn mbap_regressions_hold() {
+    replay("mbap", harness::mbap::run);
 }
 
 /// The state check of the dispatcher target accepts the eight §8.1

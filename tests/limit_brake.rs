@@ -109,7 +109,7 @@ fn limit_stops_with_the_quick_stop_ramp_without_the_control_loop_spec_8_7() {
     cw(&mut rig, 0x000F);
     run_to_edge(&mut rig, 2_000_000); // leaves the limit
     rig.run_until(5_000_000, |r| {
-        r.at_rest() && r.bus.device.drive.planner().at_rest(&r.sched)
+        r.at_rest() && r.bus.device.drive().planner().at_rest(&r.sched)
     });
     assert_eq!(rig.axis.position(), 0);
     assert_eq!(rig.position(), 0);

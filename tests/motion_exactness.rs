@@ -45,8 +45,8 @@ fn single_move(tick_hz: u32, dist: i64, v10: u64, a10: u64, d10: u64) {
         trapezoid_time(dist.abs() as f64, v, a, d, k)
     });
     check_dynamics(&run.steps, tick_hz, v, a.max(d));
-    assert_eq!(run.planner.late_segments, 0);
-    assert_eq!(run.planner.underruns, 0);
+    assert_eq!(run.planner.late_segments(), 0);
+    assert_eq!(run.planner.underruns(), 0);
 }
 
 #[test]
@@ -129,8 +129,8 @@ proptest! {
         d in log_range(1_000.0, 1_000_000.0),
     ) {
         let run = goal_changes(&targets, v, a, d);
-        prop_assert_eq!(run.planner.late_segments, 0);
-        prop_assert_eq!(run.planner.underruns, 0);
+        prop_assert_eq!(run.planner.late_segments(), 0);
+        prop_assert_eq!(run.planner.underruns(), 0);
     }
 
     /// Velocity mode: signed speed changes while running, reversal through
@@ -161,8 +161,8 @@ proptest! {
         if vmax > 0.0 {
             check_dynamics(&run.steps, tick, vmax, a);
         }
-        prop_assert_eq!(run.planner.late_segments, 0);
-        prop_assert_eq!(run.planner.underruns, 0);
+        prop_assert_eq!(run.planner.late_segments(), 0);
+        prop_assert_eq!(run.planner.underruns(), 0);
     }
 }
 
@@ -208,7 +208,7 @@ fn goal_changes(targets: &[(i64, u64)], v: f64, a: f64, d: f64) -> PlannerRun {
         // the steps that keep the old profile: those queued when the
         // goal arrived (set_goal drops what was fitted but not yet
         // handed to the interrupt)
-        let queued = run.planner.planned_steps;
+        let queued = run.planner.planned_steps();
         // a goal from rest starts at the first fill after it, if that fill
         // finds the interrupt idle (else after the last queued step)
         run.tick();
@@ -276,9 +276,9 @@ fn seed_move_precision_margins() {
     assert!(v_max <= 50_000.0 * (1.0 + 1e-9), "velocity {v_max}");
     assert!(a_max <= 100_000.0 * 1.001, "acceleration {a_max}");
     assert!(
-        run.planner.segments_fitted < 5_000,
+        run.planner.segments_fitted() < 5_000,
         "segments {}",
-        run.planner.segments_fitted
+        run.planner.segments_fitted()
     );
 }
 
@@ -312,11 +312,11 @@ fn slow_cruise(tick_hz: u32) -> PlannerRun {
 fn a_new_goal_takes_effect_within_the_horizon() {
     let (tick_hz, r) = (10_000_000, slow_ramp());
     let mut run = slow_cruise(tick_hz);
-    let fitted_before = run.planner.segments_fitted;
+    let fitted_before = run.planner.segments_fitted();
     for _ in 0..200 {
         run.tick();
     }
-    let fitted = run.planner.segments_fitted - fitted_before;
+    let fitted = run.planner.segments_fitted() - fitted_before;
     assert!(fitted <= 4, "{fitted} segments for 100 cruise steps");
     let now_s = run.now_us as f64 * 1e-6;
     assert!(run.planner.set_goal(Goal::Stop { decel: r.decel }));
@@ -367,7 +367,7 @@ fn a_cut_the_interrupt_passed_first_plans_the_goal_again() {
         ramp: r,
         end_velocity: 0
     }));
-    assert_eq!(run.planner.underruns, 0);
+    assert_eq!(run.planner.underruns(), 0);
     // the control loop stalls for 20 ms (10 steps): the interrupt runs on
     // into the steps the new goal meant to take back
     let until = run.axis.us_to_ticks(run.now_us + 20_000);
@@ -375,7 +375,7 @@ fn a_cut_the_interrupt_passed_first_plans_the_goal_again() {
     while run.axis.run_until(&run.sched, until, |s| steps.push(s)) == RunStop::SwitchChanged {}
     run.now_us += 20_000;
     run.control();
-    assert_eq!(run.planner.underruns, 1, "the cut came too late");
+    assert_eq!(run.planner.underruns(), 1, "the cut came too late");
     run.run_until_rest(10_000_000);
     assert_eq!(run.planner.actual_position(&run.sched), 200);
     assert_eq!(i64::from(run.sched.position()), 200);

@@ -99,7 +99,7 @@ fn every_assigned_pa_accepts_its_range_and_refuses_beyond_it() {
                     bus.write(pa_addr(n as u16), &[v])
                 };
                 assert_eq!(r, Ok(()), "PA{n} = {v}");
-                assert_eq!(bus.device.pa.get(n), v);
+                assert_eq!(bus.device.params().get(n), v);
                 assert_eq!(bus.read(pa_addr(n as u16), 1), Ok(vec![v]), "PA{n}");
                 tried += 1;
             }
@@ -111,7 +111,7 @@ fn every_assigned_pa_accepts_its_range_and_refuses_beyond_it() {
                     bus.write(pa_addr(n as u16), &[v])
                 };
                 assert_eq!(r, Err(3), "PA{n} = {v} is out of range (§5.2 step 8)");
-                assert_eq!(bus.device.pa.get(n), d.default, "nothing stored");
+                assert_eq!(bus.device.params().get(n), d.default, "nothing stored");
                 tried += 1;
             }
         }
@@ -129,7 +129,7 @@ fn pa2_is_read_only_and_reports_the_firmware_version() {
     assert_eq!(bus.write_single(pa_addr(2), 7000), Err(5));
     // A block write touching PA2 is refused as a whole (all-or-nothing).
     assert_eq!(bus.write(pa_addr(0), &[1, 2, 3]), Err(5));
-    assert_eq!(bus.device.pa.get(0), 0);
+    assert_eq!(bus.device.params().get(0), 0);
 }
 
 #[test]
@@ -155,7 +155,7 @@ fn pa57_pa58_driver_enable_lead_and_tail() {
     let mut s = store();
     let mut bus = booted(&mut s);
     assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 1]));
-    assert_eq!(bus.device.pa.driver_enable(), DriverEnable::new(1, 1));
+    assert_eq!(bus.device.params().driver_enable(), DriverEnable::new(1, 1));
     for (n, v) in [
         (57u16, MAX_DE_BITS + 1),
         (58, MAX_DE_BITS + 1),
@@ -169,7 +169,7 @@ fn pa57_pa58_driver_enable_lead_and_tail() {
     assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 1]));
     assert_eq!(bus.write(pa_addr(57), &[4, MAX_DE_BITS]), Ok(()));
     assert_eq!(
-        bus.device.pa.driver_enable(),
+        bus.device.params().driver_enable(),
         DriverEnable::new(4, MAX_DE_BITS)
     );
     ee_new_ok(&mut bus, &mut s, 1); // EE-Set
@@ -339,7 +339,10 @@ fn seed_001_read_of_pa_items_byte_for_byte() {
         bus.send(&request),
         Some(frame(1, &[0x10, 0x00, 0x6E, 0x00, 0x02]))
     );
-    assert_eq!((bus.device.pa.get(10), bus.device.pa.get(11)), (3200, 1));
+    assert_eq!(
+        (bus.device.params().get(10), bus.device.params().get(11)),
+        (3200, 1)
+    );
 }
 
 #[test]
@@ -407,9 +410,13 @@ fn ee_def_in_both_formats() {
         assert_eq!(bus.write(pa_addr(20), &[500]), Ok(()));
         ee_new_ok(&mut bus, &mut s, 1);
         ee_ok(&mut bus, &mut s, 5, old);
-        assert_eq!(bus.device.pa, Params::defaults());
+        assert_eq!(bus.device.params(), &Params::defaults());
         let bus = booted(&mut s);
-        assert_eq!(bus.device.pa, Params::defaults(), "EE-dEF saved them");
+        assert_eq!(
+            bus.device.params(),
+            &Params::defaults(),
+            "EE-dEF saved them"
+        );
     }
 }
 
@@ -476,7 +483,7 @@ fn other_requests_during_an_ee_operation_get_exception_6() {
         bus.send(&frame(1, &[0x08, 0x00, 0x04, 0x00, 0x00])),
         Some(exception(1, 0x08, 6))
     );
-    assert!(!bus.device.slave.listen_only());
+    assert!(!bus.device.slave().listen_only());
     assert_eq!(
         bus.send(&frame(1, &[0x08, 0x00, 0x0A, 0x00, 0x00])),
         Some(exception(1, 0x08, 6))
@@ -498,8 +505,16 @@ fn other_requests_during_an_ee_operation_get_exception_6() {
         bus.send(&frame(1, &[0x08, 0x00, 0x20, 0x00, 0x00])),
         Some(exception(1, 0x08, 1))
     );
-    assert_eq!(bus.device.pa.get(10), 10_000, "nothing stored while busy");
-    assert_eq!(bus.device.slave.counters().busy, 8, "counters not cleared");
+    assert_eq!(
+        bus.device.params().get(10),
+        10_000,
+        "nothing stored while busy"
+    );
+    assert_eq!(
+        bus.device.slave().counters().busy,
+        8,
+        "counters not cleared"
+    );
     // The operation completes with its own reply, then requests work again.
     assert_eq!(
         bus.poll_storage(&mut s),
@@ -536,7 +551,11 @@ fn a_flash_failure_is_exception_4_in_both_formats() {
         ee(&mut bus, &mut s, &ee_new(1, 5)),
         Some(exception(1, 0x10, 4))
     );
-    assert_eq!(bus.device.pa.get(55), 1, "EE-dEF failed: nothing changed");
+    assert_eq!(
+        bus.device.params().get(55),
+        1,
+        "EE-dEF failed: nothing changed"
+    );
 }
 
 #[test]
@@ -560,7 +579,7 @@ fn broadcast_ee_operations_run_without_a_reply() {
     assert!(!bus.device.busy());
     assert_eq!(bus.send(&ee_old(0, 5)), None);
     assert_eq!(bus.poll_storage(&mut s), None);
-    assert_eq!(bus.device.pa.get(10), 10_000, "EE-dEF ran");
+    assert_eq!(bus.device.params().get(10), 10_000, "EE-dEF ran");
     assert_eq!(s.boot().outcome, BootOutcome::Loaded { fixed: 0 });
 }
 

@@ -100,8 +100,8 @@ proptest! {
         order in 0u16..=1,
     ) {
         let mut bus = Bus::new();
-        bus.device.od.word_order = order;
-        bus.device.storage_busy = busy;
+        bus.device.configure(|_, od| od.word_order = order);
+        bus.device.set_storage_busy(busy);
         let pdu = if single {
             let mut p = vec![0x06];
             p.extend_from_slice(&start.to_be_bytes());
@@ -110,12 +110,12 @@ proptest! {
         } else {
             write_pdu(start, &words)
         };
-        let od = bus.device.od.clone();
-        let pa = bus.device.pa.clone();
+        let od = bus.device.od().clone();
+        let pa = bus.device.params().clone();
         let reply = bus.request(1, &pdu).expect("a unicast request is answered");
         if reply[1] & 0x80 != 0 {
-            prop_assert_eq!(&bus.device.od, &od);
-            prop_assert_eq!(&bus.device.pa, &pa);
+            prop_assert_eq!(bus.device.od(), &od);
+            prop_assert_eq!(bus.device.params(), &pa);
         } else {
             prop_assert!(!busy);
         }
@@ -165,7 +165,7 @@ proptest! {
     #[test]
     fn read_after_write_for_every_rw_parameter(seeds in proptest::collection::vec(any::<u16>(), PA_COUNT)) {
         let mut bus = Bus::new();
-        let mut expect = bus.device.pa.as_array().to_vec();
+        let mut expect = bus.device.params().as_array().to_vec();
         for (n, seed) in seeds.into_iter().enumerate() {
             let d = PA[n];
             if d.read_only || n == 51 || n == 52 || n == 53 {

@@ -39,7 +39,7 @@ fn programming_example_writes_nine_words_in_table_order() {
         "01 10 60 40 00 09 12 00 0F 00 01 00 00 00 64 00 64 00 64 00 64 00 03 0D 40 40 1C",
         "01 10 60 40 00 09 1F DB",
     );
-    let od = &bus.device.od;
+    let od = bus.device.od();
     assert_eq!(od.controlword, 0x000F);
     assert_eq!(od.mode, 1);
     assert_eq!(od.profile_velocity, 100);
@@ -72,7 +72,7 @@ fn target_position_in_word_order_0() {
         "01 10 60 7A 00 02 04 00 03 0D 40 29 96",
         "01 10 60 7A 00 02 7E 11",
     );
-    assert_eq!(bus.device.od.target_position, 200_000);
+    assert_eq!(bus.device.od().target_position, 200_000);
     exchange(
         &mut bus,
         "01 03 60 7A 00 02 FB D2",
@@ -90,7 +90,7 @@ fn target_position_in_word_order_1() {
         "01 10 60 7A 00 02 04 0D 40 00 03 9F 8F",
         "01 10 60 7A 00 02 7E 11",
     );
-    assert_eq!(bus.device.od.target_position, 200_000);
+    assert_eq!(bus.device.od().target_position, 200_000);
     exchange(
         &mut bus,
         "01 03 60 7A 00 02 FB D2",
@@ -141,17 +141,17 @@ fn position_mode_program() {
         ),
     ] {
         written(&mut bus, "01 10 60 81 00 02 04 00 00 00 32 13 D4");
-        assert_eq!(bus.device.od.profile_velocity, 50);
+        assert_eq!(bus.device.od().profile_velocity, 50);
         written(&mut bus, "01 10 60 7A 00 02 04 00 03 0D 40 29 96");
         echo(&mut bus, set);
         echo(&mut bus, reset);
         written(&mut bus, "01 10 60 81 00 02 04 00 00 00 64 93 EA");
-        assert_eq!(bus.device.od.profile_velocity, 100);
+        assert_eq!(bus.device.od().profile_velocity, 100);
         written(&mut bus, "01 10 60 7A 00 02 04 00 09 27 C0 17 54");
-        assert_eq!(bus.device.od.target_position, 600_000);
+        assert_eq!(bus.device.od().target_position, 600_000);
         echo(&mut bus, last);
         assert_eq!(
-            bus.device.od.controlword,
+            bus.device.od().controlword,
             u16::from_be_bytes([hex(last)[4], hex(last)[5]])
         );
     }
@@ -175,7 +175,7 @@ fn velocity_mode_program() {
     ] {
         echo(&mut bus, f);
     }
-    assert_eq!(bus.device.od.mode, 3);
+    assert_eq!(bus.device.od().mode, 3);
 }
 
 #[test]
@@ -195,7 +195,7 @@ fn homing_mode_program() {
     written(&mut bus, "01 10 60 99 00 02 04 00 00 00 64 93 40");
     written(&mut bus, "01 10 60 9B 00 02 04 00 00 00 64 12 99");
     written(&mut bus, "01 10 60 7C 00 02 04 00 00 03 E8 5C 62");
-    let od = &bus.device.od;
+    let od = bus.device.od();
     assert_eq!(
         (od.homing_method, od.homing_acceleration, od.homing_speed),
         (1, 1000, 100)
@@ -209,7 +209,7 @@ fn homing_mode_program() {
         &mut bus,
         "01 10 60 7C 00 08 10 00 00 03 E8 00 01 00 00 00 64 03 E8 00 00 00 64 09 42",
     );
-    let od = &bus.device.od;
+    let od = bus.device.od();
     assert_eq!(
         (od.home_offset, od.homing_method, od.homing_speed),
         (1000, 1, 100)
@@ -263,8 +263,8 @@ fn misprinted_frames_are_crc_errors() {
             "request {f}"
         );
     }
-    assert_eq!(bus.device.od.profile_velocity, 0, "nothing stored");
-    assert_eq!(bus.device.slave.counters().bus_errors, 4);
+    assert_eq!(bus.device.od().profile_velocity, 0, "nothing stored");
+    assert_eq!(bus.device.slave().counters().bus_errors, 4);
 }
 
 #[test]
@@ -274,7 +274,7 @@ fn misprinted_frames_are_silent_with_pa54_0() {
     for f in MISPRINTED {
         assert_eq!(bus.send(&hex(f)), None, "request {f}");
     }
-    assert_eq!(bus.device.slave.counters().bus_errors, 4);
+    assert_eq!(bus.device.slave().counters().bus_errors, 4);
 }
 
 #[test]

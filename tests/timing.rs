@@ -36,8 +36,8 @@ fn a_gap_over_t15_breaks_the_frame_it_is_discarded_and_counted() {
         assert!(bus.feed_gapped(with_gap(4, t15 + 1)).is_empty());
         bus.idle(50_000);
         assert!(bus.sent.is_empty(), "PA52 = {pa52}");
-        assert_eq!(bus.device.slave.counters().bus_errors, 1);
-        assert_eq!(bus.device.slave.counters().bus_messages, 0);
+        assert_eq!(bus.device.slave().counters().bus_errors, 1);
+        assert_eq!(bus.device.slave().counters().bus_messages, 0);
         assert!(bus.events().contains(&Event::FrameError {
             kind: FrameError::Broken,
             address: None,
@@ -96,7 +96,7 @@ fn a_gap_between_t15_and_t35_never_starts_a_new_frame() {
     bus.feed_gapped(bytes);
     bus.idle(50_000);
     assert!(bus.sent.is_empty());
-    assert_eq!(bus.device.slave.counters().bus_errors, 1);
+    assert_eq!(bus.device.slave().counters().bus_errors, 1);
 }
 
 #[test]
@@ -125,7 +125,7 @@ fn short_and_overlong_frames_are_dropped_and_counted() {
     let mut bus = Bus::new();
     assert_eq!(bus.send(&[0x01, 0x03, 0x60]), None);
     assert_eq!(bus.send(&[0x01; 257]), None);
-    let c = bus.device.slave.counters().clone();
+    let c = bus.device.slave().counters().clone();
     assert_eq!((c.bus_errors, c.overruns), (1, 1));
     // A 256-byte frame is examined (here: a CRC error at our address).
     let reply = bus.send(&[0x01; 256]);

@@ -37,14 +37,14 @@ struct Snapshot {
 
 fn snapshot(d: &Device) -> Snapshot {
     Snapshot {
-        od: d.od.clone(),
-        pa: d.pa.clone(),
+        od: d.od().clone(),
+        pa: d.params().clone(),
         address: d.address(),
         line: d.line(),
-        statusword: d.drive.statusword(),
-        mode_display: d.drive.mode_display(),
-        position: d.drive.actual_position(),
-        error_register: d.drive.error_register(),
+        statusword: d.drive().statusword(),
+        mode_display: d.drive().mode_display(),
+        position: d.drive().actual_position(),
+        error_register: d.drive().error_register(),
     }
 }
 
@@ -68,18 +68,19 @@ pub fn statusword_is_a_state(sw: u16) -> bool {
 
 fn configure(device: &mut Device, cfg: u8, address_byte: u8) {
     // PA54 answer frame errors, PA55 exception profile (§3, §5.2)
-    device.pa.set_unchecked(54, u16::from(cfg & 1));
-    device.pa.set_unchecked(55, u16::from(cfg >> 1 & 1));
-    device.od.word_order = u16::from(cfg >> 2 & 1);
     let address = match cfg >> 3 & 3 {
         0 => 1,
         1 => 247,
         2 => 17,
         _ => address_byte.clamp(1, 247),
     };
-    device.pa.set_unchecked(51, u16::from(address));
-    device.reply_sent(); // the new address takes effect
-    assert_eq!(device.address(), address);
+    device.configure(|pa, od| {
+        pa.set_answer_frame_errors(cfg & 1 != 0);
+        pa.set_standard_exceptions(cfg >> 1 & 1 != 0);
+        od.word_order = u16::from(cfg >> 2 & 1);
+        pa.set_address(address);
+    });
+    assert_eq!(device.address(), address); // in force at once
 }
 
 /// One frame through `handle_rx` with every per-frame check (module docs).

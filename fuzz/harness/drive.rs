@@ -160,7 +160,7 @@ pub fn run(data: &[u8]) {
                     device.control(now_us, axis.switches(), &sched);
                     axis.kick(&sched);
                     while device.take_event().is_some() {}
-                    let sw = device.drive.statusword();
+                    let sw = device.drive().statusword();
                     assert!(statusword_is_a_state(sw), "statusword {sw:#06X}");
                 }
             }

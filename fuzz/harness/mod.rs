@@ -8,6 +8,7 @@
 pub mod assembler;
 pub mod dispatcher;
 pub mod drive;
+pub mod mbap;
 
 /// Reads the fuzz input one byte at a time; zeros once it runs out.
 pub struct Input<'a> {

@@ -10,7 +10,7 @@ use crate::machine::Switches;
 
 pub const USAGE: &str = "\
 usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--pty-link PATH]
-              [--trace-steps FILE] [--trace-line FILE] [--state FILE] [--cw-limit STEPS] [--ccw-limit STEPS]
+              [--trace-steps FILE] [--trace-line FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
               [--home-switch FROM:TO] [--run-for SECONDS] [--quiet]
 
 Runs the unmodified firmware image of a board on an emulated STM32.
@@ -20,10 +20,27 @@ Runs the unmodified firmware image of a board on an emulated STM32.
   --pty-link    a pseudo-terminal, linked at PATH
   --trace-steps CSV of every step pulse: time_ns,dir,width_ns
   --trace-line  CSV of the line: time_ns,event (rx, tx, de),value
+  --noise       line faults on received characters, KIND@N[,KIND@N...]: KIND
+                parity, framing, noise or break on the N-th character from
+                the master (counted from 1 since the start)
+  --power-cut N the supply fails as the N-th flash program or erase starts:
+                the firmware restarts from the --state file (SRAM lost)
+  --stats       rewritten every 50 ms (wall): emulated time_ns, busy and
+                sleeping core cycles, step pulses
   --state       file holding the parameter flash pages (kept across runs)
   --cw-limit / --ccw-limit / --home-switch: switch positions in steps
   --run-for     stop after this much emulated time (exit 0)
   --quiet       do not print the firmware's defmt log";
+
+/// A fault the line puts on one received character (the USART's PE, FE,
+/// NE flags; a break is a character of zeros without a stop bit).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LineFault {
+    Parity,
+    Framing,
+    Noise,
+    Break,
+}
 
 pub struct Args {
     pub board: Kind,
@@ -32,6 +49,10 @@ pub struct Args {
     pub pty_link: Option<PathBuf>,
     pub trace_steps: Option<PathBuf>,
     pub trace_line: Option<PathBuf>,
+    pub stats: Option<PathBuf>,
+    /// Line faults: (1-based index of the received character, kind).
+    pub noise: Vec<(u64, LineFault)>,
+    pub power_cut: Option<u64>,
     pub state: Option<PathBuf>,
     pub switches: Switches,
     pub run_for_ps: Option<u64>,
@@ -51,6 +72,9 @@ impl Args {
             pty_link: None,
             trace_steps: None,
             trace_line: None,
+            stats: None,
+            noise: Vec::new(),
+            power_cut: None,
             state: None,
             switches: Switches::default(),
             run_for_ps: None,
@@ -87,6 +111,26 @@ impl Args {
                 "--pty-link" => a.pty_link = Some(v.into()),
                 "--trace-steps" => a.trace_steps = Some(v.into()),
                 "--trace-line" => a.trace_line = Some(v.into()),
+                "--stats" => a.stats = Some(v.into()),
+                "--power-cut" => a.power_cut = Some(num(&flag, &v)?),
+                "--noise" => {
+                    for item in v.split(',') {
+                        let (kind, at) =
+                            item.split_once('@').ok_or("--noise: KIND@N[,KIND@N...]")?;
+                        let kind = match kind {
+                            "parity" => LineFault::Parity,
+                            "framing" => LineFault::Framing,
+                            "noise" => LineFault::Noise,
+                            "break" => LineFault::Break,
+                            _ => {
+                                return Err(format!(
+                                    "--noise: parity, framing, noise or break, not {kind}"
+                                ))
+                            }
+                        };
+                        a.noise.push((num(&flag, at)?, kind));
+                    }
+                }
                 "--state" => a.state = Some(v.into()),
                 "--cw-limit" => a.switches.cw_limit = Some(num(&flag, &v)?),
                 "--ccw-limit" => a.switches.ccw_limit = Some(num(&flag, &v)?),

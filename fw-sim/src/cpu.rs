@@ -139,14 +139,21 @@ pub fn create(image: &Image, machine: Machine) -> Result<Uc, String> {
 /// Ends the slice at the next block when the model wants attention (a fault, or an
 /// interrupt that may now be taken).
 fn stop_if_needed(uc: &mut Unicorn<'_, Machine>) {
+    // unicorn keeps PC exact only at block starts outside memory hooks
+    // (which would slow every load and store): a peripheral fault names
+    // the basic block the access is in
     if uc.get_data().fault.is_some() && uc.get_data().fault_pc.is_none() {
-        let pc = uc.reg_read(R::PC).unwrap_or(0) as u32;
-        uc.get_data_mut().fault_pc = Some(pc);
+        let pc = uc.get_data().block_pc;
+        let m = uc.get_data_mut();
+        m.fault_pc = Some(pc);
+        m.fault_in_block = true;
     }
     // not emu_stop here: stopping inside an access would replay the
     // instruction (and the access's side effects) when the slice resumes
     let m = uc.get_data_mut();
-    if m.fault.is_some() || m.scs.best_pending().is_some() {
+    m.pending_hint = m.scs.best_pending().is_some();
+    m.recheck = true;
+    if m.fault.is_some() || m.flash.cut {
         m.stop_soon = true;
     }
 }
@@ -183,12 +190,19 @@ fn install_hooks(uc: &mut Uc, image: &Image) -> Result<(), String> {
             m.block_pc = addr as u32;
             if m.slice_insns >= m.budget || std::mem::take(&mut m.stop_soon) {
                 let _ = uc.emu_stop();
-            } else if m.scs.best_pending().is_some() {
-                // an interrupt may have been unmasked (CPSIE, MSR BASEPRI)
+            } else if m.pending_hint {
+                // an interrupt may be takeable now: the NVIC is asked again
+                // when the masks changed (CPSIE, MSR BASEPRI) or a
+                // peripheral access may have changed what is pending
                 let primask = uc.reg_read(R::PRIMASK).unwrap_or(1) & 1 != 0;
                 let basepri = uc.reg_read(R::BASEPRI).unwrap_or(0) as u8;
-                if uc.get_data().scs.take(primask, basepri).is_some() {
-                    let _ = uc.emu_stop();
+                let m = uc.get_data_mut();
+                if m.recheck || m.last_masks != (primask, basepri) {
+                    m.recheck = false;
+                    m.last_masks = (primask, basepri);
+                    if m.scs.take(primask, basepri).is_some() {
+                        let _ = uc.emu_stop();
+                    }
                 }
             }
         },

@@ -4,7 +4,7 @@
 //! outputs into an axis position, the switches that position drives, the
 //! RS-485 DE pin).
 
-use std::collections::BTreeSet;
+use std::hash::{BuildHasherDefault, Hasher};
 
 use crate::chip::{self, pins, Chip};
 use crate::clock::Clock;
@@ -18,6 +18,25 @@ use crate::periph::timer::{Access, Timer};
 use crate::periph::usart::Usart;
 use crate::scs::Scs;
 use crate::trace::StepTrace;
+
+/// A hasher for code addresses (the block cache is asked once per block):
+/// the address itself, spread by one multiplication.
+#[derive(Default)]
+pub struct AddrHasher(u64);
+
+impl Hasher for AddrHasher {
+    fn finish(&self) -> u64 {
+        self.0.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 << 8) | b as u64;
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = v;
+    }
+}
 
 /// Switch windows in steps (same meaning as the virtual drive's options).
 #[derive(Clone, Copy, Debug, Default)]
@@ -45,16 +64,26 @@ pub struct Machine {
     pub fault: Option<String>,
     /// The program counter when the fault was raised.
     pub fault_pc: Option<u32>,
+    /// `fault_pc` is the start of the basic block holding the access.
+    pub fault_in_block: bool,
     /// Instructions of the current slice so far (block granularity).
     pub slice_insns: u64,
     pub budget: u64,
     /// End the slice at the next block boundary.
     pub stop_soon: bool,
+    /// Some interrupt is pending (refreshed after every peripheral access
+    /// and at each slice's start: the only points where it can change), so
+    /// the block hook need not scan the NVIC.
+    pub pending_hint: bool,
+    /// The block hook must ask the NVIC again (see `pending_hint`).
+    pub recheck: bool,
+    /// PRIMASK and BASEPRI when the block hook last asked.
+    pub last_masks: (bool, u8),
     /// Start address of the basic block being executed.
     pub block_pc: u32,
-    pub block_cache: std::collections::HashMap<u64, u32>,
-    /// Registers the firmware touched (for --report-registers).
-    pub touched: BTreeSet<u32>,
+    pub block_cache: std::collections::HashMap<u64, u32, BuildHasherDefault<AddrHasher>>,
+    /// The clocks derived from RCC (refreshed when RCC is written).
+    pub clocks: crate::periph::rcc::Clocks,
     pub switches: Switches,
     pub position: i64,
     pub steps_total: u64,
@@ -89,12 +118,16 @@ impl Machine {
             scs: Scs::new(chip.has_fpu, chip.cpuid),
             fault: None,
             fault_pc: None,
+            fault_in_block: false,
             slice_insns: 0,
             budget: 0,
             stop_soon: false,
+            pending_hint: false,
+            recheck: true,
+            last_masks: (false, 0),
             block_pc: 0,
             block_cache: Default::default(),
-            touched: BTreeSet::new(),
+            clocks: crate::periph::rcc::Clocks::default(),
             switches,
             position: 0,
             steps_total: 0,
@@ -126,6 +159,7 @@ impl Machine {
         self.clock.set_sysclk(self.chip.reset_sysclk);
         self.position = position;
         self.steps_total = steps;
+        self.flash.reset();
         self.apply_clocks();
         self.apply_switches();
     }
@@ -141,6 +175,7 @@ impl Machine {
 
     fn apply_clocks(&mut self) {
         let c = self.rcc.clocks();
+        self.clocks = c;
         let now = self.now();
         for t in &mut self.tim {
             t.set_clock(c.tim_apb1 as u64, now);
@@ -148,7 +183,7 @@ impl Machine {
         self.usart.fck = c.usart1 as u64;
     }
     pub fn hclk(&self) -> u32 {
-        self.rcc.clocks().hclk
+        self.clocks.hclk
     }
 
     /// Brings every peripheral to time `t`.
@@ -294,10 +329,7 @@ impl Machine {
         let word = a & !3;
         let r = self.dispatch_read(word, t);
         match r {
-            Access::Ok(v) => {
-                self.touched.insert(word);
-                ((v >> (8 * (a & 3))) as u64) & mask(size)
-            }
+            Access::Ok(v) => ((v >> (8 * (a & 3))) as u64) & mask(size),
             Access::Unmodelled => {
                 self.fail(format!(
                     "read of unmodelled register {a:#010x} ({})",
@@ -319,16 +351,16 @@ impl Machine {
         let v32 = (v as u32) << (8 * (a & 3));
         let r = self.dispatch_write(word, v32, size, a, t);
         match r {
-            Access::Ok(_) => {
-                self.touched.insert(word);
-            }
+            Access::Ok(_) => {}
             Access::Unmodelled => self.fail(format!(
                 "write of {v:#x} to unmodelled register {a:#010x} ({})",
                 self.region_name(a)
             )),
             Access::Unsupported(w) => self.fail(format!("{w} at {a:#010x} is not modelled")),
         }
-        self.apply_clocks();
+        if word & !0x3FF == chip::RCC {
+            self.apply_clocks();
+        }
         let hz = self.hclk();
         if hz != self.clock.sysclk() {
             // the instructions so far ran at the old clock

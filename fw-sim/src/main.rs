@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use unicorn_engine::RegisterARM as R;
 
 use chip::{Chip, Kind};
-use cli::Args;
+use cli::{Args, LineFault};
 use cpu::Uc;
 use elf::Image;
 use line::Line;
@@ -36,6 +36,8 @@ use trace::{LineTrace, StepTrace};
 const MAX_SLICE: u64 = 20_000;
 /// How often (wall time) the line is polled while the core is busy.
 const POLL_EVERY: Duration = Duration::from_millis(1);
+/// How often (wall time) `--stats` is rewritten.
+const STATS_EVERY: Duration = Duration::from_millis(50);
 
 fn main() {
     let code = match run() {
@@ -86,7 +88,8 @@ fn run() -> Result<i32, String> {
         Some(p) => Some(LineTrace::create(p).map_err(|e| format!("{}: {e}", p.display()))?),
         None => None,
     };
-    let machine = Machine::new(chip, flash, args.switches, trace);
+    let mut machine = Machine::new(chip, flash, args.switches, trace);
+    machine.flash.cut_at = args.power_cut;
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
         None
@@ -108,6 +111,10 @@ fn run() -> Result<i32, String> {
         last_poll: Instant::now(),
         run_for: args.run_for_ps,
         line_trace,
+        noise: args.noise.clone(),
+        rx_count: 0,
+        stats: args.stats.clone(),
+        last_stats: Instant::now(),
     };
     r.run()
 }
@@ -128,6 +135,11 @@ struct Runner {
     last_poll: Instant,
     run_for: Option<u64>,
     line_trace: Option<LineTrace>,
+    /// `--noise`: faults by received character index, and that count.
+    noise: Vec<(u64, LineFault)>,
+    rx_count: u64,
+    stats: Option<std::path::PathBuf>,
+    last_stats: Instant,
 }
 
 impl Runner {
@@ -150,6 +162,10 @@ impl Runner {
                 return Ok(self.report(&msg));
             }
             let now = self.now();
+            if self.uc.get_data().flash.cut {
+                self.power_cycle(now)?;
+                continue;
+            }
             if self.uc.get_data().scs.reset_request || self.uc.get_data().iwdg.expired(now) {
                 eprintln!("fw-sim: system reset at {} µs", now / 1_000_000);
                 self.m().reset_peripherals();
@@ -198,6 +214,28 @@ impl Runner {
         }
     }
 
+    /// `--power-cut`: the supply failed as a flash operation started. The
+    /// chip comes back from cold: SRAM cleared, every peripheral reset, the
+    /// flash array as the file holds it; the line stays connected.
+    fn power_cycle(&mut self, now: u64) -> Result<(), String> {
+        let m = self.m();
+        let n = m.flash.ops_started;
+        m.flash.cut = false;
+        m.flash.cut_at = None;
+        eprintln!(
+            "fw-sim: power cut as flash operation {n} started ({} µs): restarting",
+            now / 1_000_000
+        );
+        m.reset_peripherals();
+        let (base, len) = (m.chip.sram_base, m.chip.sram_len);
+        self.uc
+            .mem_write(base as u64, &vec![0; len as usize])
+            .map_err(|e| format!("{e:?}"))?;
+        self.pc = cpu::reset(&mut self.uc)?;
+        self.sleeping = None;
+        Ok(())
+    }
+
     /// Runs instructions until the next peripheral event (at most
     /// MAX_SLICE), a WFI/WFE, an exception return or a fault.
     fn slice(&mut self) {
@@ -208,6 +246,8 @@ impl Runner {
             .clamp(1, MAX_SLICE);
         m.budget = budget;
         m.stop_soon = false;
+        m.pending_hint = m.scs.best_pending().is_some();
+        m.recheck = true;
         m.slice_insns = 0;
         m.events = Default::default();
         let res = self.uc.emu_start(self.pc as u64 | 1, 0, 0, 0);
@@ -247,7 +287,30 @@ impl Runner {
         }
     }
 
+    /// `--stats`: a snapshot of the counters a measurement needs, written
+    /// whole to a new file and renamed, so a reader never sees half of it.
+    fn write_stats(&mut self) {
+        let Some(path) = &self.stats else { return };
+        if self.last_stats.elapsed() < STATS_EVERY {
+            return;
+        }
+        self.last_stats = Instant::now();
+        let m = self.uc.get_data();
+        let text = format!(
+            "time_ns {}\nbusy_cycles {}\nsleep_cycles {}\nsteps {}\n",
+            m.clock.now() / 1000,
+            m.clock.busy_cycles(),
+            m.clock.sleep_cycles(),
+            m.steps_total
+        );
+        let tmp = path.with_extension("tmp");
+        if std::fs::write(&tmp, text).is_ok() {
+            let _ = std::fs::rename(&tmp, path);
+        }
+    }
+
     fn after_slice(&mut self) {
+        self.write_stats();
         let t = self.now();
         self.m().sync(t);
         self.output();
@@ -296,6 +359,7 @@ impl Runner {
     }
 
     fn sleep_to(&mut self, t: u64) {
+        self.write_stats();
         let m = self.m();
         m.clock.sleep_until(t);
         m.sync(t);
@@ -321,13 +385,20 @@ impl Runner {
             for b in chunk {
                 let start = self.rx_tail.max(now);
                 self.rx_tail = start + cps;
-                m.usart.rx.push_back((
-                    self.rx_tail,
-                    RxChar {
-                        byte: b,
-                        ..Default::default()
-                    },
-                ));
+                self.rx_count += 1;
+                let mut c = RxChar {
+                    byte: b,
+                    ..Default::default()
+                };
+                for &(_, f) in self.noise.iter().filter(|n| n.0 == self.rx_count) {
+                    match f {
+                        LineFault::Parity => c.parity_error = true,
+                        LineFault::Framing => c.framing_error = true,
+                        LineFault::Noise => c.noise = true,
+                        LineFault::Break => c.brk = true,
+                    }
+                }
+                m.usart.rx.push_back((self.rx_tail, c));
                 if let Some(lt) = self.line_trace.as_mut() {
                     lt.event(self.rx_tail, "rx", b as u32);
                 }
@@ -376,11 +447,16 @@ impl Runner {
         self.poll_rtt();
         let m = self.uc.get_data();
         let pc = m.fault_pc.unwrap_or(self.pc);
+        let at = if m.fault_in_block {
+            "in the basic block at "
+        } else {
+            ""
+        };
         let lr = self.uc.reg_read(R::LR).unwrap_or(0) as u32;
         let sp = self.uc.reg_read(R::SP).unwrap_or(0) as u32;
         let t = m.clock.now();
         eprintln!("fw-sim: FAULT: {msg}");
-        eprintln!("  pc {pc:#010x} {}", self.image.symbol(pc));
+        eprintln!("  pc {at}{pc:#010x} {}", self.image.symbol(pc));
         eprintln!("  lr {lr:#010x} {}", self.image.symbol(lr));
         eprintln!(
             "  sp {sp:#010x}, emulated time {}.{:06} s",

@@ -159,7 +159,7 @@ pub struct Registers<'a, D> {
     pub identity: &'a Identity,
     /// A parameter-storage operation is running: register requests that
     /// pass validation get exception 6 (§5.2 step 9). Set by the parameter
-    /// store (issue 5).
+    /// store.
     pub busy: bool,
     /// State of the parameter store, for DP-Err (SPEC §9).
     pub store_status: StoreStatus,
@@ -228,7 +228,7 @@ impl<D: DriveLayer> Registers<'_, D> {
                 match span.entries() {
                     // One entry (a statusword, a position: the usual poll)
                     // without the walk, whose set-up costs more than the
-                    // entry itself (issue 7).
+                    // entry itself.
                     [e] => self.put_entry(e, out, 0),
                     entries => {
                         let mut at = 0;
@@ -284,7 +284,7 @@ impl<D: DriveLayer> Registers<'_, D> {
 
     /// Function 0x06 after the length check: §5.2 steps 4..=10 for one
     /// word. A table entry takes the same checks as in [`Self::write`]
-    /// without a walk (issue 7).
+    /// without a walk.
     pub fn write_single(&mut self, address: u16, value: u16) -> Result<(), Exception> {
         let e = match Region::at(address).ok_or(Exception::NoSuchRegister)? {
             Region::Table(p) => TABLE.get(p).ok_or(Exception::NoSuchRegister)?,
@@ -325,7 +325,7 @@ impl<D: DriveLayer> Registers<'_, D> {
             Region::Table(first) => {
                 // Checked in the §5.2 order (range 2, access 5, value 3,
                 // busy 6) before anything is stored, then stored straight
-                // into the values: all-or-nothing without a copy (issue 7).
+                // into the values: all-or-nothing without a copy.
                 // Only the entries with a range look at their values.
                 let span = Span::new(first, quantity).ok_or(Exception::IllegalDataAddress)?;
                 if span.any_read_only() {

@@ -131,6 +131,15 @@ impl Params {
     pub fn limit_enable(&self) -> u16 {
         self.values[14]
     }
+    /// PA15: STEP pulse width, 0.1 µs (0: the board's safe minimum).
+    pub fn step_pulse_width(&self) -> u16 {
+        self.values[15]
+    }
+    /// PA16: DIR set-up time before the STEP edge, 0.1 µs (0: the board's
+    /// safe minimum).
+    pub fn dir_setup(&self) -> u16 {
+        self.values[16]
+    }
     pub fn comm_loss_ms(&self) -> u16 {
         self.values[20]
     }
@@ -152,5 +161,20 @@ impl Params {
     }
     pub fn line(&self) -> crate::rtu::LineConfig {
         crate::rtu::LineConfig::from_params(self.values[52], self.values[53]).unwrap_or_default()
+    }
+
+    // Setters for the glue's own configuration ([`crate::Device::configure`]).
+
+    /// PA51: the slave address.
+    pub fn set_address(&mut self, address: u8) {
+        self.values[51] = u16::from(address);
+    }
+    /// PA54: answer frame errors with exception 9/10.
+    pub fn set_answer_frame_errors(&mut self, on: bool) {
+        self.values[54] = u16::from(on);
+    }
+    /// PA55: the standard Modbus exception profile.
+    pub fn set_standard_exceptions(&mut self, on: bool) {
+        self.values[55] = u16::from(on);
     }
 }

@@ -209,7 +209,7 @@ const fn positions(t: Trait) -> u32 {
 /// Found with two table look-ups instead of a walk, so that a request is
 /// checked (§5.2 steps 6, 7 and 8) before anything is read or stored: a
 /// write then stores straight into the values, with no copy to commit or
-/// throw away (issue 7).
+/// throw away.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Span {
     entries: &'static [Entry],
@@ -332,7 +332,7 @@ impl Object {
     ///
     /// A stored value is one load, inlined into the request walk; the live
     /// entries go through the drive layer in [`Object::read_live`], kept
-    /// out of line so that its size does not weigh on every read (issue 7).
+    /// out of line so that its size does not weigh on every read.
     #[inline]
     pub fn read_raw<D: DriveLayer>(self, od: &OdValues, drive: &D) -> u32 {
         match self {
@@ -374,7 +374,7 @@ impl Object {
 
     /// Stores a validated value of a writable entry; read-only ones are
     /// never passed here (§5.2 step 7 ran before). Inlined into the
-    /// request walk: one store per entry (issue 7).
+    /// request walk: one store per entry.
     #[inline]
     pub fn store_raw(self, od: &mut OdValues, raw: u32) {
         match self {

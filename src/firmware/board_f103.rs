@@ -50,6 +50,10 @@ pub const STEP_TICK_HZ: u32 = Board::F103.step_tick_hz();
 pub const PARAM_FLASH_START: u32 = 0xF000;
 pub const PARAM_FLASH_LEN: u32 = 0x1000;
 
+/// Core clock as [`config`] sets it (8 MHz HSE × 9): busy waits count its
+/// cycles.
+pub const CPU_HZ: u32 = 72_000_000;
+
 pub const UART: pac::usart::Usart = pac::USART1;
 /// DE (PA8): configured as a push-pull output by [`split`] and driven
 /// through its set/reset register by rs485.rs.

@@ -46,13 +46,17 @@ pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule) -> ! {
         let Some((outputs, params, shape)) = with_device(|d| {
             d.control_latched(now_us, switch_states, edges, schedule);
             (
-                d.drive.outputs(),
+                d.drive().outputs(),
                 (
-                    d.pa.direction_inverted(),
-                    d.pa.switch_polarity(),
-                    d.pa.limit_enable(),
+                    d.params().direction_inverted(),
+                    d.params().switch_polarity(),
+                    d.params().limit_enable(),
                 ),
-                StepShape::from_params(d.pa.get(15), d.pa.get(16), board::STEP_TICK_HZ),
+                StepShape::from_params(
+                    d.params().step_pulse_width(),
+                    d.params().dir_setup(),
+                    board::STEP_TICK_HZ,
+                ),
             )
         }) else {
             continue;

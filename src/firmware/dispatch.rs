@@ -121,7 +121,11 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
             with_device(|d| d.reply_sent().map(|line| (line, d.driver_enable())))
         {
             if let Err(e) = rs485::apply_line(&mut uart, line, de) {
-                defmt::error!("line {} refused by the USART: {}", line, e);
+                defmt::error!(
+                    "line {} refused by the USART: {}",
+                    line,
+                    rs485::config_error(e)
+                );
             }
         }
         log.drain();

@@ -21,6 +21,9 @@ compile_error!("choose one board feature: board-g431 or board-f103");
 #[cfg(not(any(feature = "board-g431", feature = "board-f103")))]
 compile_error!("choose a board: `cargo fw` (STM32G431CB) or `cargo fw-f103` (STM32F103C8)");
 
+#[cfg(feature = "sim")]
+compile_error!("the firmware is built without the simulation: `--no-default-features` (as `cargo fw` and `cargo fw-f103` do)");
+
 #[cfg(feature = "board-f103")]
 #[path = "board_f103.rs"]
 mod board;
@@ -61,7 +64,9 @@ async fn main(spawner: Spawner) {
     board::UartIrq::set_priority(PRIO_UART);
     TIM2::set_priority(PRIO_TIME);
 
-    let parts = defmt::unwrap!(board::split(p, &rs485::usart_config(LineConfig::DEFAULT)));
+    let parts = defmt::unwrap!(
+        board::split(p, &rs485::usart_config(LineConfig::DEFAULT)).map_err(rs485::config_error)
+    );
     // At once: embassy's init enabled the EXTI interrupts, and the handler
     // can only clear an edge's pending bit through the installed inputs.
     switches::install(parts.switches);
@@ -78,7 +83,7 @@ async fn main(spawner: Spawner) {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks
         // (calc::step_prescaler).
-        device.drive.set_planner_config(PlannerConfig {
+        device.set_planner_config(PlannerConfig {
             tick_hz: board::STEP_TICK_HZ,
             ..PlannerConfig::default()
         });
@@ -89,7 +94,7 @@ async fn main(spawner: Spawner) {
     };
 
     let mut uart = parts.uart;
-    defmt::unwrap!(rs485::apply_line(&mut uart, line, de));
+    defmt::unwrap!(rs485::apply_line(&mut uart, line, de).map_err(rs485::config_error));
     let timer_clock_hz = parts.step_timer.get_clock_frequency().0;
     let prescaler = defmt::unwrap!(
         calc::step_prescaler(timer_clock_hz, board::STEP_TICK_HZ),
@@ -114,9 +119,15 @@ async fn main(spawner: Spawner) {
     );
     dispatch::EventLog::new().drain(); // how the parameters were loaded
 
-    spawner.spawn(defmt::unwrap!(dispatch::dispatcher_task(uart, store)));
+    spawner.spawn(defmt::unwrap!(
+        dispatch::dispatcher_task(uart, store).ok(),
+        "task spawned twice"
+    ));
     #[cfg(feature = "board-f103")]
-    spawner.spawn(defmt::unwrap!(rs485::frame_gap_task()));
+    spawner.spawn(defmt::unwrap!(
+        rs485::frame_gap_task().ok(),
+        "task spawned twice"
+    ));
 
     // The step pin stays owned here for good, and so does the F103's DE
     // pin (an output that rs485 drives through its set/reset register).

@@ -175,6 +175,33 @@ pub fn usart_config(line: LineConfig) -> usart::Config {
     c
 }
 
+/// What the USART refused in a line configuration, for the log. embassy's
+/// own `defmt::Format` impls are left off (their `defmt` features cost flash,
+/// see docs/firmware-size.md); the names are interned, so they cost no flash.
+pub fn config_error(e: usart::ConfigError) -> defmt::Str {
+    match e {
+        usart::ConfigError::BaudrateTooLow => {
+            defmt::intern!("baud rate too low for the USART clock")
+        }
+        usart::ConfigError::BaudrateTooHigh => {
+            defmt::intern!("baud rate too high for the USART clock")
+        }
+        usart::ConfigError::RxOrTxNotEnabled => {
+            defmt::intern!("receiver or transmitter not enabled")
+        }
+        usart::ConfigError::DataParityNotSupported => {
+            defmt::intern!("data bits and parity not supported")
+        }
+        #[cfg(feature = "board-g431")]
+        usart::ConfigError::DeAssertionTimeTooHigh => defmt::intern!("DE assertion time too high"),
+        #[cfg(feature = "board-g431")]
+        usart::ConfigError::DeDeassertionTimeTooHigh => {
+            defmt::intern!("DE deassertion time too high")
+        }
+        _ => defmt::intern!("configuration refused"),
+    }
+}
+
 /// Applies a line and the DE lead / tail PA57 / PA58 (at boot, and after
 /// a reply when `Device::reply_sent` changed the line or the parameters
 /// changed) and (re)arms the receive interrupts. Call it between frames.
@@ -264,8 +291,10 @@ impl Handler<board::UartIrq> for UartHandler {
             // dispatcher task may wake much later (thread mode shares the
             // CPU with the control loop), and a master may send its next
             // request soon after our last stop bit. Outside the critical
-            // section, so the step interrupt runs meanwhile.
-            while now_us().wrapping_sub(at_us) <= tail_us {}
+            // section, so the step interrupt runs meanwhile. Core cycles
+            // (at least that many, more if preempted) rather than reads of
+            // the time driver: the wait touches no peripheral.
+            cortex_m::asm::delay(tail_us.saturating_mul(board::CPU_HZ / 1_000_000));
             set_de(false);
         }
     }

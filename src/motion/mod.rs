@@ -5,15 +5,15 @@
 //! their steps exactly and compresses the times into [`schedule::Segment`]s;
 //! the shared [`schedule::StepSchedule`] expands them into per-step timer
 //! delays, which the step-timer interrupt's [`schedule::StepSource`] pops.
-//! `sim::SimAxis` (host builds) plays the interrupt and the motor.
+//! `sim::SimAxis` (feature `sim`) plays the interrupt and the motor.
 
 pub mod homing;
 pub mod planner;
 pub mod profile;
 pub mod schedule;
-// host only: it reports exact step times, which only host builds keep
-// (schedule.rs module docs)
-#[cfg(not(target_os = "none"))]
+// it reports exact step times, which the schedule keeps only with the
+// feature (schedule.rs module docs)
+#[cfg(feature = "sim")]
 pub mod sim;
 
 pub use homing::{Homing, HomingError, HomingMethod, HomingStep};

@@ -103,7 +103,7 @@ pub fn execute<F: NorFlash>(
     Ok(())
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "sim"))]
 mod tests {
     use super::super::SimFlash;
     use super::*;

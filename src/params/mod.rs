@@ -4,6 +4,7 @@
 
 pub mod ee;
 mod record;
+#[cfg(feature = "sim")]
 mod sim_flash;
 pub mod storage;
 
@@ -13,5 +14,6 @@ pub use crate::dictionary::{
 };
 pub use ee::{execute, EeError, EeOp, PendingEe};
 pub use record::{ParamSet, RecordError, RECORD_LEN, RECORD_VERSION};
+#[cfg(feature = "sim")]
 pub use sim_flash::{SimFlash, SimFlashError, SIM_PAGE_SIZE, SIM_WORD_SIZE};
 pub use storage::{Boot, BootOutcome, FlashFault, ParamStore, Slot, StorageError};

@@ -29,10 +29,10 @@ static TABLE_PAIR: [u16; 256] = {
 /// CRC of `bytes` as a number; on the wire it goes low byte first.
 ///
 /// The crate's own table, walked two bytes at a time (a last odd byte one
-/// at a time): about 4.5 Cortex-M4 instructions per byte where the
-/// one-byte loop costs 7 and the generic `Crc::checksum` 10
-/// (`benches/run-qemu.sh`); every frame is checked and every reply signed,
-/// so this is a large part of a frame's cost (issue 7). Equal to
+/// at a time): fewer instructions per byte than the one-byte loop or the
+/// generic `Crc::checksum` (the QEMU benchmark, `benches/run-qemu.sh`,
+/// counts them); every frame is checked and every reply signed, so this is
+/// a large part of a frame's cost. Equal to
 /// `MODBUS.checksum` on every length (tested below).
 #[inline(always)]
 pub fn crc16(bytes: &[u8]) -> u16 {

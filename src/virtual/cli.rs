@@ -60,6 +60,9 @@ DRIVES AND AXES:
     --standard-exceptions    Answer with the standard Modbus exception codes
                              only (PA55 = 1 on every drive at start-up):
                              vendor codes 5, 7, 11 become 2, code 8 becomes 3.
+                             For generic masters and SCADA, which read 5 as
+                             'acknowledge' and 11 as 'gateway target failed
+                             to respond' (the drive offline).
 
 FILES:
     --state FILE             The drives' parameter flash lives in FILE (created
@@ -135,7 +138,8 @@ impl Default for Options {
 /// What the command line asks for.
 #[derive(Debug, PartialEq, Eq)]
 pub enum Command {
-    Run(Options),
+    /// Boxed: the options are far larger than the other variants.
+    Run(Box<Options>),
     Help,
     Version,
 }
@@ -157,6 +161,7 @@ fn err<T>(msg: impl Into<String>) -> Result<T, UsageError> {
 pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageError> {
     let mut o = Options::default();
     let mut limit_overlap = false;
+    let mut seen: Vec<String> = Vec::new();
     let mut args = args.into_iter();
     while let Some(arg) = args.next() {
         // `--flag=value` and `--flag value` are both accepted.
@@ -166,10 +171,26 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
         };
         let mut value = |name: &str| -> Result<String, UsageError> {
             match inline.clone().or_else(|| args.next()) {
+                // `--pty-link --no-status` forgot the path; negative
+                // numbers (`--cw-limit -500`) have one dash
+                Some(v) if v.starts_with("--") => err(format!(
+                    "{name} needs a value, got the flag `{v}` (see --help)"
+                )),
+                Some(v) if v.trim().is_empty() => {
+                    err(format!("{name} needs a value, got an empty one"))
+                }
                 Some(v) => Ok(v),
                 None => err(format!("{name} needs a value (see --help)")),
             }
         };
+        // a flag given twice would silently lose its first value
+        const REPEATABLE: [&str; 2] = ["--tcp", "--modbus-tcp"];
+        if flag.starts_with("--") && !REPEATABLE.contains(&flag.as_str()) {
+            if seen.contains(&flag) {
+                return err(format!("{flag} given twice"));
+            }
+            seen.push(flag.clone());
+        }
         const SWITCHES: [&str; 6] = [
             "--help",
             "--version",
@@ -221,6 +242,8 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
     if !o.pty && o.tcp.is_empty() && o.modbus_tcp.is_empty() {
         return err("--no-pty leaves no transport: add --tcp or --modbus-tcp ADDR:PORT");
     }
+    check_distinct_sockets(&o)?;
+    check_distinct_files(&o)?;
     if let (Some(cw), Some(ccw)) = (o.axis.cw_limit_steps, o.axis.ccw_limit_steps) {
         if cw >= ccw && !limit_overlap {
             return err(format!(
@@ -229,7 +252,47 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             ));
         }
     }
-    Ok(Command::Run(o))
+    Ok(Command::Run(Box::new(o)))
+}
+
+/// Two listeners on one address: the second bind would fail at start with
+/// "address in use" and no word of which flags collide. Port 0 picks a
+/// free port each time, so it may repeat.
+fn check_distinct_sockets(o: &Options) -> Result<(), UsageError> {
+    let mut all: Vec<(&str, SocketAddr)> = Vec::new();
+    all.extend(o.tcp.iter().map(|a| ("--tcp", *a)));
+    all.extend(o.modbus_tcp.iter().map(|a| ("--modbus-tcp", *a)));
+    all.extend(o.web.iter().map(|a| ("--web", *a)));
+    for (i, (f1, a1)) in all.iter().enumerate() {
+        if let Some((f2, _)) = all[i + 1..]
+            .iter()
+            .find(|(_, a2)| a1.port() != 0 && a2 == a1)
+        {
+            return err(format!(
+                "{f1} {a1} and {f2} {a1}: one address cannot serve two listeners"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// One file for two purposes would be overwritten by one of them.
+fn check_distinct_files(o: &Options) -> Result<(), UsageError> {
+    let all: Vec<(&str, &PathBuf)> = [
+        ("--pty-link", &o.pty_link),
+        ("--state", &o.state),
+        ("--trace", &o.trace),
+        ("--plot", &o.plot),
+    ]
+    .into_iter()
+    .filter_map(|(f, p)| p.as_ref().map(|p| (f, p)))
+    .collect();
+    for (i, (f1, p1)) in all.iter().enumerate() {
+        if let Some((f2, _)) = all[i + 1..].iter().find(|(_, p2)| p2 == p1) {
+            return err(format!("{f1} and {f2} name the same file {}", p1.display()));
+        }
+    }
+    Ok(())
 }
 
 fn parse_socket(flag: &str, v: &str) -> Result<SocketAddr, UsageError> {
@@ -287,7 +350,7 @@ mod tests {
 
     fn run(args: &[&str]) -> Result<Options, UsageError> {
         match parse(args.iter().map(|s| s.to_string()))? {
-            Command::Run(o) => Ok(o),
+            Command::Run(o) => Ok(*o),
             c => panic!("{c:?}"),
         }
     }
@@ -350,6 +413,25 @@ mod tests {
     }
 
     #[test]
+    fn repeatable_flags_and_port_0_may_repeat() {
+        let o = run(&[
+            "--tcp",
+            "127.0.0.1:0",
+            "--tcp",
+            "127.0.0.1:0",
+            "--modbus-tcp",
+            "127.0.0.1:0",
+            "--modbus-tcp",
+            "127.0.0.1:5502",
+            "--cw-limit",
+            "-500",
+        ])
+        .unwrap();
+        assert_eq!((o.tcp.len(), o.modbus_tcp.len()), (2, 2));
+        assert_eq!(o.axis.cw_limit_steps, Some(-500));
+    }
+
+    #[test]
     fn overlapping_limits_need_the_flag_that_stages_a_wiring_fault() {
         let overlap = ["--cw-limit", "1000", "--ccw-limit", "500"];
         let Err(UsageError(msg)) = parse(overlap.iter().map(|s| s.to_string())) else {
@@ -386,6 +468,25 @@ mod tests {
             (&["--board"], "--board needs a value"),
             (&["--home-switch", "5:4"], "FROM must not exceed"),
             (&["--no-pty"], "no transport"),
+            (&["--pty-link", "--no-status"], "got the flag `--no-status`"),
+            (&["--state", "--trace", "t.csv"], "--state needs a value"),
+            (&["--state", ""], "got an empty one"),
+            (&["--plot="], "--plot needs a value"),
+            (&["--drives", "1", "--drives", "2"], "--drives given twice"),
+            (&["--state", "a", "--state=b"], "--state given twice"),
+            (&["--no-status", "--no-status"], "given twice"),
+            (&["--trace", "x", "--plot", "x"], "same file x"),
+            (&["--state", "s", "--pty-link", "s"], "same file s"),
+            (
+                &["--tcp", "127.0.0.1:5020", "--modbus-tcp", "127.0.0.1:5020"],
+                "--tcp 127.0.0.1:5020 and --modbus-tcp 127.0.0.1:5020",
+            ),
+            (
+                &["--modbus-tcp", "[::1]:502", "--modbus-tcp", "[::1]:502"],
+                "one address",
+            ),
+            (&["--web", "127.0.0.1:80", "--tcp", "127.0.0.1:80"], "--web"),
+            (&["/dev/ttyUSB0"], "unknown argument `/dev/ttyUSB0`"),
             (
                 &["--no-pty", "--pty-link", "x", "--tcp", "127.0.0.1:1"],
                 "contradict",

@@ -26,7 +26,7 @@ use cli::Command;
 
 pub fn main() -> ExitCode {
     let opts = match cli::parse(std::env::args().skip(1)) {
-        Ok(Command::Run(o)) => o,
+        Ok(Command::Run(o)) => *o,
         Ok(Command::Help) => {
             print!("{}", cli::HELP);
             return ExitCode::SUCCESS;

@@ -36,7 +36,7 @@ use super::cli::{AxisLayout, Options};
 use super::console::Console;
 use super::flash::{FileFlash, REGION_BYTES};
 use super::trace::{Sample, Trace};
-use super::transport::{Listener, Pty, ReadOutcome, Stream};
+use super::transport::{listen_error, Listener, Pty, ReadOutcome, Stream};
 use super::web::{self, ExceptionLog, Forced, WebPort};
 
 mod modbus_tcp;
@@ -95,7 +95,7 @@ impl DriveSlot {
     ) -> Result<Self, String> {
         let flash = match state {
             Some(path) => FileFlash::open(path, index)
-                .map_err(|e| format!("state file {}: {e}", path.display()))?,
+                .map_err(|e| format!("--state {}: {e}", path.display()))?,
             None => FileFlash::in_memory(),
         };
         let mut store = ParamStore::new(flash, 0..REGION_BYTES as u32)
@@ -107,21 +107,16 @@ impl DriveSlot {
             tick_hz: board.step_tick_hz(),
             ..PlannerConfig::default()
         };
-        device.drive.set_planner_config(planner);
+        device.set_planner_config(planner);
         let boot = store.boot();
         device.apply_boot(&boot);
         if !matches!(boot.outcome, BootOutcome::Loaded { .. }) {
-            set_address(&mut device, address);
-            // The address a drive starts with is not a change worth logging.
-            let events: Vec<Event> = std::iter::from_fn(|| device.take_event()).collect();
-            for ev in events {
-                if !matches!(ev, Event::AddressChanged { .. }) {
-                    device.push_event(ev);
-                }
-            }
+            // `--drives` gives each drive its address (PA51, SPEC §7), in
+            // force at once: no change worth logging
+            device.configure(|pa, _| pa.set_address(address));
         }
-        let last_statusword = device.drive.statusword();
-        let last_mode = device.drive.mode_display();
+        let last_statusword = device.drive().statusword();
+        let last_mode = device.drive().mode_display();
         Ok(Self {
             device,
             store,
@@ -157,7 +152,8 @@ impl DriveSlot {
     fn control_at(&mut self, t_us: u64) {
         let until = self.axis.us_to_ticks(t_us);
         // the simulated limit-switch interrupt applies PA14 as the board's
-        self.axis.set_limit_enable(self.device.pa.limit_enable());
+        self.axis
+            .set_limit_enable(self.device.params().limit_enable());
         while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
             let at = self.axis.now_us();
             let switches = self.forced.apply(self.axis.switches());
@@ -190,14 +186,6 @@ fn sim_axis(layout: AxisLayout, tick_hz: u32) -> SimAxis {
         axis = axis.with_home(i64::from(w.from_steps), i64::from(w.to_steps));
     }
     axis
-}
-
-/// `--drives` gives each drive its address: PA51 (SPEC §7), put in force
-/// the way the core applies a new PA51 (as after a reply).
-fn set_address(device: &mut Device, address: u8) {
-    const PA51: usize = 51;
-    device.pa.set_unchecked(PA51, u16::from(address));
-    device.reply_sent();
 }
 
 struct PendingReply {
@@ -265,8 +253,7 @@ impl VirtualDrive {
         }
         let mut lines = Vec::new();
         if opts.pty {
-            let pty = Pty::open(opts.pty_link.as_deref())
-                .map_err(|e| StartError(format!("cannot open a pseudo-terminal: {e}")))?;
+            let pty = Pty::open(opts.pty_link.as_deref()).map_err(StartError)?;
             let mut label = format!("pty {}", pty.path.display());
             if let Some(l) = &opts.pty_link {
                 label.push_str(&format!(" (link {})", l.display()));
@@ -276,15 +263,15 @@ impl VirtualDrive {
         }
         let mut listeners = Vec::new();
         for &addr in &opts.tcp {
-            let l = Listener::bind(addr)
-                .map_err(|e| StartError(format!("cannot listen on tcp {addr}: {e}")))?;
+            let l =
+                Listener::bind(addr).map_err(|e| StartError(listen_error("--tcp", addr, &e)))?;
             console.log(&format!("tcp: listening on {} (RTU framing)", l.addr));
             listeners.push(l);
         }
         let mut mbap = modbus_tcp::ModbusTcp::default();
         for &addr in &opts.modbus_tcp {
             let l = Listener::bind(addr)
-                .map_err(|e| StartError(format!("--modbus-tcp {addr}: cannot listen: {e}")))?;
+                .map_err(|e| StartError(listen_error("--modbus-tcp", addr, &e)))?;
             console.log(&format!(
                 "modbus-tcp: listening on {} (MBAP framing)",
                 l.addr
@@ -302,8 +289,7 @@ impl VirtualDrive {
         };
         for d in &mut drives {
             if opts.standard_exceptions {
-                const PA55: usize = 55;
-                d.device.pa.set_unchecked(PA55, 1);
+                d.device.configure(|pa, _| pa.set_standard_exceptions(true));
             }
             // The first control call: a fault the drive starts in (both
             // limits active) is reported now, not with the first frame.
@@ -311,7 +297,7 @@ impl VirtualDrive {
             log_events(&mut console, d, None);
         }
         let trace = Trace::new(opts.trace.as_deref(), opts.plot.as_deref(), drives.len())
-            .map_err(|e| StartError(format!("cannot create the trace file: {e}")))?;
+            .map_err(StartError)?;
         for d in &drives {
             let line = d.device.line();
             console.log(&format!(
@@ -449,7 +435,7 @@ impl VirtualDrive {
         }
         for (di, ee) in done {
             if ee {
-                self.drives[di].device.storage_busy = false;
+                self.drives[di].device.set_storage_busy(false);
             }
             self.reply_done(di);
         }
@@ -459,7 +445,7 @@ impl VirtualDrive {
     fn observe(&mut self, now: u64) {
         let mut status = Vec::new();
         for (di, d) in self.drives.iter_mut().enumerate() {
-            let drive = &d.device.drive;
+            let drive = d.device.drive();
             let sample = Sample {
                 time_us: now,
                 drive: di,
@@ -488,7 +474,7 @@ impl VirtualDrive {
             if let Err(e) = self.trace.offer(sample) {
                 self.console.log(&format!("trace: {e}"));
             }
-            let counters = d.device.slave.counters();
+            let counters = d.device.slave().counters();
             status.push(format!(
                 "@{} {:?} sw 0x{:04X} mode {} pos {} vel {} r/min frames {} errors {}",
                 sample.address,
@@ -545,6 +531,9 @@ impl VirtualDrive {
         }
         if let Some(due) = self.mbap.next_due() {
             at = at.min(due);
+        }
+        if let Some(web) = &self.web {
+            at = at.min(web.next_due_us());
         }
         at
     }
@@ -721,7 +710,7 @@ fn handle_due(
         response = r;
         ee = true;
         due_us = due_us.max(now_us + slot.store.flash().take_busy_us());
-        slot.device.storage_busy = true;
+        slot.device.set_storage_busy(true);
     }
     let bytes = match response {
         Response::Reply(n) => reply[..n.min(MAX_FRAME)].to_vec(),
@@ -745,16 +734,21 @@ fn handle_due(
 /// flash operation, which the core only knows as "flash failed").
 fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
     while let Some(ev) = slot.device.take_event() {
+        // the vendor code names the cause; say what went on the wire
+        let mut sent_as = String::new();
         if let Event::Exception {
             function,
             exception,
             answered,
         } = ev
         {
-            let standard = slot.device.pa.standard_exceptions();
+            let standard = slot.device.params().standard_exceptions();
             let code = exception.code(standard).unwrap_or(exception.vendor_code());
             let port = line.unwrap_or("-");
             slot.exceptions.record(port, function, code, answered);
+            if answered && code != exception.vendor_code() {
+                sent_as = format!(", sent as {code} (PA55 = 1)");
+            }
         }
         let on = line.map_or(String::new(), |l| format!(" on {l}"));
         let failed = matches!(
@@ -765,7 +759,11 @@ fn log_events(console: &mut Console, slot: &mut DriveSlot, line: Option<&str>) {
             Some(e) if failed => format!(": {e}"),
             _ => String::new(),
         };
-        console.log(&format!("{}{on}: {}{cause}", slot.label(), describe(&ev)));
+        console.log(&format!(
+            "{}{on}: {}{sent_as}{cause}",
+            slot.label(),
+            describe(&ev)
+        ));
     }
 }
 

@@ -15,6 +15,10 @@ use plotters::prelude::*;
 pub const SAMPLE_PERIOD_US: u64 = 5_000;
 /// Points per series above which the plot thins the samples out.
 const PLOT_POINTS_MAX: usize = 20_000;
+/// The plot's margin before the first and after the last motion: this
+/// share of the motion's span, at least [`WINDOW_PAD_MIN_US`].
+const WINDOW_PAD_SHARE: f64 = 0.05;
+const WINDOW_PAD_MIN_US: u64 = 200_000;
 
 pub const CSV_HEADER: &str = "time_s,address,position_steps,velocity_rpm,statusword,mode";
 
@@ -55,15 +59,25 @@ pub struct Trace {
 }
 
 impl Trace {
-    pub fn new(csv: Option<&Path>, plot: Option<&Path>, drives: usize) -> io::Result<Self> {
+    /// Creates both files now, so a path that cannot be written is
+    /// reported at start-up, not after the session; the message names the
+    /// flag.
+    pub fn new(csv: Option<&Path>, plot: Option<&Path>, drives: usize) -> Result<Self, String> {
         let csv = match csv {
             Some(p) => {
-                let mut w = BufWriter::new(File::create(p)?);
-                writeln!(w, "{CSV_HEADER}")?;
+                let open = || -> io::Result<BufWriter<File>> {
+                    let mut w = BufWriter::new(File::create(p)?);
+                    writeln!(w, "{CSV_HEADER}")?;
+                    Ok(w)
+                };
+                let w = open().map_err(|e| format!("--trace {}: {e}", p.display()))?;
                 Some((p.to_path_buf(), w))
             }
             None => None,
         };
+        if let Some(p) = plot {
+            File::create(p).map_err(|e| format!("--plot {}: {e}", p.display()))?;
+        }
         Ok(Self {
             csv,
             plot: plot.map(Path::to_path_buf),
@@ -119,6 +133,41 @@ impl Trace {
     }
 }
 
+/// The time span the plot shows, µs: from a little before the first
+/// sample in which any drive moves (velocity not 0, or position changed
+/// since its previous sample) to a little after the last; the whole run
+/// when nothing moved.
+pub fn motion_window(samples: &[Sample]) -> (u64, u64) {
+    let (Some(first), Some(last)) = (samples.first(), samples.last()) else {
+        return (0, 1_000_000);
+    };
+    let drives = samples.iter().map(|s| s.drive + 1).max().unwrap_or(0);
+    let mut previous: Vec<Option<&Sample>> = vec![None; drives];
+    let mut span: Option<(u64, u64)> = None;
+    for s in samples {
+        let before = previous[s.drive];
+        let moved =
+            s.velocity_rpm != 0 || before.is_some_and(|b| b.position_steps != s.position_steps);
+        if moved {
+            // a position change began after the drive's previous sample
+            let start = before.map_or(s.time_us, |b| b.time_us);
+            span = Some(match span {
+                None => (start, s.time_us),
+                Some((a, _)) => (a.min(start), s.time_us),
+            });
+        }
+        previous[s.drive] = Some(s);
+    }
+    let Some((a, b)) = span else {
+        return (first.time_us, last.time_us);
+    };
+    let pad = (((b - a) as f64 * WINDOW_PAD_SHARE) as u64).max(WINDOW_PAD_MIN_US);
+    (
+        a.saturating_sub(pad).max(first.time_us),
+        (b + pad).min(last.time_us),
+    )
+}
+
 /// Position (top) and velocity (bottom) over time, one line per drive.
 pub fn plot(path: &Path, samples: &[Sample]) -> Result<(), Box<dyn std::error::Error>> {
     let root = SVGBackend::new(path, (1200, 800)).into_drawing_area();
@@ -129,8 +178,14 @@ pub fn plot(path: &Path, samples: &[Sample]) -> Result<(), Box<dyn std::error::E
     drives.sort_unstable();
     drives.dedup_by_key(|d| d.0);
 
-    let t_end = samples.last().map_or(1.0, |s| s.time_us as f64 / 1e6);
-    let t_start = samples.first().map_or(0.0, |s| s.time_us as f64 / 1e6);
+    // the motion, not the idle minutes around it
+    let (from_us, to_us) = motion_window(samples);
+    let samples: Vec<Sample> = samples
+        .iter()
+        .filter(|s| (from_us..=to_us).contains(&s.time_us))
+        .copied()
+        .collect();
+    let (t_start, t_end) = (from_us as f64 / 1e6, to_us as f64 / 1e6);
     let t_range = t_start..(t_end.max(t_start + 1e-3));
 
     type Pick = fn(&Sample) -> i32;
@@ -228,6 +283,37 @@ mod tests {
         assert!(svg_text.contains("<polyline"));
         std::fs::remove_file(csv).unwrap();
         std::fs::remove_file(svg).unwrap();
+    }
+
+    #[test]
+    fn the_plot_window_is_the_motion_with_a_margin() {
+        let mut run: Vec<Sample> = (0..=600u64)
+            .map(|i| {
+                let mut s = sample(i * 100_000, 0, 0x0237); // 60 s, 0.1 s apart
+                s.velocity_rpm = 0;
+                s
+            })
+            .collect();
+        // nothing moves: the whole run
+        assert_eq!(motion_window(&run), (0, 60_000_000));
+        // a move from 20 s to 22 s: the position changes from 20.1 s on
+        // (so it began after 20.0 s), the velocity is 0 again at 22 s
+        for s in &mut run[201..220] {
+            s.position_steps = 10 * (s.time_us / 100_000 - 200) as i32;
+            s.velocity_rpm = 60;
+        }
+        for s in &mut run[220..] {
+            s.position_steps = 190;
+        }
+        assert_eq!(motion_window(&run), (19_800_000, 22_100_000));
+        // another drive moving at 40 s widens it; the margin is 5 % of the
+        // 20 s between the moves
+        let mut other = sample(40_000_000, 5, 0x0237);
+        other.drive = 1;
+        run.push(other);
+        run.sort_by_key(|s| s.time_us);
+        assert_eq!(motion_window(&run), (19_000_000, 41_000_000));
+        assert_eq!(motion_window(&[]), (0, 1_000_000));
     }
 
     #[test]

@@ -26,7 +26,18 @@ pub struct Pty {
 }
 
 impl Pty {
-    pub fn open(link: Option<&Path>) -> io::Result<Self> {
+    /// The pty and its `--pty-link`; the message says which failed.
+    pub fn open(link: Option<&Path>) -> Result<Self, String> {
+        let mut pty =
+            Self::open_pty().map_err(|e| format!("cannot open a pseudo-terminal: {e}"))?;
+        if let Some(l) = link {
+            make_link(&pty.path, l)?;
+            pty.link = Some(l.to_path_buf());
+        }
+        Ok(pty)
+    }
+
+    fn open_pty() -> io::Result<Self> {
         let pty = nix::pty::openpty(None, None).map_err(io::Error::from)?;
         // Raw mode on the slave: no echo, no CR/LF translation, no signals —
         // RTU is binary. Masters set their own mode on open as well.
@@ -35,18 +46,11 @@ impl Pty {
         tcsetattr(&pty.slave, SetArg::TCSANOW, &t).map_err(io::Error::from)?;
         let path = nix::unistd::ttyname(&pty.slave).map_err(io::Error::from)?;
         set_nonblocking(pty.master.as_fd())?;
-        let link = match link {
-            Some(l) => {
-                make_link(&path, l)?;
-                Some(l.to_path_buf())
-            }
-            None => None,
-        };
         Ok(Self {
             master: File::from(pty.master),
             _slave: pty.slave,
             path,
-            link,
+            link: None,
         })
     }
 
@@ -67,20 +71,38 @@ impl Drop for Pty {
 }
 
 /// `--pty-link`: replaces an existing symlink (a stale one from an earlier
-/// run), refuses to replace anything else.
-fn make_link(target: &Path, link: &Path) -> io::Result<()> {
+/// run), refuses to replace anything else: a file there may be the user's.
+fn make_link(target: &Path, link: &Path) -> Result<(), String> {
+    let at = |what: String| format!("--pty-link {}: {what}", link.display());
     match std::fs::symlink_metadata(link) {
-        Ok(m) if m.file_type().is_symlink() => std::fs::remove_file(link)?,
-        Ok(_) => {
-            return Err(io::Error::new(
-                ErrorKind::AlreadyExists,
-                format!("{} exists and is not a symlink", link.display()),
-            ))
+        Ok(m) if m.file_type().is_symlink() => std::fs::remove_file(link)
+            .map_err(|e| at(format!("cannot replace the old symlink: {e}")))?,
+        Ok(m) => {
+            let what = if m.is_dir() {
+                "a directory"
+            } else if m.is_file() {
+                "a regular file"
+            } else {
+                "a special file"
+            };
+            return Err(at(format!(
+                "{what} is there; the link replaces only a symlink (one left by an \
+                 earlier run). Remove it or choose another path"
+            )));
         }
         Err(e) if e.kind() == ErrorKind::NotFound => {}
-        Err(e) => return Err(e),
+        Err(e) => return Err(at(format!("cannot look at it: {e}"))),
     }
-    std::os::unix::fs::symlink(target, link)
+    std::os::unix::fs::symlink(target, link).map_err(|e| {
+        let dir = link.parent().filter(|d| !d.as_os_str().is_empty());
+        match dir {
+            Some(d) if e.kind() == ErrorKind::NotFound => at(format!(
+                "cannot make the link: directory {} does not exist",
+                d.display()
+            )),
+            _ => at(format!("cannot make the link: {e}")),
+        }
+    })
 }
 
 fn set_nonblocking(fd: BorrowedFd<'_>) -> io::Result<()> {
@@ -90,7 +112,28 @@ fn set_nonblocking(fd: BorrowedFd<'_>) -> io::Result<()> {
     Ok(())
 }
 
-/// A listening TCP socket (`--tcp`).
+/// Why `flag ADDR` could not listen, with what to do about the usual
+/// causes.
+pub fn listen_error(flag: &str, addr: SocketAddr, e: &io::Error) -> String {
+    let hint = match e.kind() {
+        ErrorKind::AddrInUse => {
+            "; another program, or another listener of this one, has that port: choose another \
+             port, or port 0 for a free one"
+        }
+        ErrorKind::PermissionDenied if addr.port() < 1024 => {
+            "; ports below 1024 (502 among them) need root or CAP_NET_BIND_SERVICE: \
+             choose e.g. 5020"
+        }
+        ErrorKind::AddrNotAvailable => {
+            "; no interface of this machine has that address (127.0.0.1: this machine \
+             only, 0.0.0.0: every interface)"
+        }
+        _ => "",
+    };
+    format!("{flag} {addr}: cannot listen: {e}{hint}")
+}
+
+/// A listening TCP socket (`--tcp`, `--modbus-tcp`).
 pub struct Listener {
     pub socket: TcpListener,
     pub addr: SocketAddr,

@@ -505,7 +505,7 @@ impl Rig {
 
     fn with_config(mut bus: Bus, axis: SimAxis, cfg: Cfg) -> Self {
         let tick_hz = cfg.tick_hz;
-        bus.device.drive.set_planner_config(cfg);
+        bus.device.set_planner_config(cfg);
         let mut rig = Self {
             bus,
             sched: Box::new(StepSchedule::new()),

@@ -98,8 +98,7 @@ impl Bus {
     /// starts (e.g. `|pa| pa.set_unchecked(52, 0)` for 9600 baud).
     pub fn with_params(set: impl FnOnce(&mut modbus_drive::params::Params)) -> Self {
         let mut device = Device::new(Identity::new(TEST_HARDWARE));
-        set(&mut device.pa);
-        device.reply_sent(); // take the new address / line into force
+        device.configure(|pa, _| set(pa)); // the new address / line in force
         while device.take_event().is_some() {}
         Self::with_device(device)
     }

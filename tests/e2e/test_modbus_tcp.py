@@ -96,6 +96,36 @@ def test_mbpoll_reads_the_statusword_over_modbus_tcp(start_drive):
     assert r.stdout.strip() == f"-- Polling slave 1...\n[{STATUSWORD + 1}]: \t96", r.stdout
 
 
+def test_mbpoll_as_the_issue_gives_it_polls_while_pymodbus_writes(start_drive):
+    """`mbpoll -m tcp -a 1 -r 24642 -c 1 127.0.0.1 -p PORT` exactly (1-based
+    reference 24642 = 0x6041; it polls once a second until stopped), while
+    pymodbus' default TCP client works on its own connection."""
+    d = start(start_drive)
+    # stdbuf: mbpoll's stdout is a pipe here, unbuffered so lines come as polled
+    p = subprocess.Popen(["stdbuf", "-o0", "mbpoll", "-m", "tcp", "-a", "1", "-r", "24642",
+                          "-c", "1", "127.0.0.1", "-p", str(d.modbus_tcp_port)],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        m = Master(client(d))
+        polls = []
+        deadline = time.monotonic() + 10
+        while len(polls) < 2:
+            assert time.monotonic() < deadline, polls
+            r, _, _ = select.select([p.stdout], [], [], 0.5)
+            if not r:
+                continue
+            line = p.stdout.readline()
+            assert line, f"mbpoll ended: {p.wait()}"
+            if line.startswith("[24642]:"):
+                polls.append(line.split()[1])
+                m.write(ACCELERATION, 100 + len(polls))  # between two polls
+        assert polls == ["96", "96"], polls  # 0x0060, switch on disabled
+        assert m.read(ACCELERATION) == 102
+    finally:
+        p.terminate()
+        p.wait(5)
+
+
 def test_pymodbus_tcp_client_reads_and_writes(start_drive):
     d = start(start_drive)
     m = Master(client(d))
@@ -195,6 +225,17 @@ def test_malformed_mbap_headers_are_dropped_per_the_guide_and_counted(start_driv
     wait_for_log(d, "9 bytes of an unfinished request dropped")
     assert bad_adus(d) == 8
 
+    # a length field larger than what follows, the client waiting: the
+    # rest never comes; after the ADU timeout the connection is closed
+    # (whatever came next would be read as the missing bytes)
+    raw = Raw(d)
+    t0 = time.monotonic()
+    assert raw.ask(mbap(7, 1, READ_SW, length=9), timeout=3) is None
+    assert 0.9 < time.monotonic() - t0 < 2.5
+    wait_for_log(d, "(the rest of a request did not come within 1000 ms), "
+                    "12 bytes of an unfinished request dropped")
+    assert bad_adus(d) == 9
+
     # the server never stopped serving
     r = bystander.read_holding_registers(STATUSWORD, count=1, device_id=1)
     assert r.registers == [SWITCH_ON_DISABLED_SW]
@@ -215,6 +256,29 @@ def test_a_request_split_across_segments_and_a_bad_pdu(start_drive):
     assert raw.ask(mbap(9, 1, READ_SW[:-1])) == struct.pack(">HHHBBB", 9, 0, 3, 1, 0x83, 8)
     # an unknown function: exception 1
     assert raw.ask(mbap(10, 1, b"\x41")) == struct.pack(">HHHBBB", 10, 0, 3, 1, 0xC1, 1)
+    # length 2, a function code without its data; length 8, a whole request
+    # and two bytes more: the MBAP header is sound, the PDU is not, so the
+    # drive answers as to the same PDU on the serial line (byte count)
+    assert raw.ask(mbap(11, 1, b"\x03")) == struct.pack(">HHHBBB", 11, 0, 3, 1, 0x83, 8)
+    assert raw.ask(mbap(12, 1, READ_SW + b"\x00\x00")) == \
+        struct.pack(">HHHBBB", 12, 0, 3, 1, 0x83, 8)
+    # none of these is a bad ADU
+    assert bad_adus(d) == 0
+    assert raw.ask(mbap(13, 1, READ_SW)) == sw_response(13, 1)
+
+
+READ_MISSING = bytes([0x03]) + struct.pack(">HH", STATUSWORD + 1, 1)  # 0x6042: no entry
+
+
+def test_without_the_flag_a_missing_register_looks_like_an_unreachable_drive(start_drive):
+    """Vendor code 11 (register does not exist, SPEC §5.2) is, on Modbus TCP,
+    the byte a gateway sends for "target device failed to respond": a SCADA
+    marks the drive offline. Why --standard-exceptions exists."""
+    d = start(start_drive)
+    raw = Raw(d)
+    missing = raw.ask(mbap(1, 1, READ_MISSING))
+    unreachable = raw.ask(mbap(2, 9, READ_SW))  # no drive 9: the gateway's 0x0B
+    assert missing[7:] == unreachable[7:] == bytes([0x83, 0x0B])
 
 
 def test_standard_exceptions_flag_sets_pa55(start_drive):
@@ -222,7 +286,15 @@ def test_standard_exceptions_flag_sets_pa55(start_drive):
     raw = Raw(d)
     # the byte count exception 8 becomes 3 (SPEC §5.2, PA55 = 1)
     assert raw.ask(mbap(9, 1, READ_SW[:-1])) == struct.pack(">HHHBBB", 9, 0, 3, 1, 0x83, 3)
+    # a missing register: 2, no longer the gateway's 0x0B
+    assert raw.ask(mbap(10, 1, READ_MISSING)) == struct.pack(">HHHBBB", 10, 0, 3, 1, 0x83, 2)
+    # writing the read-only statusword: 2, not 5 (a generic master's "acknowledge")
+    write_sw = bytes([0x06]) + struct.pack(">HH", STATUSWORD, 7)
+    assert raw.ask(mbap(11, 1, write_sw)) == struct.pack(">HHHBBB", 11, 0, 3, 1, 0x86, 2)
     assert Master(client(d)).read(0x0064 + 55) == 1  # PA55 reads 1
+    # the log names the cause and what was sent
+    wait_for_log(d, "exception 8 (ByteCountMismatch), sent as 3 (PA55 = 1)")
+    wait_for_log(d, "exception 5 (WriteReadOnly), sent as 2 (PA55 = 1)")
 
 
 def test_unit_ids_route_to_the_drive_with_that_address(start_drive):
@@ -270,3 +342,20 @@ def test_a_client_that_leaves_mid_ee_operation_does_not_leave_the_drive_busy(sta
     time.sleep(0.3)
     r = Master(client(d)).read(STATUSWORD)
     assert r == SWITCH_ON_DISABLED_SW  # not exception 6 (busy)
+
+
+def test_device_identification_over_modbus_tcp(start_drive):
+    """What a SCADA asks first of a new device: function 0x2B / MEI 0x0E,
+    basic objects (vendor, product code, revision), in one MBAP response."""
+    d = start(start_drive)
+    r = Raw(d).ask(mbap(0x0102, 1, bytes([0x2B, 0x0E, 0x01, 0x00])))
+    tid, proto, length, unit = struct.unpack(">HHHB", r[:7])
+    assert (tid, proto, unit, length) == (0x0102, 0, 1, len(r) - 6)
+    pdu = r[7:]
+    assert pdu[:3] == bytes([0x2B, 0x0E, 0x01]) and pdu[3] == 0x81, pdu.hex()
+    assert pdu[4:7] == bytes([0, 0, 3]), "all in one response, three objects"
+    objs, i = {}, 7
+    while i < len(pdu):
+        objs[pdu[i]] = pdu[i + 2:i + 2 + pdu[i + 1]]
+        i += 2 + pdu[i + 1]
+    assert sorted(objs) == [0, 1, 2] and all(objs.values()), objs

@@ -35,6 +35,13 @@ def test_help_documents_every_flag_and_exits_0():
     (["--drives", "1,1"], "twice"),
     (["--home-switch", "9:1"], "FROM must not exceed TO"),
     (["--cw-limit"], "needs a value"),
+    (["--pty-link", "--no-status"], "--pty-link needs a value, got the flag `--no-status`"),
+    (["--drives", "1", "--drives", "2"], "--drives given twice"),
+    (["--trace", "t.csv", "--plot", "t.csv"], "same file"),
+    (["--no-pty", "--tcp", "127.0.0.1:5020", "--modbus-tcp", "127.0.0.1:5020"],
+     "one address cannot serve two listeners"),
+    (["--modbus-tcp", "localhost:502"], "--modbus-tcp localhost:502: expected ADDR:PORT"),
+    (["/dev/ttyUSB0"], "unknown argument `/dev/ttyUSB0`"),
 ])
 def test_bad_flags_get_a_clear_message_and_exit_2(args, needle):
     r = run(*args)
@@ -51,10 +58,41 @@ def test_a_port_in_use_is_reported_not_panicked_on(tmp_path):
         r = run("--no-pty", "--tcp", f"127.0.0.1:{port}")
     err = r.stderr.decode()
     assert r.returncode == 1, err
-    assert f"cannot listen on tcp 127.0.0.1:{port}" in err
-    assert "in use" in err
+    assert f"--tcp 127.0.0.1:{port}: cannot listen" in err
+    assert "in use" in err and "port 0 for a free one" in err
     assert "panicked" not in err
     assert r.stdout == b""
+
+
+@pytest.mark.parametrize("make,needle", [
+    (lambda p: p.write_text("my notes"), "a regular file is there"),
+    (lambda p: p.mkdir(), "a directory is there"),
+])
+def test_a_pty_link_onto_something_not_a_symlink_is_refused_and_left_alone(tmp_path, make,
+                                                                           needle):
+    link = tmp_path / "ttyVD"
+    make(link)
+    r = run("--pty-link", str(link))
+    err = r.stderr.decode()
+    assert r.returncode == 1, err
+    assert f"--pty-link {link}: {needle}" in err, err
+    assert "pseudo-terminal" not in err, "the pty itself was fine"
+    assert not link.is_symlink() and (link.is_dir() or link.read_text() == "my notes")
+    r = run("--pty-link", str(tmp_path / "no" / "such" / "dir"))
+    assert r.returncode == 1
+    assert f"directory {tmp_path / 'no' / 'such'} does not exist" in r.stderr.decode()
+
+
+@pytest.mark.parametrize("flag", ["--trace", "--plot", "--state"])
+def test_a_file_that_cannot_be_written_is_reported_at_start_up(tmp_path, flag):
+    """Not at the end of a session, when the plot would be drawn."""
+    bad = tmp_path / "missing" / "f"
+    r = run("--no-status", flag, str(bad))
+    err = r.stderr.decode()
+    assert r.returncode == 1, err
+    assert str(bad) in err and "No such file or directory" in err, err
+    assert flag in err, err
+    assert r.stdout == b"", "no `ready`"
 
 
 def test_ready_is_the_only_stdout_line_and_the_pty_link_points_at_the_pty(start_drive):

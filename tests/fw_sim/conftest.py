@@ -87,7 +87,8 @@ class Firmware:
         raise AssertionError(f"fw-sim {board} did not print ready:\n{self.stderr()}")
 
     def stderr(self) -> str:
-        self.err.flush()
+        if not self.err.closed:
+            self.err.flush()
         return self.err_path.read_text(errors="replace")
 
     def alive(self):
@@ -96,7 +97,11 @@ class Firmware:
         assert rc is None, f"fw-sim {self.board} exited with {rc}:\n{self.stderr()}"
 
     def stop(self) -> int | None:
-        rc = self.proc.poll()
+        """Stops the runner; returns its exit code if it had stopped by
+        itself (a fault), None if it was running."""
+        if self.err.closed:
+            return self.exited
+        rc = self.exited = self.proc.poll()
         if rc is None:
             self.proc.send_signal(signal.SIGTERM)
             try:
@@ -174,3 +179,31 @@ def start_fw(tmp_path):
         for fw in started:
             rc = fw.stop()
             assert rc is None, f"fw-sim {fw.board} exited with {rc}:\n{fw.stderr()}"
+
+
+class AsDrive:
+    """A runner seen through the e2e harness's VirtualDrive interface, so
+    the e2e tests' programs run unchanged against the firmware."""
+
+    def __init__(self, fw: Firmware):
+        self.fw = fw
+
+    def client(self, transport: str) -> ModbusTcpClient:
+        assert transport == "tcp"
+        return self.fw.client()
+
+    def raw(self, transport: str) -> RawBus:
+        assert transport == "tcp"
+        return self.fw.raw()
+
+    def stderr(self) -> str:
+        return self.fw.stderr()
+
+
+@pytest.fixture
+def start_drive(start_fw, board):
+    """The e2e `start_drive(*flags)` fixture, starting `board`'s image
+    (the virtual drive's --no-status has no meaning here)."""
+    def start(*flags: str) -> AsDrive:
+        return AsDrive(start_fw(board, *[f for f in flags if f != "--no-status"]))
+    return start

@@ -115,6 +115,21 @@ impl Flash {
         })
     }
 
+    /// A reset (or power-up): the interface registers to their reset
+    /// values, an operation in progress lost; the array keeps what was
+    /// programmed and erased before.
+    pub fn reset(&mut self) {
+        self.acr = if self.g4 { 0x0000_0600 } else { 0x0000_0030 };
+        self.cr = if self.g4 { 0xC000_0000 } else { 0x0000_0080 };
+        self.sr = 0;
+        self.ar = 0;
+        self.eccr = 0;
+        self.key_stage = 0;
+        self.locked_for_good = false;
+        self.half = None;
+        self.busy = None;
+    }
+
     fn locked(&self) -> bool {
         self.cr & if self.g4 { 1 << 31 } else { 1 << 7 } != 0
     }

@@ -15,7 +15,7 @@ pub struct Rcc {
 }
 
 /// Clocks derived from the registers.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Clocks {
     pub sysclk: u32,
     pub hclk: u32,
@@ -153,7 +153,8 @@ impl Rcc {
             let mul = (((cfgr >> 18) & 0xF) as u64 + 2).min(16);
             src * mul
         };
-        let sysclk = match (cfgr >> 2) & 3 {
+        // SWS follows SW at once (see `derived`)
+        let sysclk = match cfgr & 3 {
             0 if !self.g4 => hsi,
             1 if self.g4 => hsi,
             1 if !self.g4 => self.hse_hz as u64,

@@ -22,8 +22,11 @@
 //! Bad ADUs: a protocol id other than 0 is discarded without a reply and
 //! the connection goes on; a length outside 2..=254 closes the connection
 //! (the stream cannot be delimited any more); a request cut short by the
-//! peer closing is dropped. Each is logged and counted ([`Stats`], on the
-//! status line).
+//! peer closing is dropped, and so is one whose rest does not come within
+//! [`ADU_TIMEOUT_US`] (a length field larger than what the client sent):
+//! the connection is closed, since whatever comes next would be read as
+//! the missing bytes. Each is logged and counted ([`Stats`], on the status
+//! line).
 //!
 //! Bounded: [`MAX_CLIENTS`] connections; per connection one ADU of
 //! reassembly (the decoder's fixed buffer), and reading stops while
@@ -48,6 +51,10 @@ const MAX_QUEUED: usize = 16;
 /// Response bytes waiting per connection before its requests are left
 /// unread.
 const OUT_MAX: usize = 16 * MAX_ADU;
+/// Longest wait for the rest of a begun ADU. A client writes a request at
+/// once, so its bytes arrive within milliseconds even over a slow network;
+/// libmodbus waits half a second between bytes, this a little longer.
+pub(super) const ADU_TIMEOUT_US: u64 = 1_000_000;
 
 /// What the server saw, for the status line and the log.
 #[derive(Clone, Copy, Debug, Default)]
@@ -57,7 +64,8 @@ pub(super) struct Stats {
     pub foreign_protocol: u32,
     /// Length field outside 2..=254: connection closed.
     pub bad_length: u32,
-    /// Connection closed inside an ADU.
+    /// Connection closed inside an ADU, by the peer or after
+    /// [`ADU_TIMEOUT_US`] without the rest.
     pub truncated: u32,
     /// Gateway exceptions 0x0A / 0x0B sent.
     pub gateway_exceptions: u32,
@@ -90,6 +98,8 @@ struct Conn {
     queued: VecDeque<Queued>,
     /// The peer shut its sending side: close once every response is out.
     eof: bool,
+    /// When the unfinished ADU in the decoder began.
+    partial_since_us: Option<u64>,
 }
 
 impl Conn {
@@ -111,11 +121,15 @@ impl ModbusTcp {
         self.conns.len()
     }
 
-    /// The earliest time a queued response is due.
+    /// The earliest time a queued response is due or an unfinished ADU
+    /// times out.
     pub fn next_due(&self) -> Option<u64> {
         self.conns
             .iter()
-            .filter_map(|c| c.queued.front().map(|q| q.due_us))
+            .flat_map(|c| {
+                let expiry = c.partial_since_us.map(|t| t + ADU_TIMEOUT_US);
+                c.queued.front().map(|q| q.due_us).into_iter().chain(expiry)
+            })
             .min()
     }
 
@@ -171,7 +185,7 @@ impl VirtualDrive {
         }
         closed.sort_unstable();
         for ci in closed.into_iter().rev() {
-            self.close_conn(ci);
+            self.close_conn(ci, "");
         }
         for li in 0..nl {
             if ready(li, PollFlags::POLLIN) {
@@ -200,6 +214,7 @@ impl VirtualDrive {
                         out: Vec::new(),
                         queued: VecDeque::new(),
                         eof: false,
+                        partial_since_us: None,
                     });
                 }
                 Ok(None) => return,
@@ -238,6 +253,12 @@ impl VirtualDrive {
             if !self.serve_bytes(ci, &chunk[..n]) {
                 return false;
             }
+            let now = self.clock.now_us();
+            let conn = &mut self.mbap.conns[ci];
+            conn.partial_since_us = match conn.decoder.pending() {
+                0 => None,
+                _ => Some(conn.partial_since_us.unwrap_or(now)),
+            };
         }
         true
     }
@@ -375,6 +396,7 @@ impl VirtualDrive {
     /// each drive's reply counts as sent then (SPEC §7: a new address or
     /// line takes effect after the reply).
     pub(super) fn modbus_tcp_send_due(&mut self, now: u64) {
+        self.expire_partial_adus(now);
         let mut done = Vec::new();
         for ci in 0..self.mbap.conns.len() {
             let conn = &mut self.mbap.conns[ci];
@@ -390,10 +412,30 @@ impl VirtualDrive {
         self.finish_replies(done);
     }
 
+    /// Closes the connections whose unfinished ADU has waited
+    /// [`ADU_TIMEOUT_US`] for its rest (module docs).
+    fn expire_partial_adus(&mut self, now: u64) {
+        for ci in (0..self.mbap.conns.len()).rev() {
+            let conn = &self.mbap.conns[ci];
+            // not while its input is left unread (replies pile up): the
+            // rest may be waiting in the socket
+            let expired = conn
+                .partial_since_us
+                .is_some_and(|t| now >= t + ADU_TIMEOUT_US);
+            if expired && conn.wants_input() {
+                let why = format!(
+                    " (the rest of a request did not come within {} ms)",
+                    ADU_TIMEOUT_US / 1000
+                );
+                self.close_conn(ci, &why);
+            }
+        }
+    }
+
     fn finish_replies(&mut self, done: Vec<(usize, bool)>) {
         for (di, ee) in done {
             if ee {
-                self.drives[di].device.storage_busy = false;
+                self.drives[di].device.set_storage_busy(false);
             }
             self.reply_done(di);
         }
@@ -418,10 +460,10 @@ impl VirtualDrive {
         }
     }
 
-    /// Closes connection `ci`. Replies it still waited for count as sent:
-    /// a drive busy with an EE operation must not stay busy for a client
-    /// that went away.
-    fn close_conn(&mut self, ci: usize) {
+    /// Closes connection `ci` (`why` is appended to the log line). Replies
+    /// it still waited for count as sent: a drive busy with an EE operation
+    /// must not stay busy for a client that went away.
+    fn close_conn(&mut self, ci: usize, why: &str) {
         let conn = self.mbap.conns.remove(ci);
         let mut note = String::new();
         if conn.decoder.pending() > 0 {
@@ -432,7 +474,8 @@ impl VirtualDrive {
                 self.mbap.stats.bad_adus()
             );
         }
-        self.console.log(&format!("{}: closed{note}", conn.label));
+        self.console
+            .log(&format!("{}: closed{why}{note}", conn.label));
         let done = conn.queued.into_iter().filter_map(|q| q.drive).collect();
         self.finish_replies(done);
     }

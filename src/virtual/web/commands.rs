@@ -47,13 +47,19 @@ pub struct Profile {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Command {
     /// Write `value` to the register at `index` (a §5 entry or a PA).
-    Write { index: u16, value: i64 },
+    Write {
+        index: u16,
+        value: i64,
+    },
     Enable,
     Disable,
     FaultReset,
     QuickStop,
     Halt,
-    Jog { forward: bool, profile: Profile },
+    Jog {
+        forward: bool,
+        profile: Profile,
+    },
     JogStop,
     Move {
         target: i32,
@@ -66,7 +72,10 @@ pub enum Command {
     /// Any request PDU typed on the page (function code and data).
     Raw(Vec<u8>),
     /// Force a switch of the simulated axis (`None` releases it).
-    Force { switch: Switch, state: Option<bool> },
+    Force {
+        switch: Switch,
+        state: Option<bool>,
+    },
 }
 
 /// One request of a command, with what it is for in words.
@@ -98,10 +107,7 @@ fn mode(value: u16) -> Step {
 fn profile(p: Profile, signed_speed: i32, low_word_first: bool) -> Step {
     let [a, b] = Pdu::words32(signed_speed as u32, low_word_first);
     step(
-        format!(
-            "0x6081 = {signed_speed}, 0x6083 = 0x6084 = {}",
-            p.accel
-        ),
+        format!("0x6081 = {signed_speed}, 0x6083 = 0x6084 = {}", p.accel),
         Pdu::write_multiple(PROFILE_VELOCITY, &[a, b, p.accel, p.accel]),
     )
 }
@@ -109,8 +115,8 @@ fn profile(p: Profile, signed_speed: i32, low_word_first: bool) -> Step {
 /// The requests of `cmd` on `device` as it is now, or why the page does
 /// not send it (nothing sent then). `Force` has no requests.
 pub fn requests(cmd: &Command, device: &Device) -> Result<Vec<Step>, String> {
-    let state = device.drive.state();
-    let low_first = device.od.word_order == 1;
+    let state = device.drive().state();
+    let low_first = device.od().word_order == 1;
     let enabled = state == PowerState::OperationEnabled;
     let need_enabled = || {
         if enabled {
@@ -137,7 +143,10 @@ pub fn requests(cmd: &Command, device: &Device) -> Result<Vec<Step>, String> {
         ],
         Command::QuickStop => vec![controlword(cw::QUICK_STOP)],
         Command::Halt => vec![controlword(cw::ENABLE | cw::HALT)],
-        Command::Jog { forward, profile: p } => {
+        Command::Jog {
+            forward,
+            profile: p,
+        } => {
             need_enabled()?;
             let v = i32::try_from(p.speed).map_err(|_| "jog speed too large")?;
             vec![
@@ -260,15 +269,22 @@ mod tests {
         let w = |d: &Device, index, value| pdus(Command::Write { index, value }, d);
         assert_eq!(w(&d, 0x6060, 3), [vec![0x06, 0x60, 0x60, 0x00, 0x03]]);
         assert_eq!(w(&d, 0x605A, -1), [vec![0x06, 0x60, 0x5A, 0xFF, 0xFF]]);
-        assert_eq!(w(&d, 0x0064 + 12, 1500), [vec![0x06, 0x00, 0x70, 0x05, 0xDC]]);
         assert_eq!(
-            w(&d, 0x607A, 200_000),
-            [vec![0x10, 0x60, 0x7A, 0x00, 0x02, 0x04, 0x00, 0x03, 0x0D, 0x40]]
+            w(&d, 0x0064 + 12, 1500),
+            [vec![0x06, 0x00, 0x70, 0x05, 0xDC]]
         );
-        d.od.word_order = 1;
         assert_eq!(
             w(&d, 0x607A, 200_000),
-            [vec![0x10, 0x60, 0x7A, 0x00, 0x02, 0x04, 0x0D, 0x40, 0x00, 0x03]]
+            [vec![
+                0x10, 0x60, 0x7A, 0x00, 0x02, 0x04, 0x00, 0x03, 0x0D, 0x40
+            ]]
+        );
+        d.configure(|_, od| od.word_order = 1);
+        assert_eq!(
+            w(&d, 0x607A, 200_000),
+            [vec![
+                0x10, 0x60, 0x7A, 0x00, 0x02, 0x04, 0x0D, 0x40, 0x00, 0x03
+            ]]
         );
         // Unknown registers go to the dispatcher (which answers 11).
         assert_eq!(w(&d, 0x6090, 3), [vec![0x06, 0x60, 0x90, 0x00, 0x03]]);
@@ -276,7 +292,14 @@ mod tests {
         for (index, value) in [(0x6083, 70_000), (0x6060, 40_000), (0x607A, 1 << 40)] {
             assert!(requests(&Command::Write { index, value }, &d).is_err());
         }
-        assert!(requests(&Command::Write { index: 0x1008, value: 0 }, &d).is_err());
+        assert!(requests(
+            &Command::Write {
+                index: 0x1008,
+                value: 0
+            },
+            &d
+        )
+        .is_err());
     }
 
     #[test]

@@ -114,7 +114,11 @@ fn command(query: &str, jobs: &Sender<Job>) -> Response<io::Cursor<Vec<u8>>> {
         answer: tx,
     };
     if jobs.send(job).is_err() {
-        return text(&super::error_json("the drive stopped"), "application/json", 503);
+        return text(
+            &super::error_json("the drive stopped"),
+            "application/json",
+            503,
+        );
     }
     match rx.recv_timeout(JOB_TIMEOUT) {
         Ok(answer) => text(&answer, "application/json", 200),
@@ -205,7 +209,7 @@ pub fn parse_command(query: &str) -> Result<(usize, Command), String> {
 /// `0360410001` → bytes.
 fn parse_hex(v: &str) -> Result<Vec<u8>, String> {
     let bad = || format!("`pdu={v}` is not hex bytes");
-    if v.len() % 2 != 0 || !v.is_ascii() {
+    if !v.len().is_multiple_of(2) || !v.is_ascii() {
         return Err(bad());
     }
     (0..v.len())
@@ -259,8 +263,18 @@ mod tests {
     #[test]
     fn commands_parse_from_the_query() {
         let (d, c) = parse_command("d=0&c=write&index=0x6060&value=-3").unwrap();
-        assert_eq!((d, c), (0, Command::Write { index: 0x6060, value: -3 }));
-        let (_, c) = parse_command("c=move&d=1&target=-5000&speed=100&accel=50&relative=1").unwrap();
+        assert_eq!(
+            (d, c),
+            (
+                0,
+                Command::Write {
+                    index: 0x6060,
+                    value: -3
+                }
+            )
+        );
+        let (_, c) =
+            parse_command("c=move&d=1&target=-5000&speed=100&accel=50&relative=1").unwrap();
         assert_eq!(
             c,
             Command::Move {

@@ -132,6 +132,11 @@ impl WebPort {
         touched
     }
 
+    /// When [`WebPort::serve`] next has something to publish.
+    pub fn next_due_us(&self) -> u64 {
+        self.next_sample_us.min(self.next_state_us)
+    }
+
     fn execute<T: Target>(
         &mut self,
         di: usize,
@@ -187,11 +192,11 @@ impl WebPort {
             let _ = write!(
                 line,
                 ",[{},{},{},{}]",
-                dev.drive.actual_position(),
-                dev.drive.actual_velocity_rpm(),
+                dev.drive().actual_position(),
+                dev.drive().actual_velocity_rpm(),
                 state::entry_value(dev, state::FOLLOWING_ERROR)
                     .map_or("null".into(), |v| v.to_string()),
-                dev.drive.statusword()
+                dev.drive().statusword()
             );
         }
         line.push(']');
@@ -232,7 +237,10 @@ fn lock(shared: &Shared) -> std::sync::MutexGuard<'_, Published> {
 }
 
 fn error_json(why: &str) -> String {
-    format!("{{\"ok\":false,\"error\":{},\"steps\":[]}}", state::quote(why))
+    format!(
+        "{{\"ok\":false,\"error\":{},\"steps\":[]}}",
+        state::quote(why)
+    )
 }
 
 fn hex(bytes: &[u8]) -> String {

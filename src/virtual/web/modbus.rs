@@ -141,13 +141,18 @@ pub trait Dispatch {
 /// Sends `request` to the drive through `port` (the page's own slave
 /// state) and returns the answer. The caller applies a deferred address or
 /// line change afterwards ([`Device::reply_sent`]), as after a bus reply.
-pub fn transact<D: Dispatch>(drive: &mut D, port: &mut Slave, request: &Pdu, now_us: u64) -> Answer {
+pub fn transact<D: Dispatch>(
+    drive: &mut D,
+    port: &mut Slave,
+    request: &Pdu,
+    now_us: u64,
+) -> Answer {
     drive.advance(now_us);
     let address = drive.device().address();
     let frame = request.frame(address);
     let mut reply = [0u8; MAX_FRAME];
     let device = drive.device();
-    std::mem::swap(&mut device.slave, port);
+    device.swap_slave(port);
     let mut response = device.handle_rx(
         RxEvent::Frame {
             bytes: &frame,
@@ -162,7 +167,7 @@ pub fn transact<D: Dispatch>(drive: &mut D, port: &mut Slave, request: &Pdu, now
     }
     // The exception 4 of a failed EE operation is counted on the port that
     // asked (`poll_storage` counts it on the slave in place).
-    std::mem::swap(&mut drive.device().slave, port);
+    drive.device().swap_slave(port);
     drive.control_at(now_us);
     let bytes = match response {
         Response::Reply(n) => &reply[..n.min(MAX_FRAME)],
@@ -243,7 +248,11 @@ mod tests {
             (Pdu::write_single(0x0064 + 51, 300), 3),
         ];
         for (pdu, code) in &cases {
-            assert_eq!(transact(&mut b, &mut port, pdu, 0), Answer::Exception(*code), "{pdu:?}");
+            assert_eq!(
+                transact(&mut b, &mut port, pdu, 0),
+                Answer::Exception(*code),
+                "{pdu:?}"
+            );
         }
         // PA55 = 1: the standard profile maps 11 → 2 and 5 → 2 (SPEC §5.2).
         let ok = transact(&mut b, &mut port, &Pdu::write_single(0x0064 + 55, 1), 0);
@@ -253,8 +262,8 @@ mod tests {
         let a = transact(&mut b, &mut port, &Pdu::write_single(0x6041, 1), 0);
         assert_eq!(a, Answer::Exception(2));
         // The drive still refused nothing it should have stored.
-        assert_eq!(b.device.od.mode, 0);
-        assert_eq!(b.device.pa.address(), 1);
+        assert_eq!(b.device.od().mode, 0);
+        assert_eq!(b.device.params().address(), 1);
     }
 
     #[test]
@@ -263,7 +272,7 @@ mod tests {
         let mut port = Slave::new();
         let w = Pdu::write_multiple(0x607A, &Pdu::words32(-1234i32 as u32, false));
         assert!(matches!(transact(&mut b, &mut port, &w, 0), Answer::Ok(_)));
-        assert_eq!(b.device.od.target_position, -1234);
+        assert_eq!(b.device.od().target_position, -1234);
         let Answer::Ok(pdu) = transact(&mut b, &mut port, &Pdu::read(0x607A, 2), 0) else {
             panic!("read refused");
         };
@@ -273,7 +282,7 @@ mod tests {
             let a = transact(&mut b, &mut port, &Pdu::write_single(0x6040, cw), 0);
             assert!(matches!(a, Answer::Ok(_)), "{cw:#x}: {a:?}");
         }
-        assert_eq!(b.device.drive.statusword() & 0x6F, 0x27);
+        assert_eq!(b.device.drive().statusword() & 0x6F, 0x27);
         // Each request is followed by a control call, as on the bus path.
         assert_eq!(b.controls, 5);
     }
@@ -284,8 +293,8 @@ mod tests {
         let mut port = Slave::new();
         transact(&mut b, &mut port, &Pdu::read(0x6041, 1), 0);
         transact(&mut b, &mut port, &Pdu::write_single(0x6060, 2), 0);
-        assert_eq!(b.device.slave.counters().bus_messages, 0);
-        assert_eq!(b.device.slave.counters().exceptions, 0);
+        assert_eq!(b.device.slave().counters().bus_messages, 0);
+        assert_eq!(b.device.slave().counters().exceptions, 0);
         assert_eq!(port.counters().bus_messages, 2);
         assert_eq!(port.counters().slave_messages, 2);
         assert_eq!(port.counters().exceptions, 1);
@@ -295,10 +304,10 @@ mod tests {
     fn a_busy_drive_refuses_the_page_as_it_refuses_the_bus() {
         let mut b = Bench::new();
         let mut port = Slave::new();
-        b.device.storage_busy = true;
+        b.device.set_storage_busy(true);
         let a = transact(&mut b, &mut port, &Pdu::write_single(0x6060, 1), 0);
         assert_eq!(a, Answer::Exception(6));
-        assert_eq!(b.device.od.mode, 0);
+        assert_eq!(b.device.od().mode, 0);
     }
 
     #[test]
@@ -316,7 +325,7 @@ mod tests {
         // Saved: a fresh drive on the same flash boots with PA12 = 1500.
         let mut d = Device::new(Identity::new("test"));
         d.apply_boot(&b.store.boot());
-        assert_eq!(d.pa.max_speed_rpm(), 1500);
+        assert_eq!(d.params().max_speed_rpm(), 1500);
     }
 
     #[test]
@@ -324,7 +333,10 @@ mod tests {
         let req = Pdu::read(0x6041, 1);
         assert_eq!(parse_reply(1, &req, &[]), Answer::Silent);
         let mut ok = Pdu(vec![0x03, 0x02, 0x00, 0x37]).frame(1);
-        assert_eq!(parse_reply(1, &req, &ok), Answer::Ok(vec![0x03, 0x02, 0x00, 0x37]));
+        assert_eq!(
+            parse_reply(1, &req, &ok),
+            Answer::Ok(vec![0x03, 0x02, 0x00, 0x37])
+        );
         assert!(matches!(parse_reply(2, &req, &ok), Answer::Malformed(_)));
         ok[3] ^= 1;
         assert!(matches!(parse_reply(1, &req, &ok), Answer::Malformed(_)));

@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use modbus_drive::dictionary::{position, Access, DataType, DriveLayer, Object, TABLE};
 use modbus_drive::motion::Switches;
-use modbus_drive::params::{PA, PA_COUNT};
+use modbus_drive::params::PA;
 use modbus_drive::slave::{Counters, Slave};
 use modbus_drive::Device;
 
@@ -29,7 +29,7 @@ pub struct View<'a> {
 /// (signed types sign-extended); `None` for strings.
 pub fn entry_value(device: &Device, index: u16) -> Option<i64> {
     let e = &TABLE[position(index)?];
-    let raw = e.object.read_raw(&device.od, &device.drive);
+    let raw = e.object.read_raw(device.od(), device.drive());
     Some(match e.data_type {
         DataType::U16 => i64::from(raw as u16),
         DataType::I16 => i64::from(raw as u16 as i16),
@@ -142,14 +142,14 @@ pub fn drive_json(v: &View<'_>) -> String {
         "{{\"address\":{},\"state\":{},\"statusword\":{},\"error_register\":{},\"mode\":{},\
          \"position\":{},\"velocity\":{},\"following_error\":{},\"listen_only\":{},\"busy\":{},",
         d.address(),
-        quote(&format!("{:?}", d.drive.state())),
-        d.drive.statusword(),
-        d.drive.error_register(),
-        d.drive.mode_display(),
-        d.drive.actual_position(),
-        d.drive.actual_velocity_rpm(),
+        quote(&format!("{:?}", d.drive().state())),
+        d.drive().statusword(),
+        d.drive().error_register(),
+        d.drive().mode_display(),
+        d.drive().actual_position(),
+        d.drive().actual_velocity_rpm(),
         entry_value(d, FOLLOWING_ERROR).map_or("null".into(), |v| v.to_string()),
-        d.slave.listen_only(),
+        d.slave().listen_only(),
         d.busy(),
     );
     let _ = write!(
@@ -170,7 +170,7 @@ pub fn drive_json(v: &View<'_>) -> String {
     let _ = write!(
         s,
         "\"bus_counters\":{},\"page_counters\":{},\"exceptions\":[",
-        counters(d.slave.counters()),
+        counters(d.slave().counters()),
         counters(v.port.counters())
     );
     for (i, r) in v.exceptions.iter().enumerate() {
@@ -189,7 +189,7 @@ pub fn drive_json(v: &View<'_>) -> String {
     s.push_str("],\"od\":[");
     for (i, e) in TABLE.iter().enumerate() {
         let (unit, range) = od_meta(e.index);
-        let value = match e.object.string(&d.identity) {
+        let value = match e.object.string(d.identity()) {
             Some(text) => quote(text),
             None if e.access.readable() => entry_value(d, e.index).unwrap_or(0).to_string(),
             // A master reads exception 7; the page shows the last write.
@@ -210,8 +210,7 @@ pub fn drive_json(v: &View<'_>) -> String {
         );
     }
     s.push_str("],\"pa\":[");
-    for n in 0..PA_COUNT {
-        let def = PA[n];
+    for (n, def) in PA.iter().enumerate() {
         let (name, unit) = pa_meta(n);
         let _ = write!(
             s,
@@ -224,7 +223,7 @@ pub fn drive_json(v: &View<'_>) -> String {
             def.max,
             def.default,
             if def.read_only { "RO" } else { "RW" },
-            d.pa.get(n)
+            d.params().get(n)
         );
     }
     s.push_str("]}");
@@ -233,7 +232,7 @@ pub fn drive_json(v: &View<'_>) -> String {
 
 /// The last value written to a write-only entry (what the drive holds).
 fn written(object: Object, d: &Device) -> i64 {
-    let raw = object.read_raw(&d.od, &d.drive);
+    let raw = object.read_raw(d.od(), d.drive());
     match object {
         Object::ModeOfOperation => i64::from(raw as u16 as i16),
         _ => i64::from(raw),
@@ -244,6 +243,7 @@ fn written(object: Object, d: &Device) -> i64 {
 mod tests {
     use super::*;
     use modbus_drive::device::Identity;
+    use modbus_drive::params::PA_COUNT;
 
     #[test]
     fn strings_are_escaped() {
@@ -253,8 +253,10 @@ mod tests {
     #[test]
     fn the_view_lists_every_entry_and_parameter_with_its_value() {
         let mut d = Device::new(Identity::new("t"));
-        d.od.target_position = -7;
-        d.pa.set_unchecked(12, 1234);
+        d.configure(|pa, od| {
+            od.target_position = -7;
+            pa.set_unchecked(12, 1234);
+        });
         let port = Slave::new();
         let log = ExceptionLog::new();
         let mut forced = Forced::default();

@@ -211,18 +211,18 @@ function buildTables() {
 }
 
 function renderTables(d) {
-  const fill = (id, list, key) => {
+  const fill = (id, list) => {
     const rows = $(id).tBodies[0].rows;
     list.forEach((e, i) => {
       const cell = rows[i] && rows[i].querySelector(".value");
       if (!cell) return;
       let v = e.value;
       if (v !== null && typeof v === "object") v = `${v.written} (last written; reads give exception 7)`;
-      cell.textContent = key === "hex" && typeof v === "number" ? `${v} (${hex4(v)})` : v;
+      cell.textContent = v;
     });
   };
-  fill("od", d.od.map((e) => ({ value: e.value })), null);
-  fill("pa", d.pa, null);
+  fill("od", d.od);
+  fill("pa", d.pa);
 }
 
 async function pollState() {
@@ -382,7 +382,7 @@ function draw() {
     const pad = (hi - lo) * 0.08;
     lo -= pad; hi += pad;
     const x = (tt) => left + (tt - start) / scope.span * (W - left - right);
-    const y = (v) => top + h - (v - lo) / (hi - lo) * h;
+    const y = (v) => top + h - 6 - (v - lo) / (hi - lo) * (h - 12);
     ctx.strokeStyle = "#1f2a3d";
     ctx.lineWidth = 1;
     ctx.strokeRect(left, top, W - left - right, h);
@@ -406,11 +406,13 @@ function draw() {
     ctx.stroke();
   });
   ctx.fillStyle = "#94a3b8";
-  for (let i = 0; i <= 5; i++) {
-    const tt = start + scope.span * i / 5;
+  // Time relative to the right edge; the edge's own time since start.
+  for (let i = 0; i < 5; i++) {
+    const dt = scope.span * (i - 5) / 5;
     const px = left + (W - left - right) * i / 5;
-    ctx.fillText(`${tt.toFixed(scope.span < 1 ? 2 : 1)} s`, Math.min(px - 12, W - 50), H - 6);
+    ctx.fillText(`${dt.toFixed(scope.span < 1 ? 2 : 1)} s`, px - 12, H - 6);
   }
+  ctx.fillText(`t = ${end.toFixed(2)} s`, W - right - 80, H - 6);
   if (scope.frozen) { ctx.fillStyle = "#fbbf24"; ctx.fillText("PAUSED", W - 70, 14); }
   scope.drawn = (scope.drawn || 0) + 1;
   requestAnimationFrame(draw);

@@ -1,0 +1,147 @@
+//! The configuration the drive works with, as step figures (PA10, PA12
+//! and the OD's ramps in steps).
+
+use crate::dictionary::{Config, OdValues};
+use crate::motion::planner::MAX_STEP_RATE;
+use crate::motion::{HomingMethod, Ramp};
+use crate::params::Params;
+
+/// What PA10..PA20 mean in steps, and the one OD value the drive shows
+/// between calls (0x6081 in the statusword and the monitor); the other OD
+/// values are read where they are used, from the dictionary's table
+/// ([`Config`]), never copied.
+///
+/// Kept current by [`Settings::update`] on every accepted write and every
+/// control call. The derived step figures are recomputed only when their
+/// PA registers changed, so a frame that writes the profile values pays no
+/// 64-bit maths.
+#[derive(Clone, Debug, Default)]
+pub(super) struct Settings {
+    /// 0x6081 as last written.
+    pub(super) profile_velocity: i32,
+    /// PA10 and PA12 as last seen (raw registers): the derived figures
+    /// below are recomputed when they change.
+    pub(super) steps_per_rev_reg: u16,
+    pub(super) max_speed_rpm_reg: u16,
+    pub(super) steps_per_rev: u64,
+    /// PA12 and the maximum step rate, 0.1 steps/s.
+    pub(super) max_velocity: u64,
+    pub(super) limit_enable: u16,
+    pub(super) comm_loss_ms: u16,
+}
+
+impl Settings {
+    pub(super) fn from(cfg: Config<'_>) -> Self {
+        let mut s = Self {
+            // not PA10's register: `update` derives the step figures
+            steps_per_rev_reg: cfg.pa.steps_per_rev().wrapping_add(1),
+            ..Self::default()
+        };
+        s.update(cfg);
+        s
+    }
+
+    /// Takes the values of `cfg`; the step figures of PA10/PA12 only when
+    /// those registers changed.
+    pub(super) fn update(&mut self, cfg: Config<'_>) {
+        let pa: &Params = cfg.pa;
+        self.profile_velocity = cfg.od.profile_velocity;
+        self.limit_enable = pa.limit_enable();
+        self.comm_loss_ms = pa.comm_loss_ms();
+        let (spr_reg, rpm_reg) = (pa.steps_per_rev(), pa.max_speed_rpm());
+        if spr_reg != self.steps_per_rev_reg || rpm_reg != self.max_speed_rpm_reg {
+            self.steps_per_rev_reg = spr_reg;
+            self.max_speed_rpm_reg = rpm_reg;
+            let spr = u64::from(spr_reg.max(1));
+            self.steps_per_rev = spr;
+            self.max_velocity = rpm_to_velocity(u64::from(rpm_reg), spr);
+        }
+    }
+
+    /// 0.1 rev/s (or rev/s²) register → 0.1 steps/s (steps/s²).
+    pub(super) fn steps(&self, reg: u64) -> u64 {
+        reg.saturating_mul(self.steps_per_rev)
+    }
+
+    /// The profile ramp of 0x6081/0x6083/0x6084, clamped (SPEC §8.4).
+    pub(super) fn profile_ramp(&self, od: &OdValues) -> Ramp {
+        Ramp {
+            velocity: self.steps(u64::from(od.profile_velocity.unsigned_abs())),
+            accel: self.steps(u64::from(od.acceleration)),
+            decel: self.steps(u64::from(od.deceleration)),
+        }
+        .clamped(self.max_velocity)
+    }
+
+    /// Homing ramp at 0x6099 (fast) or 0x609B (slow) with 0x609A, capped
+    /// per method (SPEC §8.6).
+    pub(super) fn homing_ramp(&self, od: &OdValues, method: HomingMethod, slow: bool) -> Ramp {
+        let reg = if slow {
+            od.homing_zero_speed
+        } else {
+            od.homing_speed
+        };
+        let accel = self.steps(u64::from(od.homing_acceleration));
+        let cap = rpm_to_velocity(u64::from(method.max_rpm()), self.steps_per_rev);
+        Ramp {
+            velocity: self.steps(u64::from(reg)),
+            accel,
+            decel: accel,
+        }
+        .clamped(self.max_velocity.min(cap))
+    }
+
+    pub(super) fn decel(&self, od: &OdValues) -> u64 {
+        self.steps(u64::from(od.deceleration))
+    }
+
+    pub(super) fn quick_stop_decel(&self, od: &OdValues) -> u64 {
+        self.steps(u64::from(od.quick_stop_deceleration))
+    }
+
+    pub(super) fn cw_limit_enabled(&self) -> bool {
+        self.limit_enable & 1 != 0
+    }
+
+    pub(super) fn ccw_limit_enabled(&self) -> bool {
+        self.limit_enable & 2 != 0
+    }
+}
+
+/// r/min → 0.1 steps/s, capped at the maximum step rate.
+pub(super) fn rpm_to_velocity(rpm: u64, steps_per_rev: u64) -> u64 {
+    (rpm * steps_per_rev / 6).min(u64::from(MAX_STEP_RATE) * 10)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_follow_every_pa10_and_pa12_change() {
+        // SPEC §7 PA10 (steps/rev) and PA12 (max speed) are derived only
+        // when they change (Settings::update); each change must show.
+        let od = OdValues {
+            profile_velocity: -7,
+            ..OdValues::default()
+        };
+        let mut pa = Params::defaults();
+        let mut s = Settings::from(Config { od: &od, pa: &pa });
+        for (spr, rpm) in [
+            (400, 3000),
+            (400, 100),
+            (0, 100),
+            (12_800, 100),
+            (12_800, 3000),
+        ] {
+            pa.set_unchecked(10, spr);
+            pa.set_unchecked(12, rpm);
+            s.update(Config { od: &od, pa: &pa });
+            let spr = u64::from(spr.max(1));
+            assert_eq!(s.steps_per_rev, spr);
+            let v = (u64::from(rpm) * spr / 6).min(u64::from(MAX_STEP_RATE) * 10);
+            assert_eq!(s.max_velocity, v, "PA10 {spr} PA12 {rpm}");
+            assert_eq!(s.profile_velocity, od.profile_velocity);
+        }
+    }
+}

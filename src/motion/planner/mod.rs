@@ -1,0 +1,368 @@
+//! The planner: goals in, schedule segments out (thread mode).
+//!
+//! It keeps the state at the *end* of what is already planned (position,
+//! direction, v², exact time) and appends to the [`StepSchedule`] from there:
+//! pushed steps are never rewritten, so no step is ever scheduled in the
+//! past. Only "stop at once" discards the queue.
+//!
+//! Compression: each segment of `n = 2^k` steps takes from the [`Profile`]
+//! the exact time of its last step, and `dt/dx = 1/v` and `d²t/dx² =
+//! −a/v³` at both ends; its step times follow the quintic matching all
+//! six (quintic Hermite, `fit_segment`), handed to the interrupt as the
+//! forward differences `interval, add, …, add4`. So every segment starts
+//! and ends on the profile and consecutive segments join with continuous
+//! velocity *and* acceleration; inside, the error bounds of
+//! [`Profile::segment_len`] hold (time, acceleration, precision). Times the
+//! interrupt will accumulate are tracked exactly (`t_isr`), so nothing
+//! drifts.
+//!
+//! Latency: a segment is fitted and pushed whole (in parts only when the
+//! ring lacks room), so most control calls find the horizon
+//! ([`PlannerConfig::horizon_us`]) covered and return at once; a new goal
+//! takes back the steps due after the horizon ([`StepSchedule::truncate`],
+//! in the next fill) and goes back to the last step that stays
+//! (`drop_pending`), so a change of goal takes effect after the horizon
+//! however long the segments are.
+//!
+//! Cost per segment: one profile evaluation (a square root, and on a ramp
+//! a multiplication, elsewhere a division, on 128-bit numbers but through
+//! 64-bit routines: `profile::isqrt`, `profile::div`), the end slope (a
+//! division), two curvatures (a few multiplications) and the length bounds
+//! (logarithms); segments hold up to 2^7 steps on a ramp and 2^8 on a
+//! cruise (single steps near rest only).
+
+mod fill;
+mod goal;
+mod segment;
+mod slots;
+#[cfg(test)]
+mod tests;
+
+use super::profile::{isqrt, slope_of, stop_steps, Profile, SegmentBudget, V_FRAC};
+use super::schedule::{StepSchedule, TICK_FRAC_BITS};
+use segment::{signed, Pending};
+use slots::SlotInfo;
+
+/// Highest step rate the drive generates, steps/s. Faster requests are
+/// clamped (like PA12): 5 µs between steps leaves a 170 MHz Cortex-M4 850
+/// cycles per step, many times what the step interrupt takes (the QEMU
+/// benchmark counts it).
+pub const MAX_STEP_RATE: u32 = 200_000;
+
+/// Highest acceleration, steps/s². Above it the start of a ramp would need
+/// more single-step segments than [`SCHEDULE_SLOTS`] to cover a 2 ms
+/// control period; larger register values are clamped.
+pub const MAX_ACCEL: u64 = 2_000_000;
+
+/// Segments the planner keeps track of between the interrupt's step and
+/// the end of the queue (a power of two): while they are all queued, the
+/// schedule counts as full. At the maximum step rate and the shortest
+/// segments the planner emits this covers its horizon.
+pub const SCHEDULE_SLOTS: usize = 64;
+
+/// Velocity / acceleration limits of one motion, in 0.1 steps/s and
+/// 0.1 steps/s² (the registers' units times PA10).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Ramp {
+    pub velocity: u64,
+    pub accel: u64,
+    pub decel: u64,
+}
+
+impl Ramp {
+    /// All three are non-zero: the motion can run (SPEC §8.2 bit 7).
+    pub fn runnable(&self) -> bool {
+        self.velocity > 0 && self.accel > 0 && self.decel > 0
+    }
+
+    /// Clamped to the drive's limits and to `max_velocity` (0.1 steps/s).
+    pub fn clamped(self, max_velocity: u64) -> Self {
+        let v_cap = max_velocity.min(u64::from(MAX_STEP_RATE) * 10);
+        let a_cap = MAX_ACCEL * 10;
+        Self {
+            velocity: self.velocity.min(v_cap),
+            accel: self.accel.min(a_cap),
+            decel: self.decel.min(a_cap),
+        }
+    }
+}
+
+/// What the planner is asked to do next.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Goal {
+    /// Go to raw position `target` and arrive with velocity `end_velocity`
+    /// (0.1 steps/s; non-zero only when a blended move follows).
+    Move {
+        target: i64,
+        ramp: Ramp,
+        end_velocity: u64,
+    },
+    /// Run for ever in one direction (velocity mode, homing searches).
+    Run { forward: bool, ramp: Ramp },
+    /// Decelerate to rest with `decel` (0.1 steps/s²), on a whole step.
+    Stop { decel: u64 },
+}
+
+/// Result of [`Planner::fill`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Fill {
+    /// The horizon is covered (or the ring is full).
+    Full,
+    /// The motion the last goal asked for has been planned to its end; the
+    /// caller may give the next goal (seamlessly) and fill again.
+    Ended,
+    /// Nothing to plan.
+    Idle,
+    /// A stop-at-once is being carried out by the interrupt.
+    Waiting,
+}
+
+/// Timing of the planner; the glue chooses the tick frequency.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PlannerConfig {
+    /// Step timer frequency, Hz: a whole number of MHz (the control clock
+    /// in µs converts with one multiplication; the boards use 10 and
+    /// 8 MHz), ≥ 1 MHz so that steps at the maximum rate are ≥ 5 ticks
+    /// apart; sub-µs resolution keeps step times exact.
+    pub tick_hz: u32,
+    /// How far ahead of `now` the schedule is filled. Must exceed the
+    /// control period; it is also the latency of a change of goal (what
+    /// is pushed to the interrupt stays; a segment is fitted whole but
+    /// pushed whole, and a new goal takes back its steps after the
+    /// horizon).
+    pub horizon_us: u32,
+    /// Longest segment, µs (at most 2^22 ticks: the fit's numbers stay in
+    /// 64 bits). Long segments cost the planner less per step; they do not
+    /// delay a change of goal.
+    pub max_segment_us: u32,
+}
+
+impl Default for PlannerConfig {
+    fn default() -> Self {
+        Self {
+            // the primary board's
+            tick_hz: crate::boards::Board::G431.step_tick_hz(),
+            horizon_us: 3_000,
+            max_segment_us: 100_000,
+        }
+    }
+}
+
+/// See the module docs.
+#[derive(Clone, Debug)]
+pub struct Planner {
+    cfg: PlannerConfig,
+    /// Raw position after the last queued step.
+    pos: i64,
+    /// Direction of the last motion.
+    forward: bool,
+    /// v² (fixed point) after the last queued step.
+    w: u128,
+    /// Exact time of the last queued step (Q32.32 ticks, wrapping).
+    t_ideal: u64,
+    /// The same time as the interrupt will have accumulated it.
+    t_isr: u64,
+    profile: Option<Profile>,
+    /// Goal to resume after the current (stopping) profile.
+    then: Option<Goal>,
+    /// Fall slope of the current profile (for a stop nobody asked for).
+    last_decel: u64,
+    flushing: bool,
+    /// Per pushed segment, by segment number modulo [`SCHEDULE_SLOTS`].
+    slots: [SlotInfo; SCHEDULE_SLOTS],
+    /// Segments pushed (wrapping).
+    segments: u32,
+    /// The oldest segment the interrupt may not have finished (wrapping;
+    /// moved on in [`Planner::fill`]).
+    oldest: u32,
+    /// The schedule ran dry while the motor was moving.
+    underruns: u32,
+    /// Segments whose first step was already due when they were queued
+    /// (the control loop ran late); never expected.
+    late_segments: u32,
+    /// `now` of the current fill (Q32.32 ticks).
+    now: u64,
+    /// The last fill returned [`Fill::Full`] with more to plan, and no
+    /// goal or stop has come since: the next fill may return at once
+    /// while the horizon is covered ([`Planner::fill`]).
+    covered: bool,
+    /// Q32.32 ticks per µs of the control clock.
+    tick_per_us: u64,
+    /// Steps queued since start (wrapping; a stop at once drops some of
+    /// them unmade): lets a test tell which profile timed a step.
+    planned_steps: u64,
+    /// Segments fitted since start (wrapping; each is pushed in one or
+    /// more parts, [`Planner::segments_pushed`]).
+    segments_fitted: u32,
+    budget: SegmentBudget,
+    pending: Pending,
+    /// `horizon_us` in Q32.32 ticks.
+    horizon_q: u64,
+    /// A cut of the pending segment that [`Planner::fill`] has yet to
+    /// make in the ring (`drop_pending`): the ring index of the first step
+    /// taken back, the fraction carried there, and the goal planned from
+    /// it (planned again from where the motor is if the interrupt got
+    /// there first).
+    cut: Option<(u32, u32, Goal)>,
+    /// Time per step at the end of the last segment (Q32.32 ticks, 0 =
+    /// none) and the v² it belongs to.
+    s_end: u64,
+    s_end_w: u128,
+    /// The curvature there (Q32.32 ticks per step², [`Profile::curvature`]).
+    c_end: i64,
+    /// Time per step (Q32.32 ticks, 0 = none) of the steps already pushed
+    /// where a new goal cut a segment ([`Planner::drop_pending`]): the
+    /// next segment starts with it, so that the velocity stays continuous.
+    s_join: u64,
+}
+
+impl Planner {
+    pub fn new(cfg: PlannerConfig) -> Self {
+        let mut p = Self {
+            cfg,
+            pos: 0,
+            forward: true,
+            w: 0,
+            t_ideal: 0,
+            t_isr: 0,
+            profile: None,
+            then: None,
+            last_decel: 0,
+            flushing: false,
+            slots: [SlotInfo::default(); SCHEDULE_SLOTS],
+            segments: 0,
+            oldest: 0,
+            underruns: 0,
+            late_segments: 0,
+            now: 0,
+            covered: false,
+            tick_per_us: u64::from(cfg.tick_hz / 1_000_000) << TICK_FRAC_BITS,
+            planned_steps: 0,
+            segments_fitted: 0,
+            budget: SegmentBudget::new(cfg.tick_hz, cfg.max_segment_us),
+            pending: Pending::default(),
+            horizon_q: 0,
+            cut: None,
+            s_end: 0,
+            s_end_w: 0,
+            c_end: 0,
+            s_join: 0,
+        };
+        p.horizon_q = p.ticks_q(u64::from(cfg.horizon_us));
+        p
+    }
+
+    pub fn config(&self) -> PlannerConfig {
+        self.cfg
+    }
+
+    /// Raw position after the last queued step.
+    pub fn end_position(&self) -> i64 {
+        self.pos
+    }
+
+    /// Velocity after the last queued step, 0.1 steps/s (signed).
+    pub fn end_velocity(&self) -> i64 {
+        signed(self.forward, (isqrt(self.w) >> V_FRAC) as u64)
+    }
+
+    /// Direction of the motion being planned, if any.
+    pub fn heading(&self) -> Option<bool> {
+        match &self.profile {
+            Some(p) => Some(p.forward()),
+            None if self.w > 0 => Some(self.forward),
+            None => None,
+        }
+    }
+
+    /// Where the motor comes to rest on its own (raw steps): here when
+    /// nothing is planned, the end of a stop or of a move that ends at
+    /// rest. `None` while a stop at once waits for the interrupt (the
+    /// position is known again after it), for an endless run, a move that
+    /// hands over at speed, or a stop with a follow-up goal.
+    pub fn rest_position(&self) -> Option<i64> {
+        if self.flushing || self.then.is_some() {
+            return None;
+        }
+        match &self.profile {
+            // a finite profile ending at rest (an endless run has no steps)
+            Some(p) if p.w_end() == 0 => {
+                Some(self.pos + signed(p.forward(), p.steps()? - p.done()))
+            }
+            Some(_) => None,
+            // a profile ended at speed: fill stops it with the last ramp
+            None if self.w > 0 => {
+                Some(self.pos + signed(self.forward, stop_steps(self.w, slope_of(self.last_decel))))
+            }
+            None => Some(self.pos),
+        }
+    }
+
+    /// A profile or a follow-up goal is being planned.
+    pub fn busy(&self) -> bool {
+        self.profile.is_some()
+            || self.then.is_some()
+            || self.flushing
+            || self.pending.rest.count > 0
+    }
+
+    /// The motor is at rest and nothing is planned: every queued step has
+    /// been made.
+    pub fn at_rest(&self, sched: &StepSchedule) -> bool {
+        !self.busy() && !sched.is_running() && sched.is_empty()
+    }
+
+    /// The raw position the interrupt has reached, unwrapped around the
+    /// planner's end position.
+    pub fn actual_position(&self, sched: &StepSchedule) -> i64 {
+        self.pos + i64::from(sched.position().wrapping_sub(self.pos as i32))
+    }
+
+    /// Signed velocity of the segment being executed, 0.1 steps/s.
+    pub fn actual_velocity(&self, sched: &StepSchedule) -> i64 {
+        self.current_slot(sched)
+            .map_or(0, |s| s.velocity_at(sched.step_index()))
+    }
+
+    /// The segment being executed belongs to an acceleration or
+    /// deceleration.
+    pub fn ramping(&self, sched: &StepSchedule) -> bool {
+        self.current_slot(sched).is_some_and(|s| s.ramping)
+    }
+
+    /// Times the schedule ran dry while the motor was moving (wrapping).
+    pub fn underruns(&self) -> u32 {
+        self.underruns
+    }
+
+    /// Segments whose first step was already due when they were queued
+    /// (the control loop ran late; wrapping); never expected.
+    pub fn late_segments(&self) -> u32 {
+        self.late_segments
+    }
+
+    /// Steps queued since start (wrapping; a stop at once drops some of
+    /// them unmade): lets a test tell which profile timed a step.
+    pub fn planned_steps(&self) -> u64 {
+        self.planned_steps
+    }
+
+    /// Segments fitted since start (wrapping; each is pushed in one or
+    /// more parts, [`Planner::segments_pushed`]).
+    pub fn segments_fitted(&self) -> u32 {
+        self.segments_fitted
+    }
+
+    /// Segments pushed so far (wrapping).
+    pub fn segments_pushed(&self) -> u32 {
+        self.segments
+    }
+
+    /// Sets the position (homing zeroing, SPEC §8.6). Only at rest.
+    pub fn rebase_position(&mut self, raw: i64) {
+        self.pos = raw;
+    }
+}

@@ -1,0 +1,245 @@
+//! The step interrupt's side of the schedule: one delay per step, the
+//! slow path and the limit brake's steps (module docs of the schedule).
+
+use core::sync::atomic::{compiler_fence, Ordering};
+
+use super::brake::{
+    brake_interval, BLOCK_BACKWARD, BLOCK_FORWARD, BRAKE_ACTIVE, BRAKE_DONE, BRAKE_FORWARD,
+};
+use super::ring::StepSchedule;
+use super::segment::carried;
+#[cfg(feature = "sim")]
+use super::SCHEDULE_STEPS;
+use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, TICK_FRAC_BITS};
+
+/// What the timer must do next: wait `delay_ticks` (≥ 1) after the step
+/// just made (or after the start), then pulse STEP with DIR = `forward`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct NextStep {
+    pub delay_ticks: u32,
+    pub forward: bool,
+}
+
+/// The interrupt side: owned by the step-timer interrupt.
+///
+/// Protocol: when idle and [`StepSchedule::is_empty`] is false, the glue
+/// calls [`StepSource::advance`] (from the interrupt, e.g. by pending it) and
+/// arms the timer with the returned delay from now. At each timer expiry it
+/// pulses STEP and calls `advance` again, which counts that step and returns
+/// the next delay, or `None` (stop the timer) when the schedule ran dry or a
+/// flush was requested. DIR may be written as soon as `advance` returns: the
+/// whole interval is DIR set-up time.
+#[derive(Clone, Debug)]
+pub struct StepSource {
+    /// Direction of the pending step, and of the entries after it up to
+    /// the next marker.
+    forward: bool,
+    /// A step has been announced and not yet made.
+    pending: bool,
+    /// The limit brake is running at this rate (0 = not braking).
+    braking: u32,
+    /// The limit brake's last interval (Q32.32 ticks) and the fraction it
+    /// carries, as the producer's (module docs), from the braking start.
+    interval: u64,
+    frac: u32,
+}
+
+impl Default for StepSource {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl StepSource {
+    /// Matches [`StepSchedule::new`]: idle, forward.
+    pub const fn new() -> Self {
+        Self {
+            forward: true,
+            pending: false,
+            braking: 0,
+            interval: 0,
+            frac: 0,
+        }
+    }
+
+    /// See the type docs. Constant time; the cost is in the module docs.
+    #[inline]
+    pub fn advance(&mut self, sched: &StepSchedule) -> Option<NextStep> {
+        // The pending step has been made; the next entry is a plain delay
+        // unless it is the sentinel, a marker or a long delay (≤ 0 as
+        // i32), and nothing needs a look unless `quiet` is clear. `next`
+        // moves on before its entry is looked at (one instruction fewer:
+        // the old value need not be kept), the slow path puts it back;
+        // nobody sees the value in between (module docs: one core, nothing
+        // preempts this interrupt).
+        let next = sched.next.load(Ordering::Relaxed);
+        sched.next.store(next.wrapping_add(1), Ordering::Relaxed);
+        let delay = sched.entry(next).load(Ordering::Relaxed);
+        if delay as i32 <= 0 || !sched.quiet.load(Ordering::Relaxed) {
+            return self.advance_slow(sched);
+        }
+        Some(NextStep {
+            delay_ticks: delay,
+            forward: self.forward,
+        })
+    }
+
+    /// Everything but the next plain delay: starts from rest, the end of
+    /// the queue, markers, long delays, flush, limits, the brake. Constant
+    /// time too (at most one marker before a step, module docs).
+    /// The fast path has moved `next` on by one; every way out of here
+    /// stores it again ([`StepSchedule::set_base`]).
+    #[inline(never)]
+    fn advance_slow(&mut self, sched: &StepSchedule) -> Option<NextStep> {
+        let next = sched.next.load(Ordering::Relaxed).wrapping_sub(1);
+        let mut made = sched.base_position(next);
+        if self.pending {
+            made = made.wrapping_add(dir(self.forward));
+        }
+        if !sched.quiet.load(Ordering::Relaxed) {
+            // Clear first, then read the flags: a change made after this
+            // raises it again (the writers store the value, then the flag).
+            sched.quiet.store(true, Ordering::Relaxed);
+            compiler_fence(Ordering::SeqCst);
+        }
+        if self.braking != 0 {
+            // brake steps are no ring entries: count them in the base
+            sched.set_base(made, next, self.forward);
+            return self.brake_step(sched, made);
+        }
+        if sched.flush.load(Ordering::Relaxed)
+            || sched.brake.load(Ordering::Relaxed) & BRAKE_DONE != 0
+        {
+            self.drop_all(sched, made);
+            return None;
+        }
+        // The next step, after a direction marker if there is one (a push
+        // never ends on a marker: at most one before a step).
+        let mut at = next;
+        let delay = loop {
+            match sched.entry(at).load(Ordering::Relaxed) {
+                END => {
+                    // the queue ran dry (or was empty): idle until pushed
+                    self.pending = false;
+                    sched.set_base(made, at, self.forward);
+                    sched.running.store(false, Ordering::Relaxed);
+                    sched.quiet.store(false, Ordering::Relaxed);
+                    return None;
+                }
+                MARK_FORWARD => self.forward = true,
+                MARK_BACKWARD => self.forward = false,
+                delay => break delay,
+            }
+            at = at.wrapping_add(1);
+        };
+        let block = if self.forward {
+            BLOCK_FORWARD
+        } else {
+            BLOCK_BACKWARD
+        };
+        if sched.limits.load(Ordering::Relaxed) & block != 0 {
+            let rate = sched.brake_rate.load(Ordering::Relaxed);
+            if rate != 0 {
+                sched
+                    .brake
+                    .store(BRAKE_ACTIVE | self.brake_dir(), Ordering::Relaxed);
+                self.braking = rate;
+                // from the interval of the step it would have made, timed
+                // from the tick of the one just made
+                self.interval = u64::from(delay) << TICK_FRAC_BITS;
+                self.frac = HALF_TICK;
+                sched.set_base(made, at, self.forward);
+                return self.brake_step(sched, made);
+            }
+        }
+        self.pending = true;
+        sched.set_base(made, at.wrapping_add(1), self.forward);
+        sched.running.store(true, Ordering::Relaxed);
+        Some(NextStep {
+            delay_ticks: delay,
+            forward: self.forward,
+        })
+    }
+
+    /// One step of the limit brake (module docs), or its end; `made` is
+    /// the position reached.
+    fn brake_step(&mut self, sched: &StepSchedule, made: i32) -> Option<NextStep> {
+        match brake_interval(self.interval, self.braking) {
+            Some(p) => {
+                let delay = carried(&mut self.frac, p);
+                self.interval = p;
+                self.pending = true;
+                sched.running.store(true, Ordering::Relaxed);
+                // every braking step goes the slow way
+                sched.quiet.store(false, Ordering::Relaxed);
+                Some(NextStep {
+                    delay_ticks: delay.max(1),
+                    forward: self.forward,
+                })
+            }
+            None => {
+                self.braking = 0;
+                self.drop_all(sched, made);
+                sched
+                    .brake
+                    .store(BRAKE_DONE | self.brake_dir(), Ordering::Relaxed);
+                None
+            }
+        }
+    }
+
+    /// The brake state's direction bit for the current direction.
+    fn brake_dir(&self) -> u8 {
+        if self.forward {
+            BRAKE_FORWARD
+        } else {
+            0
+        }
+    }
+
+    /// The glue stopped the timer before the announced step was made (stop
+    /// at once): forget it and drop the whole schedule. Call it in the
+    /// interrupt's context (or with it masked).
+    pub fn cancel(&mut self, sched: &StepSchedule) {
+        if self.braking != 0 {
+            // a brake cut short is still a brake: latch it for the planner
+            sched
+                .brake
+                .store(BRAKE_DONE | self.brake_dir(), Ordering::Relaxed);
+            self.braking = 0;
+        }
+        // the base counts every step made (the pending one is not)
+        self.drop_all(
+            sched,
+            sched.base_position(sched.next.load(Ordering::Relaxed)),
+        );
+    }
+
+    /// Exact time of the pending step minus the tick it is announced at
+    /// (Q32.32, signed, within ±½ tick): the rounding its delay carries.
+    /// Feature `sim` only (module docs), for the simulation's step records.
+    #[cfg(feature = "sim")]
+    pub fn rounding_q32(&self, sched: &StepSchedule) -> i64 {
+        let frac = if self.braking != 0 {
+            self.frac
+        } else {
+            let pending = sched.next.load(Ordering::Relaxed).wrapping_sub(1);
+            sched.exact_frac[pending as usize % SCHEDULE_STEPS].load(Ordering::Relaxed)
+        };
+        i64::from(frac) - i64::from(HALF_TICK)
+    }
+
+    /// Drops the pending step and every queued entry; `made` is the
+    /// position reached. The next push's entries follow the last pushed
+    /// one, in the last push's direction (module docs).
+    fn drop_all(&mut self, sched: &StepSchedule, made: i32) {
+        self.pending = false;
+        let head = sched.head.load(Ordering::Relaxed);
+        self.forward = !sched.head_backward.load(Ordering::Relaxed);
+        sched.set_base(made, head, self.forward);
+        sched.running.store(false, Ordering::Relaxed);
+        sched.flush.store(false, Ordering::Relaxed);
+        sched.quiet.store(false, Ordering::Relaxed);
+    }
+}

@@ -1,0 +1,542 @@
+//! The schedule's unit tests: expansion, ring, interrupt side and limit
+//! brake together.
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use super::brake::*;
+use super::segment::*;
+use super::*;
+
+const ONE: u64 = 1 << TICK_FRAC_BITS;
+
+fn seg(interval: u64, add: i64, add2: i64, count: u32, forward: bool) -> Segment {
+    Segment {
+        interval,
+        add,
+        add2,
+        add3: 0,
+        add4: 0,
+        count,
+        forward,
+    }
+}
+
+/// The narrow loop of `Expansion::run` gives the same delays, terms,
+/// fraction and delay sum as `Expansion::step` one step at a time, on
+/// random segments from tiny to huge terms; it is taken for most
+/// (small higher terms) and refused at the edges of its bounds.
+#[test]
+fn the_narrow_loop_expands_like_step_by_step() {
+    let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let narrow_ring = [const { AtomicU32::new(0) }; SCHEDULE_STEPS];
+    let (mut narrow, mut wide) = (0, 0);
+    let check = |x: Expansion, steps: usize| {
+        let mut a = x;
+        let mut b = x;
+        let took_narrow = a.narrow(steps);
+        a.run(&narrow_ring[..steps]);
+        for (k, entry) in narrow_ring[..steps].iter().enumerate() {
+            assert_eq!(entry.load(Ordering::Relaxed), b.step(), "step {k}");
+        }
+        let terms = |e: &Expansion| (e.interval, e.add, e.add2, e.add3, e.add4, e.frac, e.sum);
+        assert_eq!(terms(&a), terms(&b));
+        took_narrow
+    };
+    for i in 0..20_000u32 {
+        // each term's size drawn on its own, signs at random
+        let mut term = |lo: u32, span: u64| {
+            let t = next() >> (lo + (next() % span) as u32);
+            if next() & 1 == 0 {
+                t
+            } else {
+                t.wrapping_neg()
+            }
+        };
+        let interval = term(1, 1) >> (i % 40);
+        let x = Expansion {
+            interval,
+            add: term(8, 50),
+            add2: term(16, 48),
+            add3: term(24, 40),
+            add4: term(30, 34),
+            frac: term(0, 1) as u32,
+            sum: term(0, 1) as u32,
+        };
+        let steps = 1 + (term(0, 1) % (SCHEDULE_STEPS as u64 - 1)) as usize;
+        if check(x, steps) {
+            narrow += 1;
+        } else {
+            wide += 1;
+        }
+    }
+    assert!(
+        narrow > 1_000 && wide > 1_000,
+        "narrow {narrow}, wide {wide}"
+    );
+    // at the edges: add2 reaching i32::MAX exactly after 100 steps
+    // (taken), one unit beyond (refused); intervals from exactly 1 tick
+    // (taken) and just below (refused)
+    let edge = |add2: u64, add3: u64, interval: u64| Expansion {
+        interval,
+        add: 0,
+        add2,
+        add3,
+        add4: 0,
+        frac: 0,
+        sum: 0,
+    };
+    let top = (1u64 << 31) - 1 - 100 * 1000;
+    assert!(check(edge(top, 1000, 1 << 50), 100));
+    assert!(!check(edge(top + 1, 1000, 1 << 50), 100));
+    assert!(check(edge(0, 0, ONE), 300));
+    assert!(!check(edge(0, 0, ONE - 1), 300));
+}
+
+fn drain(src: &mut StepSource, sched: &StepSchedule) -> ([u32; 64], usize) {
+    let mut out = [0; 64];
+    let mut n = 0;
+    while let Some(s) = src.advance(sched) {
+        out[n] = s.delay_ticks;
+        n += 1;
+    }
+    (out, n)
+}
+
+#[test]
+fn steps_counted_equal_schedule_and_intervals_are_exact() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.push(seg(10 * ONE, ONE as i64, 0, 3, true)).unwrap();
+    sched.push(seg(5 * ONE + ONE / 2, 0, 0, 4, false)).unwrap();
+    let (d, n) = drain(&mut src, &sched);
+    assert_eq!(n, 7);
+    assert_eq!(&d[..3], &[10, 11, 12]);
+    // 5.5 ticks each: the fraction is carried, never lost (sum = 22).
+    assert_eq!(d[3..7].iter().sum::<u32>(), 22);
+    assert!(d[..n].iter().all(|&x| x > 0));
+    assert_eq!(sched.position(), 3 - 4);
+    assert!(!sched.is_running());
+    assert!(sched.is_empty());
+}
+
+/// The position is derived (no per-step store): after every call it
+/// counts exactly the steps made, across segment ends, reversals, a
+/// flush and a stop (steps counted equal the schedule).
+#[test]
+fn derived_position_counts_the_steps_made() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.push(seg(10 * ONE, 0, 0, 3, true)).unwrap();
+    sched.push(seg(10 * ONE, 0, 0, 2, false)).unwrap();
+    sched.push(seg(10 * ONE, 0, 0, 4, true)).unwrap();
+    let mut made = 0i32;
+    let mut pending: Option<bool> = None;
+    for _ in 0..6 {
+        if let Some(fwd) = pending {
+            made += if fwd { 1 } else { -1 };
+        }
+        pending = src.advance(&sched).map(|s| s.forward);
+        assert_eq!(sched.position(), made);
+    }
+    sched.request_flush();
+    made += if pending.unwrap() { 1 } else { -1 };
+    assert_eq!(src.advance(&sched), None);
+    assert_eq!(sched.position(), made);
+    assert_eq!(made, 3 - 2 + 1);
+    sched.push(seg(10 * ONE, 0, 0, 2, false)).unwrap();
+    while src.advance(&sched).is_some() {}
+    assert_eq!(sched.position(), made - 2);
+}
+
+#[test]
+fn second_difference_term() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched
+        .push(seg(10 * ONE, ONE as i64, ONE as i64, 4, true))
+        .unwrap();
+    let (d, n) = drain(&mut src, &sched);
+    // intervals 10, 11, 13, 16
+    assert_eq!(&d[..n], &[10, 11, 13, 16]);
+}
+
+#[test]
+fn negative_add_and_flush() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched
+        .push(seg(100 * ONE, -(ONE as i64), 0, 50, true))
+        .unwrap();
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(100));
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(99));
+    assert!(sched.is_running());
+    sched.request_flush();
+    // the step announced before the flush was made: counted, then stop.
+    assert_eq!(src.advance(&sched), None);
+    assert_eq!(sched.position(), 2);
+    assert!(!sched.flush_pending());
+    assert!(!sched.is_running());
+    assert!(sched.is_empty());
+}
+
+/// Steps until the source stops, each checked for its delay and
+/// direction.
+fn run_out(src: &mut StepSource, sched: &StepSchedule, delay: u32, forward: bool) -> i32 {
+    let mut n = 0;
+    while let Some(s) = src.advance(sched) {
+        assert_eq!((s.delay_ticks, s.forward), (delay, forward), "step {n}");
+        n += 1;
+    }
+    n
+}
+
+#[test]
+fn ring_full_refuses_and_wraps() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    let steps = |count: usize, forward: bool| seg(ONE, 0, 0, count as u32, forward);
+    let one = steps(1, true);
+    assert_eq!(sched.free(), SCHEDULE_STEPS - 3);
+    assert!(sched.push(steps(0, true)).is_err());
+    // all or nothing: one step more than the room is refused whole
+    let big = steps(SCHEDULE_STEPS - 1, true);
+    assert_eq!(sched.push(big), Err(big));
+    assert!(sched.is_empty());
+    // the same direction needs no marker: the whole room, then full
+    sched.push(steps(SCHEDULE_STEPS - 2, true)).unwrap();
+    assert_eq!((sched.free(), sched.push(one)), (0, Err(one)));
+    // the start frees the slot kept while idle, each step made one
+    // more; the pending step's slot is never written
+    for made in 0..2 {
+        assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(1));
+        assert_eq!(sched.position(), made);
+        sched.push(one).unwrap();
+        assert_eq!((sched.free(), sched.push(one)), (0, Err(one)));
+    }
+    assert_eq!(
+        run_out(&mut src, &sched, 1, true),
+        SCHEDULE_STEPS as i32 - 2
+    );
+    assert_eq!(sched.position(), SCHEDULE_STEPS as i32);
+    // round and round the ring (40 × 200..435 entries), each round turning
+    // round (one marker), refilled while running
+    let mut expect = sched.position();
+    let mut forward = true;
+    for round in 0..40 {
+        forward = !forward;
+        let count = 100 + 3 * round;
+        sched.push(steps(count, forward)).unwrap();
+        assert_eq!(src.advance(&sched).map(|s| s.forward), Some(forward));
+        sched.push(steps(count, forward)).unwrap();
+        let made = 1 + run_out(&mut src, &sched, 1, forward);
+        assert_eq!(made, 2 * count as i32);
+        expect += if forward { made } else { -made };
+        assert_eq!(sched.position(), expect);
+        assert!(sched.is_empty() && !sched.is_running());
+    }
+}
+
+/// A flush that drops a queued direction marker leaves the interrupt
+/// in the last push's direction: the next push (which needs no marker)
+/// goes the right way.
+#[test]
+fn a_dropped_marker_does_not_lose_the_direction() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.push(seg(10 * ONE, 0, 0, 3, true)).unwrap();
+    sched.push(seg(10 * ONE, 0, 0, 3, false)).unwrap();
+    assert!(src.advance(&sched).unwrap().forward);
+    sched.request_flush();
+    assert_eq!(src.advance(&sched), None);
+    assert_eq!(sched.position(), 1);
+    sched.push(seg(10 * ONE, 0, 0, 2, false)).unwrap();
+    assert_eq!(run_out(&mut src, &sched, 10, false), 2);
+    assert_eq!(sched.position(), -1);
+}
+
+/// A cut (planner.rs `drop_pending`): the entries from the cut on are
+/// taken back, the next push continues there with the fraction carried
+/// to the cut, and `advance_until` finds the same steps and time as
+/// the push made; a cut behind the interrupt's next read, or outside
+/// the queue, changes nothing.
+#[test]
+fn truncate_takes_back_the_entries_ahead_of_the_interrupt() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    // 7.25 ticks growing by a quarter: delays with carried fractions
+    let whole = seg(7 * ONE + ONE / 4, (ONE / 4) as i64, 0, 10, true);
+    let (mut rest, frac0) = (whole, sched.carry_in());
+    let pushed = sched.push_steps(&mut rest, 10).unwrap();
+    let first = sched.last_pushed_index().wrapping_sub(9);
+    // the time of all ten, found again without the ring
+    let (mut again, mut frac) = (whole, frac0);
+    assert_eq!(
+        again.advance_until(&mut frac, u64::MAX >> 1, 10),
+        (10, pushed)
+    );
+    // the interrupt makes three steps
+    let made: Vec<u32> = (0..3)
+        .map(|_| src.advance(&sched).unwrap().delay_ticks)
+        .collect();
+    // behind its next read (the pending step's entry), or at the
+    // sentinel, or past it: refused
+    assert!(!sched.truncate(first.wrapping_add(1), 0));
+    assert!(!sched.truncate(first.wrapping_add(10), 0));
+    assert!(!sched.truncate(first.wrapping_add(12), 0));
+    // cut after six steps: the time of the sixth is where they end
+    let (mut cut, mut frac) = (whole, frac0);
+    let until = 6 * 7 * ONE + 15 * (ONE / 4) - 1; // just before the sixth
+    let (steps, time) = cut.advance_until(&mut frac, until, 10);
+    assert_eq!(steps, 6);
+    assert_eq!(cut.count, 4);
+    assert_eq!(cut.interval, whole.interval + 6 * (ONE / 4));
+    assert!(sched.truncate(first.wrapping_add(6), frac));
+    assert_eq!(sched.last_pushed_index(), first.wrapping_add(5));
+    // a new push follows the sixth step, carrying its fraction
+    sched.push(seg(3 * ONE, 0, 0, 2, true)).unwrap();
+    let (d, n) = drain(&mut src, &sched);
+    let mut all = made.clone();
+    all.extend_from_slice(&d[..n]);
+    assert_eq!(all.len(), 6 + 2);
+    assert_eq!(
+        all[..6].iter().map(|&d| u64::from(d)).sum::<u64>(),
+        time >> 32
+    );
+    assert_eq!(&all[6..], &[3, 3]);
+    assert_eq!(sched.position(), 8);
+    assert!(sched.is_empty());
+}
+
+/// Delays from 2^31 ticks on share their top bit with the markers: they
+/// go the slow way and still come out whole; an interval below half a
+/// tick is a delay of 1, never the sentinel (0).
+#[test]
+fn long_and_zero_delays() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.push(seg(3_000_000_000 * ONE, 0, 0, 3, true)).unwrap();
+    sched.push(seg(ONE / 4, 0, 0, 2, true)).unwrap();
+    sched.push(seg(7 * ONE, 0, 0, 1, true)).unwrap();
+    let (d, n) = drain(&mut src, &sched);
+    let long = 3_000_000_000;
+    assert_eq!(&d[..n], &[long, long, long, 1, 1, 7]);
+    assert_eq!(sched.position(), 6);
+}
+
+/// The exact time of each step is its tick plus the rounding its
+/// delay carried, within ±½ tick.
+#[cfg(feature = "sim")]
+#[test]
+fn rounding_gives_the_exact_times() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    // 5.5, then 5.5 + 1/3 per step, ticks
+    let third = (ONE / 3) as i64;
+    sched.push(seg(ONE * 11 / 2, third, 0, 6, true)).unwrap();
+    let (mut tick, mut exact) = (0u64, 0u64);
+    let mut interval = ONE * 11 / 2;
+    while let Some(s) = src.advance(&sched) {
+        tick += u64::from(s.delay_ticks);
+        exact += interval;
+        interval += third as u64;
+        let r = src.rounding_q32(&sched);
+        assert!(r.abs() <= 1 << 31, "{r}");
+        assert_eq!((tick << 32).wrapping_add(r as u64), exact);
+    }
+    assert_eq!(tick, 6 * 11 / 2 + 5); // 33 + 15 × ⅓ = 38
+}
+
+#[test]
+fn cancel_forgets_the_announced_step() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.push(seg(ONE, 0, 0, 5, false)).unwrap();
+    src.advance(&sched);
+    src.advance(&sched);
+    src.cancel(&sched);
+    assert_eq!(sched.position(), -1);
+    assert_eq!(src.advance(&sched), None);
+    assert_eq!(sched.position(), -1);
+}
+
+// ---- limit brake (SPEC §8.7) ----
+
+const HZ: u32 = 10_000_000;
+
+/// A long run at `interval` ticks per step in one direction.
+fn cruise(sched: &StepSchedule, interval: u64, forward: bool) {
+    let count = sched.free() as u32;
+    sched
+        .push(seg(interval * ONE, 0, 0, count, forward))
+        .unwrap();
+}
+
+#[test]
+fn brake_rate_encodes_the_deceleration() {
+    for (decel, hz) in [
+        (1u64, 1_000_000u32),
+        (20, HZ),
+        (10_000_000, HZ),
+        (20_000_000, 8_000_000),
+    ] {
+        let r = brake_rate(decel, hz);
+        let (m, s) = (f64::from(r & RATE_MANTISSA), r >> RATE_MANTISSA_BITS);
+        let a = m / 2f64.powi(s as i32);
+        let exact = decel as f64 / 10.0 / f64::from(hz).powi(2);
+        assert!(
+            (a / exact - 1.0).abs() < 1.0 / f64::from(1u32 << 22),
+            "{decel} {hz}: {a} vs {exact}"
+        );
+        assert!(m >= f64::from(1u32 << 23));
+    }
+    assert_eq!(
+        brake_rate(0, HZ),
+        RATE_AT_ONCE,
+        "0x6085 = 0: at once (§8.3)"
+    );
+}
+
+/// Steps of the limit brake from `v0` steps/s with `a` steps/s²: their
+/// intervals follow v² = v0² - 2an, and the motor stops within the
+/// quick stop distance v0²/2a (SPEC §8.7: stop with 0x6085).
+#[test]
+fn limit_brake_decelerates_at_the_quick_stop_rate() {
+    for (v0, a) in [
+        (50_000.0f64, 1.0e6f64),
+        (2_000.0, 20_000.0),
+        (200_000.0, 2.0e6),
+    ] {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.set_brake_rate(Some(brake_rate((a * 10.0) as u64, HZ)));
+        let p0 = (f64::from(HZ) / v0) as u64;
+        cruise(&sched, p0, true);
+        for _ in 0..10 {
+            assert_eq!(src.advance(&sched).unwrap().delay_ticks as u64, p0);
+        }
+        sched.set_limits(false, true); // the CCW limit: forward blocked
+        let mut n = 0u32;
+        let mut t = 0f64;
+        while let Some(s) = src.advance(&sched) {
+            assert!(s.forward);
+            n += 1;
+            t += f64::from(s.delay_ticks);
+            let v2 = v0 * v0 - 2.0 * a * f64::from(n);
+            let exact = f64::from(HZ) / v2.sqrt();
+            let got = f64::from(s.delay_ticks);
+            assert!(
+                (got - exact).abs() <= 1.0 + 0.02 * exact,
+                "v0 {v0}, a {a}: step {n}: {got} ticks, exact {exact}"
+            );
+            assert_eq!(
+                sched.limit_brake(),
+                Some(LimitBrake {
+                    forward: true,
+                    done: false
+                })
+            );
+            assert!(n < 1_000_000);
+        }
+        let dist = v0 * v0 / (2.0 * a);
+        assert!(
+            f64::from(n) <= dist && f64::from(n) + 3.0 >= dist,
+            "v0 {v0}, a {a}: {n} braking steps, quick stop distance {dist}"
+        );
+        // time of a constant deceleration: v0/a (minus the last steps)
+        let t_exact = v0 / a * f64::from(HZ);
+        assert!(t <= t_exact * 1.01, "{t} ticks vs {t_exact}");
+        assert_eq!(
+            sched.limit_brake(),
+            Some(LimitBrake {
+                forward: true,
+                done: true
+            })
+        );
+        assert!(!sched.is_running() && sched.is_empty());
+        assert_eq!(sched.position(), 10 + n as i32);
+    }
+}
+
+#[test]
+fn limit_brake_only_towards_the_active_limit_and_only_when_armed() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    cruise(&sched, 2000, false);
+    src.advance(&sched);
+    // armed, but the CCW limit blocks the other direction
+    sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
+    sched.set_limits(false, true);
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(2000));
+    assert_eq!(sched.limit_brake(), None);
+    // disarmed (homing, §8.6): the CW limit is passed on to the planner
+    sched.set_brake_rate(None);
+    sched.set_limits(true, false);
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(2000));
+    assert_eq!(sched.limit_brake(), None);
+    // armed: brakes (the interval grows)
+    sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
+    assert!(src.advance(&sched).unwrap().delay_ticks > 2000);
+    assert_eq!(
+        sched.limit_brake(),
+        Some(LimitBrake {
+            forward: false,
+            done: false
+        })
+    );
+}
+
+#[test]
+fn limit_brake_latches_until_released_and_defers_a_flush() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
+    cruise(&sched, 200, true);
+    src.advance(&sched);
+    sched.set_limits(false, true);
+    src.advance(&sched);
+    // a flush while braking waits for the end of the brake
+    sched.request_flush();
+    assert!(src.advance(&sched).is_some());
+    while src.advance(&sched).is_some() {}
+    assert!(!sched.flush_pending());
+    // segments pushed before thread mode noticed are dropped, also
+    // away from the limit, until the planner releases the brake
+    sched.set_limits(false, false);
+    cruise(&sched, 200, false);
+    assert_eq!(src.advance(&sched), None);
+    assert!(sched.is_empty());
+    sched.release_brake();
+    assert_eq!(sched.limit_brake(), None);
+    cruise(&sched, 200, false);
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(200));
+}
+
+#[test]
+fn limit_at_once_and_from_rest_make_no_step() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.set_brake_rate(Some(brake_rate(0, HZ)));
+    sched.set_limits(true, false);
+    cruise(&sched, 200, false);
+    assert_eq!(src.advance(&sched), None, "0x6085 = 0: no further step");
+    assert_eq!(
+        sched.limit_brake(),
+        Some(LimitBrake {
+            forward: false,
+            done: true
+        })
+    );
+    sched.release_brake();
+    // from rest towards an active limit, at an ordinary deceleration:
+    // the first interval from rest is already within two steps of rest
+    sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
+    sched.push(seg(14_142 * ONE, 0, 0, 10, false)).unwrap(); // √(2/a) s
+    assert_eq!(src.advance(&sched), None);
+    assert_eq!(sched.position(), 0);
+}

@@ -1,0 +1,98 @@
+"""The firmware's other glue on both images: a limit switch reached by the
+emulated axis, through GPIO and EXTI (SPEC §8.7), and the parameter flash
+(`--state`): EE-Set runs through the firmware's own flash driver against the
+modelled flash controller and a saved value survives a restart (SPEC §9)."""
+
+import re
+import subprocess
+import time
+
+from conftest import (ACCELERATION, ACTUAL_POSITION, ACTUAL_VELOCITY, CCW_LIMIT, DECELERATION,
+                      MODE, PA_BASE, PROFILE_VELOCITY, QUICK_STOP_DECELERATION, Master, hexb,
+                      with_crc)
+
+MAX_SPEED_PA12 = PA_BASE + 12
+EE_SET = with_crc(hexb("01 10 00 3A 00 01 02 00 01"))  # new format, k = 1
+
+
+def test_a_ccw_limit_stops_the_axis_with_the_quick_stop_distance(start_fw, board):
+    """As tests/e2e/test_limits.py: 45 000 steps/s into a CCW limit at
+    10 000 with 0x6085 = 500 (50 r/s²): v²/2a = 2025 steps past the edge,
+    within the step tick's rounding."""
+    fw = start_fw(board, "--ccw-limit", "10000")
+    m = Master(fw.client())
+    m.enable()
+    m.write(MODE, 3)
+    m.write(ACCELERATION, 1000)
+    m.write(DECELERATION, 1000)
+    m.write(QUICK_STOP_DECELERATION, 500)
+    m.write32(PROFILE_VELOCITY, 45)
+    m.wait(lambda s: s & CCW_LIMIT, 5, "the CCW limit")
+    deadline = time.monotonic() + 5
+    while m.read32(ACTUAL_VELOCITY) != 0:
+        assert time.monotonic() < deadline, "still moving"
+        time.sleep(0.02)
+    over = m.read32(ACTUAL_POSITION) - 10000
+    assert 2025 - 18 - 4 <= over <= 2025 + 18 + 2, f"{board}: {over}"
+    assert m.statusword() & CCW_LIMIT
+
+
+def test_a_saved_parameter_survives_a_restart(start_fw, board, tmp_path):
+    state = tmp_path / f"{board}.flash"
+    fw = start_fw(board, "--state", str(state))
+    m = Master(fw.client())
+    assert m.read(MAX_SPEED_PA12) == 3000, "default (SPEC §7)"
+    m.write(MAX_SPEED_PA12, 1500)
+    m.write(ACCELERATION, 321)
+    with fw.raw() as bus:
+        assert bus.exchange(EE_SET, timeout=3) == with_crc(hexb("01 10 00 3A 00 01"))
+    m.write(MAX_SPEED_PA12, 1400)  # changed after the save: not persisted
+    assert fw.stop() is None
+    assert state.stat().st_size == 4096
+    fw = start_fw(board, "--state", str(state))
+    m = Master(fw.client())
+    assert m.read(MAX_SPEED_PA12) == 1500
+    assert m.read(ACCELERATION) == 321
+
+
+def test_mbpoll_over_the_pseudo_terminal(start_fw, board, tmp_path):
+    """The --pty-link path, driven by mbpoll as a field engineer would:
+    0x6041 reads 0x0060 (switch on disabled, SPEC §8.1) at power-up."""
+    link = tmp_path / "ttyFW"
+    fw = start_fw(board, "--pty-link", str(link))
+    out = subprocess.run(["mbpoll", "-m", "rtu", "-a", "1", "-0", "-r", str(0x6041), "-c", "1",
+                          "-b", "115200", "-P", "none", "-1", str(link)],
+                         capture_output=True, text=True, timeout=20)
+    fw.alive()
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert re.search(r"\[24641\]:\s+96\b", out.stdout), out.stdout
+
+
+def test_a_power_cut_during_a_save_keeps_the_old_or_the_new_set(start_fw, board, tmp_path):
+    """`--power-cut N`: the supply fails as the N-th flash program or erase
+    starts and the chip restarts from the flash file, as the host power-cut
+    tests do on the core's store, here through the firmware's own flash
+    driver. Whatever N, the drive comes back with the old or the new value,
+    and a save afterwards works and survives a restart."""
+    for n in (1, 3, 8):
+        state = tmp_path / f"{board}-{n}.flash"
+        fw = start_fw(board, "--state", str(state), "--power-cut", str(n))
+        m = Master(fw.client())
+        m.write(MAX_SPEED_PA12, 1500)
+        with fw.raw() as bus:
+            bus.exchange(EE_SET, timeout=0.3)  # the reply may never come
+        deadline = time.monotonic() + 5
+        while "power cut" not in fw.stderr():
+            assert time.monotonic() < deadline, f"{board}: no power cut at operation {n}"
+            time.sleep(0.05)
+        time.sleep(0.3)  # the restart
+        c = fw.client()
+        m = Master(c)
+        assert m.read(MAX_SPEED_PA12) in (3000, 1500), f"{board}, cut at {n}"
+        m.write(MAX_SPEED_PA12, 1200)
+        with fw.raw() as bus:
+            assert bus.exchange(EE_SET, timeout=3) == with_crc(hexb("01 10 00 3A 00 01"))
+        fw.stop()
+        fw = start_fw(board, "--state", str(state))
+        assert Master(fw.client()).read(MAX_SPEED_PA12) == 1200, f"{board}, cut at {n}"
+        fw.stop()
