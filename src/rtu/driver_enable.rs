@@ -16,8 +16,8 @@ use super::LineConfig;
 /// (`capped_below_the_shortest_t35` checks it), so a held driver never
 /// meets a master that keeps to t3.5; and the firmware holds the tail in
 /// its USART interrupt (a wake-up of its dispatcher could come much later),
-/// which keeps the control loop waiting that long, well inside the
-/// planner's horizon at every baud.
+/// which keeps the control loop waiting up to about twice that long, inside
+/// the planner's horizon at every baud.
 pub const MAX_DE_BITS: u16 = 10;
 
 /// PA57 / PA58 default: one bit time.
