@@ -33,7 +33,7 @@ TOP_FUNCTIONS = 40
 # above either
 BUDGETS = {
     "STM32G431CB": (64 * 1024, 16 * 1024),
-    "STM32F103C8": (56 * 1024, 12 * 1024),
+    "STM32F103C8": (57 * 1024, 12 * 1024),
 }
 UNNAMED = "unnamed constants in .rodata (literals, switch and lookup tables)"
 PADDING = "alignment padding, unsized symbols"

@@ -18,6 +18,7 @@ use flash::{FlashRegion, RegionError};
 use modbus_drive::motion::schedule::brake_rate;
 use modbus_drive::motion::{Segment, StepSchedule, StepSource};
 use modbus_drive::rtu::{CharFormat, LineConfig};
+use std::sync::atomic::{AtomicU32, Ordering};
 
 const G431_TICK_HZ: u32 = 10_000_000;
 const F103_TICK_HZ: u32 = 8_000_000;
@@ -177,6 +178,66 @@ fn a_reversal_leaves_dir_set_up_time_before_the_edge() {
             assert!(*edge_in_period >= shape.dir_setup_ticks + shape.latency_ticks);
         }
     }
+}
+
+#[test]
+fn the_first_step_backwards_after_boot_gets_the_dir_set_up() {
+    // The step output starts with DIR set for the positive direction, the
+    // shaper's assumption: a first step backwards is a reversal.
+    let shape = StepShape::safe(G431_TICK_HZ);
+    let back = Step {
+        forward: false,
+        interval_ticks: 60,
+    };
+    let out = run(shape, &[back]);
+    assert!(out[0].1 >= shape.dir_setup_ticks + shape.latency_ticks);
+    let fwd = Step {
+        forward: true,
+        interval_ticks: 60,
+    };
+    assert_eq!(
+        run(shape, &[fwd])[0].1,
+        60 - shape.pulse_ticks,
+        "no stretch"
+    );
+}
+
+#[test]
+fn a_pa11_change_makes_the_next_step_a_reversal_on_the_pin() {
+    let shape = StepShape::safe(G431_TICK_HZ);
+    let fwd = Step {
+        forward: true,
+        interval_ticks: 60,
+    };
+    let mut shaper = StepShaper::new(shape);
+    let p = shaper.next_period(|| Some(fwd));
+    assert_eq!(u32::from(p.arr) + 1, 60, "same direction: no stretch");
+    shaper.dir_pin_flipped(); // the same direction is the other pin level now
+    let p = shaper.next_period(|| Some(fwd));
+    assert!(u32::from(p.ccr) >= shape.dir_setup_ticks + shape.latency_ticks);
+    let p = shaper.next_period(|| Some(fwd));
+    assert_eq!(u32::from(p.arr) + 1, 60, "then no stretch again");
+}
+
+#[test]
+fn a_packed_shape_round_trips_and_reaches_the_shaper() {
+    for hz in [G431_TICK_HZ, F103_TICK_HZ] {
+        for (pa15, pa16) in [(0, 0), (25, 50), (1000, 1000), (u16::MAX, u16::MAX)] {
+            let shape = StepShape::from_params(pa15, pa16, hz);
+            let safe = StepShape::safe(hz);
+            assert_eq!(safe.with_packed(shape.packed()), shape, "{pa15} {pa16}");
+        }
+    }
+    let wide = StepShape::from_params(1000, 1000, G431_TICK_HZ); // 100 µs
+    let mut shaper = StepShaper::new(StepShape::safe(G431_TICK_HZ));
+    shaper.set_packed_shape(wide.packed());
+    let p = shaper.next_period(|| {
+        Some(Step {
+            forward: true,
+            interval_ticks: 5_000,
+        })
+    });
+    assert_eq!(u32::from(p.arr) + 1 - u32::from(p.ccr), wide.pulse_ticks);
 }
 
 #[test]
@@ -525,4 +586,192 @@ fn de_lead_and_tail_on_the_f103_gpio() {
     assert_eq!((d.software, d.lead_us, d.tail_us), (true, 9, 9));
     let d = DeDrive::new(DriverEnable::new(0, 0), line(9_600, CharFormat::N1), 0);
     assert_eq!((d.software, d.lead_us, d.tail_us), (true, 0, 0));
+}
+
+/// The chip's out-of-band report of a failed read (the G431's ECC NMI sets
+/// it in the firmware): the failed address, taken and cleared by the
+/// region's hook. `u32::MAX`: none.
+static ECC_REPORT: AtomicU32 = AtomicU32::new(u32::MAX);
+
+fn take_ecc_report() -> Option<u32> {
+    let at = ECC_REPORT.swap(u32::MAX, Ordering::Relaxed);
+    (at != u32::MAX).then_some(at)
+}
+
+/// Offset of the double word of [`EccFlash`] that fails (none: `u32::MAX`).
+static ECC_BAD_AT: AtomicU32 = AtomicU32::new(u32::MAX);
+
+/// RAM flash with one double word whose reads raise the ECC report, as the
+/// NMI handler would while the read instruction completes with garbage; an
+/// erase of its page makes it good again (as on the chip).
+struct EccFlash(RamFlash);
+
+impl ErrorType for EccFlash {
+    type Error = RamFlashError;
+}
+
+impl ReadNorFlash for EccFlash {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), RamFlashError> {
+        self.0.read(offset, bytes)?;
+        let bad = ECC_BAD_AT.load(Ordering::Relaxed);
+        let end = offset + bytes.len() as u32;
+        if offset < bad.saturating_add(8) && bad < end {
+            bytes.fill(0x5A);
+            ECC_REPORT.store(bad, Ordering::Relaxed);
+        }
+        Ok(())
+    }
+    fn capacity(&self) -> usize {
+        self.0.capacity()
+    }
+}
+
+impl NorFlash for EccFlash {
+    const WRITE_SIZE: usize = 8;
+    const ERASE_SIZE: usize = 2048;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), RamFlashError> {
+        let bad = ECC_BAD_AT.load(Ordering::Relaxed);
+        if (from..to).contains(&bad) {
+            ECC_BAD_AT.store(u32::MAX, Ordering::Relaxed);
+        }
+        self.0.erase(from, to)
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), RamFlashError> {
+        self.0.write(offset, bytes)
+    }
+}
+
+#[test]
+fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_its_page_is_repaired() {
+    use modbus_drive::params::{BootOutcome, ParamSet, ParamStore, Slot, StorageError};
+    // the region is the second half of an 8 KiB flash, like the parameter
+    // pages at the end of the chip's
+    let region = FlashRegion::new(EccFlash(RamFlash(vec![0xFF; 8192])), 4096, 4096)
+        .unwrap()
+        .with_read_fault(take_ecc_report);
+    let mut store = ParamStore::new(region, 0..4096).unwrap();
+    let mut set = ParamSet::defaults();
+    set.pa.set_unchecked(11, 1);
+    store.save(Slot::Saved, &set).unwrap();
+    assert_eq!(store.load(Slot::Saved).unwrap().unwrap().0, set);
+    assert_eq!(
+        store.flash().erase_faulted_page(),
+        Ok(None),
+        "nothing failed"
+    );
+
+    // a stale report (another read of the chip) fails no read of ours
+    ECC_REPORT.store(0x10, Ordering::Relaxed);
+    let mut b = [0; 8];
+    store.flash().read(0, &mut b).unwrap();
+
+    // a power cut left a double word of the first page unreadable
+    ECC_BAD_AT.store(4096 + 16, Ordering::Relaxed);
+    assert_eq!(
+        store.flash().read(16, &mut b),
+        Err(RegionError::ReadFault),
+        "the garbage is not returned as data"
+    );
+    let boot = store.boot();
+    assert!(
+        matches!(
+            boot.outcome,
+            BootOutcome::Unreadable(StorageError::Flash(_))
+        ),
+        "{:?}",
+        boot.outcome
+    );
+    assert_eq!(boot.set, ParamSet::defaults());
+    // a save still appends, but the word fails every load until repaired
+    store.save(Slot::Saved, &set).unwrap();
+    assert!(
+        store.load(Slot::Saved).is_err(),
+        "unreadable until repaired"
+    );
+
+    // the repair: that page erased, the store usable again
+    assert_eq!(store.flash().erase_faulted_page(), Ok(Some(0)));
+    assert_eq!(store.flash().erase_faulted_page(), Ok(None), "once");
+    assert_eq!(store.boot().outcome, BootOutcome::Blank);
+    store.save(Slot::Saved, &set).unwrap();
+    let boot = store.boot();
+    assert!(matches!(boot.outcome, BootOutcome::Loaded { .. }));
+    assert_eq!(boot.set, set);
+}
+
+#[test]
+fn only_a_double_ecc_error_in_the_parameter_pages_is_a_read_error() {
+    let pages = 0x1_F000..0x2_0000; // the G431's parameter pages
+    assert!(ecc_error_is_parameter_read(
+        true,
+        false,
+        0x1_F008,
+        pages.clone()
+    ));
+    assert!(ecc_error_is_parameter_read(
+        true,
+        false,
+        0x1_FFF8,
+        pages.clone()
+    ));
+    // code, constants, the system flash, a corrected error: the fault path
+    assert!(!ecc_error_is_parameter_read(
+        true,
+        false,
+        0x1_EFF8,
+        pages.clone()
+    ));
+    assert!(!ecc_error_is_parameter_read(
+        true,
+        false,
+        0x2_0000,
+        pages.clone()
+    ));
+    assert!(!ecc_error_is_parameter_read(
+        true,
+        true,
+        0x1_F008,
+        pages.clone()
+    ));
+    assert!(!ecc_error_is_parameter_read(false, false, 0x1_F008, pages));
+}
+
+#[test]
+fn the_watchdog_outlasts_every_legitimate_stall_even_with_a_fast_lsi() {
+    for lsi in [LSI_G431_HZ, LSI_F103_HZ] {
+        let (pr, rl) = iwdg_settings(WATCHDOG_TIMEOUT_US, lsi.0).unwrap();
+        let shortest = iwdg_timeout_us(pr, rl, lsi.1);
+        assert!(shortest < WATCHDOG_TIMEOUT_US, "a fast LSI shortens it");
+        assert!(
+            shortest >= 3 * LONGEST_STALL_US,
+            "{shortest} µs at {} Hz",
+            lsi.1
+        );
+    }
+    // the F103's LSI may run at 1.5 times its nominal 40 kHz: 2/3
+    let (pr, rl) = iwdg_settings(600_000, 40_000).unwrap();
+    assert_eq!(iwdg_timeout_us(pr, rl, 60_000), 400_000);
+}
+
+#[test]
+fn the_watchdog_registers_give_at_least_the_timeout_at_the_nominal_lsi() {
+    for lsi in [LSI_G431_HZ.0, LSI_F103_HZ.0] {
+        let (pr, rl) = iwdg_settings(WATCHDOG_TIMEOUT_US, lsi).unwrap();
+        let t = iwdg_timeout_us(pr, rl, lsi);
+        assert!(t >= WATCHDOG_TIMEOUT_US, "{t} µs at {lsi} Hz");
+        // the finest divider that reaches it: one count of it is < 1 %
+        assert!(t - WATCHDOG_TIMEOUT_US <= (4u32 << pr) * 1_000_000 / lsi);
+        if pr > 0 {
+            assert!(iwdg_timeout_us(pr - 1, 0xFFF, lsi) < WATCHDOG_TIMEOUT_US);
+        }
+    }
+    // 500 ms at 32 kHz: 16 000 counts, divider 4 → 4000 (at most 4096)
+    assert_eq!(iwdg_settings(500_000, 32_000), Some((0, 3999)));
+    // 500 ms at 40 kHz: 20 000 counts, divider 8 → 2500
+    assert_eq!(iwdg_settings(500_000, 40_000), Some((1, 2499)));
+    // the edges: one count, the longest, beyond it
+    assert_eq!(iwdg_settings(100, 40_000), Some((0, 0)));
+    assert_eq!(iwdg_settings(26_214_400, 40_000), Some((6, 0xFFF)));
+    assert_eq!(iwdg_settings(26_214_401, 40_000), None);
 }

@@ -40,6 +40,9 @@ use modbus_drive::boards::Board;
 use super::flash::FlashRegion;
 use super::switches::SwitchInputs;
 
+/// Core clock set by [`config`].
+pub const SYSCLK_HZ: u32 = 72_000_000;
+
 pub const NAME: &str = Board::F103.chip();
 
 /// Step timer tick (`modbus_drive::boards`, shared with the virtual drive).
@@ -89,6 +92,42 @@ pub fn config() -> Config {
     config.rcc.apb1_pre = APBPrescaler::DIV2;
     config.rcc.apb2_pre = APBPrescaler::DIV1;
     config
+}
+
+/// What `embassy_stm32::init` leaves out (it turns the prefetch buffer on
+/// itself): the watchdog and the step timer stopped while a debug probe
+/// halts the core, so a breakpoint neither resets the chip nor leaves STEP
+/// pulsing at the last rate.
+pub fn after_init() {
+    pac::DBGMCU.cr().modify(|w| {
+        w.set_iwdg(true);
+        w.set_tim3(true);
+    });
+}
+
+/// The fault path's outputs (fault.rs), by direct register writes only:
+/// step timer stopped with its output off, STEP (PA6) a push-pull GPIO
+/// output driven low, DE (PA8) low = bus released, ENABLE (PB1) low = power
+/// stage off, BRAKE (PB10) low = brake applied. Before
+/// `embassy_stm32::init` the GPIO clocks are off, the writes do nothing and
+/// every pin is still a reset-state input.
+pub fn safe_outputs() {
+    use pac::gpio::vals::{CnfOut, Mode};
+    let t = STEP_TIMER;
+    t.cr1().modify(|w| w.set_cen(false));
+    t.ccer().modify(|w| w.set_cce(0, false));
+    pac::GPIOA.bsrr().write(|w| {
+        w.set_br(6, true);
+        w.set_br(8, true);
+    });
+    pac::GPIOA.cr(0).modify(|w| {
+        w.set_mode(6, Mode::OUTPUT2MHZ);
+        w.set_cnf_out(6, CnfOut::PUSH_PULL);
+    });
+    pac::GPIOB.bsrr().write(|w| {
+        w.set_br(1, true);
+        w.set_br(10, true);
+    });
 }
 
 /// Everything the firmware drives, configured.

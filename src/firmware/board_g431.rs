@@ -37,6 +37,9 @@ use modbus_drive::boards::Board;
 use super::flash::FlashRegion;
 use super::switches::SwitchInputs;
 
+/// Core clock set by [`config`].
+pub const SYSCLK_HZ: u32 = 170_000_000;
+
 pub const NAME: &str = Board::G431.chip();
 
 /// Step timer tick (`modbus_drive::boards`, shared with the virtual drive).
@@ -82,7 +85,64 @@ pub fn config() -> Config {
         divr: Some(PllRDiv::DIV2),
     });
     config.rcc.sys = Sysclk::PLL1_R;
+    // RM0440 allows range-1 normal mode only up to 150 MHz: 170 needs boost
+    config.rcc.boost = true;
     config
+}
+
+/// What `embassy_stm32::init` leaves out: flash prefetch (the instruction
+/// cache alone misses on every jump into cold code, the step interrupt
+/// included); the watchdog and the step timer stopped while a debug probe
+/// halts the core, so a breakpoint neither resets the chip nor leaves STEP
+/// pulsing at the last rate.
+pub fn after_init() {
+    pac::FLASH.acr().modify(|w| w.set_prften(true));
+    pac::DBGMCU.apb1lfzr().modify(|w| {
+        w.set_iwdg(true);
+        w.set_tim3(true);
+    });
+}
+
+/// The fault path's outputs (fault.rs), by direct register writes only:
+/// step timer stopped with its output off, STEP (PA6) and DE (PA12) as GPIO
+/// outputs driven low, ENABLE (PB1) low = power stage off, BRAKE (PB2) low
+/// = brake applied. Before `embassy_stm32::init` the GPIO clocks are off,
+/// the writes do nothing and every pin is still a reset-state input.
+pub fn safe_outputs() {
+    use pac::gpio::vals::Moder;
+    let t = STEP_TIMER;
+    t.cr1().modify(|w| w.set_cen(false));
+    t.ccer().modify(|w| w.set_cce(0, false));
+    pac::GPIOA.bsrr().write(|w| {
+        w.set_br(6, true);
+        w.set_br(12, true);
+    });
+    pac::GPIOA.moder().modify(|w| {
+        w.set_moder(6, Moder::OUTPUT);
+        w.set_moder(12, Moder::OUTPUT);
+    });
+    pac::GPIOB.bsrr().write(|w| {
+        w.set_br(1, true);
+        w.set_br(2, true);
+    });
+}
+
+/// For the NMI: a double ECC error in the parameter pages? If so its flag is
+/// cleared and its flash offset returned (the read that hit it fails
+/// instead, fault.rs).
+pub fn take_parameter_ecc_error() -> Option<u32> {
+    let eccr = pac::FLASH.eccr().read();
+    let ours = super::calc::ecc_error_is_parameter_read(
+        eccr.eccd(),
+        eccr.sysf_ecc(),
+        eccr.addr_ecc(),
+        PARAM_FLASH_START..PARAM_FLASH_START + PARAM_FLASH_LEN,
+    );
+    if !ours {
+        return None;
+    }
+    pac::FLASH.eccr().modify(|w| w.set_eccd(true)); // write 1 to clear
+    Some(eccr.addr_ecc())
 }
 
 /// Everything the firmware drives, configured.
@@ -116,6 +176,7 @@ pub fn split(p: Peripherals, line: &usart::Config) -> Result<Parts, usart::Confi
             Flash::new_blocking(p.FLASH),
             PARAM_FLASH_START,
             PARAM_FLASH_LEN,
-        ),
+        )
+        .map(|r| r.with_read_fault(super::fault::take_flash_read_fault)),
     })
 }

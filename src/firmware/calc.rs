@@ -102,7 +102,9 @@ pub const MIN_DIR_SETUP_NS: u32 = 5_000;
 /// Longest pulse or set-up time a parameter may ask for: 100 µs.
 pub const MAX_SHAPE_NS: u32 = 100_000;
 /// The DIR write happens this long after the update event at worst (entry
-/// latency < 1 µs on both cores; the rest is room for a critical section).
+/// latency < 1 µs on both cores; nothing but a fault masks the step
+/// interrupt, the rest is room for flash wait states and a tail-chained
+/// handler's exit).
 pub const ISR_LATENCY_NS: u32 = 2_000;
 /// Longest period of the 16-bit step timer, in ticks.
 pub const MAX_PERIOD_TICKS: u32 = 1 << 16;
@@ -181,6 +183,22 @@ impl StepShape {
         Self::from_params(0, 0, tick_hz)
     }
 
+    /// Pulse width and DIR set-up in one word, for an atomic hand-over to
+    /// the step interrupt (both are at most `MAX_SHAPE_NS` in ticks, which
+    /// fits 16 bits at any tick up to 655 MHz).
+    pub const fn packed(self) -> u32 {
+        (self.pulse_ticks & 0xFFFF) | (self.dir_setup_ticks & 0xFFFF) << 16
+    }
+
+    /// This shape with the pulse width and DIR set-up of `packed`.
+    pub const fn with_packed(self, packed: u32) -> Self {
+        Self {
+            pulse_ticks: packed & 0xFFFF,
+            dir_setup_ticks: packed >> 16,
+            ..self
+        }
+    }
+
     /// Shortest period that still holds a pulse: the pulse plus a low time
     /// of the same width (the driver must see both levels).
     fn min_period(self) -> u32 {
@@ -241,8 +259,17 @@ impl StepShaper {
         }
     }
 
-    pub fn set_shape(&mut self, shape: StepShape) {
-        self.shape = shape;
+    /// [`StepShape::with_packed`] on the shape in force.
+    pub fn set_packed_shape(&mut self, packed: u32) {
+        self.shape = self.shape.with_packed(packed);
+    }
+
+    /// DIR now stands for the other direction (PA11 changed): the pin
+    /// level of the last step is that of the opposite direction, so the
+    /// next step in the same direction changes the pin and gets the set-up
+    /// of a reversal.
+    pub fn dir_pin_flipped(&mut self) {
+        self.last_forward = !self.last_forward;
     }
 
     /// The next timer period. `next_step` is asked only when the previous
@@ -411,4 +438,59 @@ impl RateLimit {
             }
         }
     }
+}
+
+// ---------------------------------------------------------------- faults
+
+/// IWDG timeout (fault.rs says why this figure).
+pub const WATCHDOG_TIMEOUT_US: u32 = 500_000;
+/// The longest the control loop may legitimately not run: an EE operation
+/// on the dispatcher (same thread), a page erase of up to 40 ms on either
+/// chip plus a page move that rewrites a few records (RM0440 / RM0008 flash
+/// timings), rounded up.
+pub const LONGEST_STALL_US: u32 = 100_000;
+/// The LSI the IWDG counts: nominal frequency (what the driver computes the
+/// reload from) and the top of its datasheet tolerance, per board.
+#[cfg_attr(feature = "board-f103", allow(dead_code))]
+pub const LSI_G431_HZ: (u32, u32) = (32_000, 34_000);
+#[cfg_attr(feature = "board-g431", allow(dead_code))]
+pub const LSI_F103_HZ: (u32, u32) = (40_000, 60_000);
+
+/// IWDG prescaler register value (PR: divider 4 << PR) and reload (RLR) for
+/// a timeout of at least `timeout_us` at an LSI of `lsi_hz`: the smallest
+/// divider whose 12-bit reload reaches it (the finest resolution). `None`
+/// if even the largest divider (256) cannot.
+pub const fn iwdg_settings(timeout_us: u32, lsi_hz: u32) -> Option<(u8, u16)> {
+    let mut pr = 0;
+    while pr <= 6 {
+        let divider = 4u64 << pr;
+        // counts of the divided LSI, rounded up: the timeout is a minimum
+        let counts = (timeout_us as u64 * lsi_hz as u64).div_ceil(divider * 1_000_000);
+        if counts >= 1 && counts <= 0x1000 {
+            return Some((pr as u8, (counts - 1) as u16));
+        }
+        pr += 1;
+    }
+    None
+}
+
+/// The IWDG's timeout for [`iwdg_settings`]' `(pr, rl)` at `lsi_hz`, µs.
+pub const fn iwdg_timeout_us(pr: u8, rl: u16, lsi_hz: u32) -> u32 {
+    ((rl as u64 + 1) * (4u64 << pr) * 1_000_000 / lsi_hz as u64) as u32
+}
+
+/// The NMI of a flash ECC error (STM32G4 `FLASH_ECCR`): is it a double
+/// error in the parameter pages, which the next flash read reports as a
+/// read error (the store then loads the defaults and says why), rather
+/// than a fault? `addr` is `ADDR_ECC`, the byte offset from the start of
+/// the flash; `system_flash` is `SYSF_ECC`. An error anywhere else is in
+/// code or constants: the fault path.
+#[cfg_attr(not(feature = "board-g431"), allow(dead_code))] // F103: no flash ECC
+pub fn ecc_error_is_parameter_read(
+    double_error: bool,
+    system_flash: bool,
+    addr: u32,
+    param_pages: core::ops::Range<u32>,
+) -> bool {
+    double_error && !system_flash && param_pages.contains(&addr)
 }

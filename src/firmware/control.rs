@@ -13,6 +13,10 @@
 //! count latched at each edge (switches.rs), which the core takes as the
 //! homing origin (`Device::control_latched`, SPEC §8.6; README "Firmware",
 //! "Homing origin"). Limits do not wait for this loop (switches.rs).
+//!
+//! Each tick feeds the independent watchdog: the loop, not an interrupt,
+//! so that a thread that hangs (or an executor that no longer runs this
+//! task) resets the chip (fault.rs).
 
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};
@@ -22,6 +26,7 @@ use modbus_drive::motion::StepSchedule;
 use super::board;
 use super::calc::StepShape;
 use super::dispatch::{with_device, EventLog};
+use super::fault::Watchdog;
 use super::steps;
 use super::switches;
 
@@ -31,13 +36,15 @@ pub const CONTROL_PERIOD: Duration = Duration::from_micros(1000);
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;
 
-pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule) -> ! {
+pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule, watchdog: Watchdog) -> ! {
     let mut ticker = Ticker::every(CONTROL_PERIOD);
     let mut log = EventLog::new();
     let mut last_shape = None;
     let mut pins_ok = true;
+    let mut worst_late = 0;
     loop {
         ticker.next().await;
+        watchdog.feed();
         let now_us = Instant::now().as_micros();
         let (switch_states, edges, switches_changed) = switches::sample();
         if switches_changed {
@@ -75,5 +82,13 @@ pub async fn run(mut pins: PowerPins, schedule: &'static StepSchedule) -> ! {
             last_shape = Some(shape);
         }
         log.drain(); // state transitions, faults, limit stops, homing
+        let late = steps::worst_entry_ticks();
+        if late > worst_late {
+            worst_late = late;
+            defmt::info!(
+                "step interrupt: worst latency {=u32} ns",
+                (u64::from(late) * 1_000_000_000 / u64::from(board::STEP_TICK_HZ)) as u32
+            );
+        }
     }
 }

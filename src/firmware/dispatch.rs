@@ -24,7 +24,8 @@ use modbus_drive::Device;
 
 use super::calc::{reply_wait_us, RateLimit};
 use super::flash::FlashRegion;
-use super::rs485::{self, FRAMES, FRAMES_DROPPED};
+use super::rs485::{self, FRAMES_DROPPED};
+use super::steps;
 
 /// The drive core, shared by the dispatcher and the control loop.
 /// Installed once by `main` ([`install`]). A `OnceLock` is zero-initialised
@@ -95,24 +96,34 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
     let mut reply = [0u8; MAX_FRAME];
     let mut log = EventLog::new();
     loop {
-        let rx = FRAMES.receive().await;
+        let rx = rs485::receive().await;
+        #[cfg(feature = "fault-test")]
+        super::fault::test_trigger(rx.event());
         let Some((mut response, delay_us)) =
             with_device(|d| (d.handle_rx(rx.event(), &mut reply), d.reply_delay_us()))
         else {
             continue;
         };
         // An accepted EE request (SPEC §9) runs now; its reply is deferred
-        // until it is done. Erasing stalls the CPU's flash reads (single
-        // bank), so interrupts wait too: save with the motor at rest.
+        // until it is done. Erasing or programming stalls every fetch from
+        // the single flash bank, interrupts included, so it starts only
+        // with the step output idle (the core refuses it while statusword
+        // bit 9 is set; this is the glue's own check of the step schedule),
+        // and nothing can queue a step until it is done: the control loop
+        // shares this thread.
         if let Some(Some(deferred)) = with_device(|d| {
-            d.pending_ee()
-                .and_then(|_| d.poll_storage(&mut store, &mut reply))
+            d.pending_ee()?;
+            if steps::idle() {
+                d.poll_storage(&mut store, &mut reply)
+            } else {
+                d.refuse_storage(&mut reply)
+            }
         }) {
             response = deferred;
         }
         log.drain();
         if let Response::Reply(n) = response {
-            let wait = reply_wait_us(rs485::now_us(), rx.last_byte_at_us, delay_us);
+            let wait = reply_wait_us(rs485::now_us(), rx.last_byte_at_us(), delay_us);
             rs485::send(&reply[..n.min(MAX_FRAME)], wait).await;
         }
         // a new address, line format or DE lead / tail takes effect after

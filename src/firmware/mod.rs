@@ -12,9 +12,9 @@
 //! pins and peripherals: `board_g431.rs` / `board_f103.rs`; arithmetic:
 //! `calc.rs` (host-tested).
 //!
-//! Interrupt priorities (lower = more urgent; README "Firmware"):
-//! step timer P0, switches (EXTI) P1, USART P2, embassy-time driver P3;
-//! the tasks run in thread mode.
+//! Interrupt priorities and the masking rule: `priority.rs`; the watchdog
+//! and the fault path (panic, HardFault, NMI): `fault.rs`; the tasks run in
+//! thread mode.
 
 #[cfg(all(feature = "board-g431", feature = "board-f103"))]
 compile_error!("choose one board feature: board-g431 or board-f103");
@@ -34,35 +34,29 @@ mod board;
 mod calc;
 mod control;
 mod dispatch;
+mod fault;
 mod flash;
+mod owned;
+mod priority;
 mod rs485;
 mod steps;
 mod switches;
 
+use defmt_rtt as _;
 use embassy_executor::Spawner;
-use embassy_stm32::interrupt::typelevel::{Interrupt, TIM2};
-use embassy_stm32::interrupt::Priority;
+use embassy_stm32::interrupt::typelevel::Interrupt;
 use embedded_storage::nor_flash::ReadNorFlash;
 use modbus_drive::device::Identity;
 use modbus_drive::motion::PlannerConfig;
 use modbus_drive::params::ParamStore;
 use modbus_drive::rtu::LineConfig;
 use modbus_drive::Device;
-use {defmt_rtt as _, panic_probe as _};
-
-/// Interrupt priorities (see the module docs).
-const PRIO_STEP: Priority = Priority::P0;
-const PRIO_SWITCH: Priority = Priority::P1;
-const PRIO_UART: Priority = Priority::P2;
-const PRIO_TIME: Priority = Priority::P3;
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     let p = embassy_stm32::init(board::config());
-    board::StepIrq::set_priority(PRIO_STEP);
-    board::SwitchIrq::set_priority(PRIO_SWITCH);
-    board::UartIrq::set_priority(PRIO_UART);
-    TIM2::set_priority(PRIO_TIME);
+    priority::init();
+    board::after_init();
 
     let parts = defmt::unwrap!(
         board::split(p, &rs485::usart_config(LineConfig::DEFAULT)).map_err(rs485::config_error)
@@ -79,7 +73,7 @@ async fn main(spawner: Spawner) {
     // In a block: a `Device` local of `main` would stay in main's future
     // (a static) after it has been moved to the dispatcher — 2.9 KiB of RAM
     // twice (llvm-nm of the F103 ELF).
-    let (line, address, de) = {
+    let (line, address, de, dir_inverted) = {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks
         // (calc::step_prescaler).
@@ -87,8 +81,25 @@ async fn main(spawner: Spawner) {
             tick_hz: board::STEP_TICK_HZ,
             ..PlannerConfig::default()
         });
-        device.apply_boot(&store.boot());
-        let at = (device.line(), device.address(), device.driver_enable());
+        #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
+        let mut boot = store.boot();
+        // A page the G431 cannot read (flash ECC after a power cut, fault.rs)
+        // is erased and the store read again, before the step timer runs.
+        #[cfg(feature = "board-g431")]
+        if let Ok(Some(page)) = store.flash().erase_faulted_page() {
+            defmt::warn!(
+                "parameter page at offset {:#x} unreadable (flash ECC): erased",
+                page
+            );
+            boot = store.boot();
+        }
+        device.apply_boot(&boot);
+        let at = (
+            device.line(),
+            device.address(),
+            device.driver_enable(),
+            device.params().direction_inverted(),
+        );
         dispatch::install(device);
         at
     };
@@ -102,7 +113,7 @@ async fn main(spawner: Spawner) {
         timer_clock_hz,
         board::STEP_TICK_HZ
     );
-    let schedule = steps::start(parts.dir, prescaler);
+    let schedule = steps::start(parts.dir, prescaler, dir_inverted);
     // SAFETY: the handler is bound in `board::Irqs`; its state
     // (steps::STEPPER) is initialised by `steps::start` above.
     unsafe { board::StepIrq::enable() };
@@ -134,12 +145,15 @@ async fn main(spawner: Spawner) {
     let _step_pin = parts.step_pin;
     #[cfg(feature = "board-f103")]
     let _de_pin = parts.de;
+    // From here on a hung thread resets the chip (fault.rs).
+    let watchdog = fault::Watchdog::start();
     control::run(
         control::PowerPins {
             enable: parts.enable,
             brake: parts.brake,
         },
         schedule,
+        watchdog,
     )
     .await
 }

@@ -20,137 +20,226 @@
 //! that, and always on the F103, DE is a GPIO that [`send`] raises the
 //! lead before the first byte and the interrupt drops the tail after TC.
 //!
-//! Shared state: [`LINK`] (assembler + transmit buffer) behind a critical
-//! section; [`FRAMES`], [`TX_DONE`] are embassy-sync primitives on a
-//! critical-section mutex.
+//! Shared state, no lock held while bytes are copied (priority.rs):
+//! - the link (assembler, line timing, DE lead / tail) belongs to the USART
+//!   interrupt; thread code changes it only with that one interrupt
+//!   disabled in the NVIC ([`with_link`]), which masks nothing else;
+//! - a closed frame goes into one of two [`FrameSlot`]s, owned by the
+//!   interrupt while free and by the dispatcher once marked full, handed
+//!   over with an atomic state ([`receive`], [`RxFrame`]); a frame that
+//!   finds no free slot is dropped and counted;
+//! - a reply goes the same way: [`send`] fills the transmit buffer while
+//!   no transmission runs, marks it requested and pends the interrupt,
+//!   which starts it (only the interrupt writes CR1 while the link runs);
+//!   a software DE is raised by [`send`] before the request (the interrupt
+//!   leaves the pin alone while no transmission runs) and dropped by the
+//!   interrupt after TC;
+//! - F103: the frame-gap task asks the interrupt to poll the assembler
+//!   through an atomic flag and a pended interrupt.
+//!
+//! [`FRAME_READY`] and [`TX_DONE`] only wake tasks (embassy-sync signals;
+//! their critical section is short and leaves the step interrupt alone).
 
-use core::cell::RefCell;
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::mem::MaybeUninit;
+use core::sync::atomic::{AtomicBool, AtomicU32, AtomicU8, AtomicUsize, Ordering};
 
-use critical_section::Mutex;
-use embassy_stm32::interrupt::typelevel::Handler;
+use embassy_stm32::interrupt::typelevel::{Handler, Interrupt};
 use embassy_stm32::mode::Blocking;
 use embassy_stm32::usart::{self, Uart};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
-use embassy_sync::channel::Channel;
-use embassy_sync::once_lock::OnceLock;
 use embassy_sync::signal::Signal;
-use heapless::Vec;
 use modbus_drive::rtu::{
     CharFormat, DriverEnable, FrameAssembler, FrameTiming, LineConfig, RxEvent, RxFlags, MAX_FRAME,
 };
 
 use super::board;
 use super::calc::DeDrive;
+use super::owned::IrqOwned;
 
-/// A closed frame (or frame error), owned, on its way to the dispatcher.
-pub struct Received {
-    pub outcome: Outcome,
+/// A closed frame (or frame error), as the interrupt left it in its slot.
+pub struct FrameSlot {
+    bytes: [u8; MAX_FRAME],
+    len: u16,
+    kind: u8,
+    parity_error: bool,
     /// End of the request's last byte (the reply waits from here, SPEC §1).
-    pub last_byte_at_us: u32,
+    last_byte_at_us: u32,
 }
 
-// No heap to box into: the frame lives in its channel slot either way.
-#[allow(clippy::large_enum_variant)]
-pub enum Outcome {
-    Frame {
-        bytes: Vec<u8, MAX_FRAME>,
-        parity_error: bool,
-    },
-    Broken,
-    TooShort,
-    Overrun,
-}
+const KIND_FRAME: u8 = 0;
+const KIND_BROKEN: u8 = 1;
+const KIND_TOO_SHORT: u8 = 2;
+const KIND_OVERRUN: u8 = 3;
 
-impl Received {
-    fn new(ev: RxEvent<'_>, last_byte_at_us: u32) -> Self {
-        let outcome = match ev {
+impl FrameSlot {
+    /// All zeros: the slots live in .bss, no flash image.
+    const EMPTY: Self = Self {
+        bytes: [0; MAX_FRAME],
+        len: 0,
+        kind: KIND_FRAME,
+        parity_error: false,
+        last_byte_at_us: 0,
+    };
+
+    fn fill(&mut self, ev: RxEvent<'_>, last_byte_at_us: u32) {
+        self.last_byte_at_us = last_byte_at_us;
+        (self.kind, self.len) = match ev {
             RxEvent::Frame {
                 bytes,
                 parity_error,
-            } => Outcome::Frame {
+            } => {
                 // a frame is at most MAX_FRAME bytes (the assembler's buffer)
-                bytes: Vec::from_slice(bytes).unwrap_or_default(),
-                parity_error,
-            },
-            RxEvent::Broken => Outcome::Broken,
-            RxEvent::TooShort => Outcome::TooShort,
-            RxEvent::Overrun => Outcome::Overrun,
+                let n = bytes.len().min(MAX_FRAME);
+                self.bytes[..n].copy_from_slice(&bytes[..n]);
+                self.parity_error = parity_error;
+                (KIND_FRAME, n as u16)
+            }
+            RxEvent::Broken => (KIND_BROKEN, 0),
+            RxEvent::TooShort => (KIND_TOO_SHORT, 0),
+            RxEvent::Overrun => (KIND_OVERRUN, 0),
         };
-        Self {
-            outcome,
-            last_byte_at_us,
-        }
+    }
+}
+
+const SLOT_FREE: u8 = 0;
+const SLOT_FULL: u8 = 1;
+
+/// Two slots: one being answered, one arriving (a master does not send
+/// more before our reply).
+static SLOTS: [IrqOwned<FrameSlot>; 2] = [
+    IrqOwned::new(FrameSlot::EMPTY),
+    IrqOwned::new(FrameSlot::EMPTY),
+];
+static SLOT_STATE: [AtomicU8; 2] = [AtomicU8::new(SLOT_FREE), AtomicU8::new(SLOT_FREE)];
+/// The next slot the dispatcher reads (thread only).
+static READ_SLOT: AtomicUsize = AtomicUsize::new(0);
+/// A slot became full.
+static FRAME_READY: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+/// Frames lost because the dispatcher was behind (logged by the dispatcher).
+pub static FRAMES_DROPPED: AtomicU32 = AtomicU32::new(0);
+
+/// A full slot, the dispatcher's until dropped.
+pub struct RxFrame {
+    index: usize,
+}
+
+impl RxFrame {
+    fn slot(&self) -> &FrameSlot {
+        // SAFETY: the slot is full: the interrupt does not touch it until
+        // `drop` marks it free; only shared references are made here.
+        unsafe { SLOTS[self.index].get() }
     }
 
     /// The core's view of it, for `Device::handle_rx`.
     pub fn event(&self) -> RxEvent<'_> {
-        match &self.outcome {
-            Outcome::Frame {
-                bytes,
-                parity_error,
-            } => RxEvent::Frame {
-                bytes,
-                parity_error: *parity_error,
+        let s = self.slot();
+        match s.kind {
+            KIND_FRAME => RxEvent::Frame {
+                bytes: &s.bytes[..usize::from(s.len)],
+                parity_error: s.parity_error,
             },
-            Outcome::Broken => RxEvent::Broken,
-            Outcome::TooShort => RxEvent::TooShort,
-            Outcome::Overrun => RxEvent::Overrun,
+            KIND_BROKEN => RxEvent::Broken,
+            KIND_TOO_SHORT => RxEvent::TooShort,
+            _ => RxEvent::Overrun,
         }
+    }
+
+    pub fn last_byte_at_us(&self) -> u32 {
+        self.slot().last_byte_at_us
     }
 }
 
-/// Closed frames for the dispatcher. Two slots: one being answered, one
-/// arriving (a master does not send more before our reply).
-pub static FRAMES: Channel<CriticalSectionRawMutex, Received, 2> = Channel::new();
-/// Frames lost because the dispatcher was behind (logged by the dispatcher).
-pub static FRAMES_DROPPED: AtomicU32 = AtomicU32::new(0);
+impl Drop for RxFrame {
+    fn drop(&mut self) {
+        SLOT_STATE[self.index].store(SLOT_FREE, Ordering::Release);
+    }
+}
+
+/// The next closed frame, in arrival order.
+pub async fn receive() -> RxFrame {
+    let index = READ_SLOT.load(Ordering::Relaxed);
+    loop {
+        if SLOT_STATE[index].load(Ordering::Acquire) == SLOT_FULL {
+            READ_SLOT.store(index ^ 1, Ordering::Relaxed);
+            return RxFrame { index };
+        }
+        FRAME_READY.wait().await;
+    }
+}
+
+const TX_IDLE: u8 = 0;
+const TX_REQUESTED: u8 = 1;
+const TX_SENDING: u8 = 2;
+
+struct TxBuf {
+    bytes: [u8; MAX_FRAME],
+    len: usize,
+}
+
+/// The reply: [`send`]'s while [`TX_STATE`] is idle, the interrupt's after.
+static TX: IrqOwned<TxBuf> = IrqOwned::new(TxBuf {
+    bytes: [0; MAX_FRAME],
+    len: 0,
+});
+static TX_STATE: AtomicU8 = AtomicU8::new(TX_IDLE);
 /// The interrupt has sent the last stop bit of the reply.
 static TX_DONE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
-/// A byte arrived (wakes the F103 frame-gap task).
+
+/// F103: a byte arrived (wakes the frame-gap task); its time and t3.5.
 #[cfg(feature = "board-f103")]
 static RX_ACTIVITY: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+#[cfg(feature = "board-f103")]
+static LAST_BYTE_AT_US: AtomicU32 = AtomicU32::new(0);
+#[cfg(feature = "board-f103")]
+static T35_US: AtomicU32 = AtomicU32::new(0);
+/// F103: the frame-gap task asks the interrupt to poll the assembler.
+#[cfg(feature = "board-f103")]
+static POLL_REQUESTED: AtomicBool = AtomicBool::new(false);
+/// F103: a frame is being received (the assembler's `is_receiving`).
+#[cfg(feature = "board-f103")]
+static RECEIVING: AtomicBool = AtomicBool::new(false);
 
-/// `repr(C)`, the fields that start at zero together: one fill sets them
-/// up (flash is short on the F103).
-#[repr(C)]
 struct Link {
     assembler: FrameAssembler,
-    t35_us: u32,
-    tx_len: usize,
+    /// The slot the next frame goes to.
+    write_slot: usize,
     tx_pos: usize,
     /// PA57 / PA58 as this board makes them.
     de_drive: DeDrive,
-    transmitting: bool,
-    tx: [u8; MAX_FRAME],
 }
 
-/// Set up at first use. A `OnceLock` is zero-initialised (.bss); a `Link`
-/// initialiser is not, and would cost its size again in flash as a .data
-/// image (README "Sizes").
-static LINK: OnceLock<Mutex<RefCell<Link>>> = OnceLock::new();
+/// Owned by the USART interrupt once [`LINK_READY`] is set, which also
+/// says it is initialised. Not an `Option`: its `None` is not all zeros and
+/// would put the whole link into .data, a flash image of its size.
+static LINK: IrqOwned<MaybeUninit<Link>> = IrqOwned::new(MaybeUninit::uninit());
+static LINK_READY: AtomicBool = AtomicBool::new(false);
 
-/// `f` on the link, inside a critical section (the USART interrupt shares it).
+/// `f` on the link from thread code, with the USART interrupt disabled in
+/// the NVIC meanwhile (nothing else is masked). The link is set up at the
+/// first call.
 fn with_link<R>(f: impl FnOnce(&mut Link) -> R) -> R {
-    critical_section::with(|cs| f(&mut link().borrow_ref_mut(cs)))
-}
-
-/// The link, set up at the first call. Not inlined: one copy of the set-up
-/// for all callers.
-#[inline(never)]
-fn link() -> &'static Mutex<RefCell<Link>> {
-    LINK.get_or_init(|| {
-        Mutex::new(RefCell::new(Link {
+    board::UartIrq::disable();
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+    // SAFETY: the interrupt cannot run now: thread code owns the link.
+    let slot = unsafe { LINK.get() };
+    let link = if LINK_READY.load(Ordering::Relaxed) {
+        // SAFETY: initialised by the first call (LINK_READY).
+        unsafe { slot.assume_init_mut() }
+    } else {
+        slot.write(Link {
             assembler: FrameAssembler::new(FrameTiming::new(LineConfig::DEFAULT)),
-            t35_us: FrameTiming::new(LineConfig::DEFAULT).t35_us,
-            tx: [0; MAX_FRAME],
-            tx_len: 0,
+            write_slot: 0,
             tx_pos: 0,
-            transmitting: false,
             // replaced by `apply_line` before the first reply
             de_drive: DeDrive::default(),
-        }))
-    })
+        })
+    };
+    let r = f(link);
+    LINK_READY.store(true, Ordering::Release);
+    // SAFETY: the handler is bound (board::Irqs) and its state is set up.
+    unsafe { board::UartIrq::enable() };
+    r
 }
 
 /// Microseconds from the embassy-time driver (tick 1 MHz), wrapping.
@@ -214,11 +303,13 @@ pub fn apply_line(
     // asked), clearing our interrupt enables
     uart.split_ref().1.set_config(&usart_config(line))?;
     let timing = line.timing();
+    #[cfg(feature = "board-f103")]
+    T35_US.store(timing.t35_us, Ordering::Relaxed);
+    let de_drive = DeDrive::new(de, line, de_samples_per_bit());
     with_link(|link| {
         link.assembler.set_timing(timing);
-        link.t35_us = timing.t35_us;
-        link.de_drive = DeDrive::new(de, line, de_samples_per_bit());
-        arm_receiver(line, link.de_drive);
+        link.de_drive = de_drive;
+        arm_receiver(line, de_drive);
     });
     Ok(())
 }
@@ -280,24 +371,58 @@ fn arm_receiver(_line: LineConfig, _de: DeDrive) {
     board::UART.cr1().modify(|w| w.set_rxneie(true));
 }
 
-/// The USART interrupt (priority: `board::PRIO_UART`).
+/// The USART interrupt (priority: `priority::PRIO_UART`).
 pub struct UartHandler;
 
 impl Handler<board::UartIrq> for UartHandler {
     unsafe fn on_interrupt() {
+        if !LINK_READY.load(Ordering::Acquire) {
+            return;
+        }
         let at_us = now_us();
-        if let Some(tail_us) = with_link(|link| on_uart(link, at_us)) {
+        // SAFETY: this interrupt owns the link (thread code disables it
+        // before touching the link), initialised (LINK_READY).
+        let link = unsafe { LINK.get().assume_init_mut() };
+        start_tx(link);
+        if let Some(tail_us) = on_uart(link, at_us) {
             // The software DE tail, here rather than in `send`: the
             // dispatcher task may wake much later (thread mode shares the
             // CPU with the control loop), and a master may send its next
-            // request soon after our last stop bit. Outside the critical
-            // section, so the step interrupt runs meanwhile. Core cycles
-            // (at least that many, more if preempted) rather than reads of
-            // the time driver: the wait touches no peripheral.
+            // request soon after our last stop bit. Core cycles (at least
+            // that many, more if preempted) rather than reads of the time
+            // driver: the wait touches no peripheral, and the step
+            // interrupt outranks this one meanwhile.
             cortex_m::asm::delay(tail_us.saturating_mul(board::CPU_HZ / 1_000_000));
             set_de(false);
         }
     }
+}
+
+/// A reply [`send`] asked for: start feeding the data register.
+fn start_tx(link: &mut Link) {
+    if TX_STATE.load(Ordering::Acquire) != TX_REQUESTED {
+        return;
+    }
+    TX_STATE.store(TX_SENDING, Ordering::Relaxed);
+    link.tx_pos = 0;
+    board::UART.cr1().modify(|w| w.set_txeie(true));
+}
+
+/// The next byte of the reply, or `None` at its end.
+fn next_tx_byte(link: &mut Link) -> Option<u8> {
+    // SAFETY: TX_STATE is TX_SENDING: the buffer is the interrupt's.
+    let tx = unsafe { TX.get() };
+    let b = tx.bytes[..tx.len].get(link.tx_pos).copied();
+    link.tx_pos += 1;
+    b
+}
+
+/// The reply has left the wire. Returns the DE tail to hold (µs) when
+/// software drives DE for it.
+fn tx_done(link: &Link) -> Option<u32> {
+    TX_STATE.store(TX_IDLE, Ordering::Release);
+    TX_DONE.signal(());
+    link.de_drive.software.then_some(link.de_drive.tail_us)
 }
 
 /// Serves the USART; returns the DE tail to hold (µs) when a reply that
@@ -306,6 +431,16 @@ impl Handler<board::UartIrq> for UartHandler {
 fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
     let r = board::UART;
     let isr = r.isr().read();
+    // RTOF before the byte: with both set, the timeout ended the frame
+    // before this byte arrived (a byte waiting t3.5 for its interrupt
+    // would have overrun long before), so the byte starts the next one.
+    if isr.rtof() {
+        r.icr().write(|w| w.set_rtof(true));
+        let last = link.assembler.last_byte_at_us();
+        if let Some(ev) = link.assembler.end_of_frame() {
+            deliver(&mut link.write_slot, ev, last);
+        }
+    }
     if isr.rxne() {
         let flags = RxFlags {
             parity: isr.pe(),
@@ -313,33 +448,26 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
             overrun: isr.ore(),
         };
         let byte = r.rdr().read().dr() as u8; // clears RXNE
+                                              // only the flags read with this byte: one raised by the next byte
+                                              // meanwhile stays for its own interrupt
         r.icr().write(|w| {
-            w.set_pe(true);
-            w.set_fe(true);
-            w.set_ne(true);
-            w.set_ore(true);
+            w.set_pe(isr.pe());
+            w.set_fe(isr.fe());
+            w.set_ne(isr.ne());
+            w.set_ore(isr.ore());
         });
         on_byte(link, byte, at_us, flags);
     } else if isr.ore() {
         r.icr().write(|w| w.set_ore(true));
     }
-    if isr.rtof() {
-        r.icr().write(|w| w.set_rtof(true));
-        let last = link.assembler.last_byte_at_us();
-        if let Some(ev) = link.assembler.end_of_frame() {
-            deliver(Received::new(ev, last));
-        }
-    }
     let cr1 = r.cr1().read();
     if cr1.txeie() && isr.txe() {
-        if link.tx_pos < link.tx_len {
-            r.tdr().write(|w| w.set_dr(u16::from(link.tx[link.tx_pos])));
-            link.tx_pos += 1;
-        } else {
-            r.cr1().modify(|w| {
+        match next_tx_byte(link) {
+            Some(b) => r.tdr().write(|w| w.set_dr(u16::from(b))),
+            None => r.cr1().modify(|w| {
                 w.set_txeie(false);
                 w.set_tcie(true);
-            });
+            }),
         }
     }
     if cr1.tcie() && isr.tc() {
@@ -347,9 +475,7 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
         // unless software drives it
         r.cr1().modify(|w| w.set_tcie(false));
         r.icr().write(|w| w.set_tc(true));
-        link.transmitting = false;
-        TX_DONE.signal(());
-        return link.de_drive.software.then_some(link.de_drive.tail_us);
+        return tx_done(link);
     }
     None
 }
@@ -359,6 +485,13 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
 #[cfg(feature = "board-f103")]
 fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
     let r = board::UART;
+    if POLL_REQUESTED.swap(false, Ordering::Relaxed) {
+        let last = link.assembler.last_byte_at_us();
+        if let Some(ev) = link.assembler.poll(now_us()) {
+            deliver(&mut link.write_slot, ev, last);
+        }
+        RECEIVING.store(link.assembler.is_receiving(), Ordering::Relaxed);
+    }
     let sr = r.sr().read();
     if sr.rxne() || sr.ore() {
         let flags = RxFlags {
@@ -370,66 +503,84 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
         let byte = r.dr().read().dr() as u8;
         if sr.rxne() {
             on_byte(link, byte, at_us, flags);
+            LAST_BYTE_AT_US.store(link.assembler.last_byte_at_us(), Ordering::Relaxed);
+            RECEIVING.store(link.assembler.is_receiving(), Ordering::Relaxed);
             RX_ACTIVITY.signal(());
         }
     }
     let cr1 = r.cr1().read();
     if cr1.txeie() && sr.txe() {
-        if link.tx_pos < link.tx_len {
-            r.dr().write(|w| w.set_dr(u16::from(link.tx[link.tx_pos])));
-            link.tx_pos += 1;
-        } else {
-            r.cr1().modify(|w| {
+        match next_tx_byte(link) {
+            Some(b) => r.dr().write(|w| w.set_dr(u16::from(b))),
+            None => r.cr1().modify(|w| {
                 w.set_txeie(false);
                 w.set_tcie(true);
-            });
+            }),
         }
     }
     if cr1.tcie() && sr.tc() {
         // the last stop bit has left: the bus is released after the DE
         // tail (SPEC §1)
         r.cr1().modify(|w| w.set_tcie(false));
-        link.transmitting = false;
-        TX_DONE.signal(());
-        return Some(link.de_drive.tail_us);
+        return tx_done(link);
     }
     None
 }
 
 fn on_byte(link: &mut Link, byte: u8, at_us: u32, flags: RxFlags) {
-    if link.transmitting {
+    if TX_STATE.load(Ordering::Relaxed) != TX_IDLE {
         return; // our own echo if /RE is not tied to DE
     }
     let last = link.assembler.last_byte_at_us();
     if let Some(ev) = link.assembler.push(byte, at_us, flags) {
-        deliver(Received::new(ev, last));
+        deliver(&mut link.write_slot, ev, last);
     }
 }
 
-fn deliver(rx: Received) {
-    if FRAMES.try_send(rx).is_err() {
+/// Into the next slot if it is free (else the frame is dropped and
+/// counted), then handed to the dispatcher.
+fn deliver(write_slot: &mut usize, ev: RxEvent<'_>, last_byte_at_us: u32) {
+    let i = *write_slot;
+    if SLOT_STATE[i].load(Ordering::Acquire) != SLOT_FREE {
         FRAMES_DROPPED.fetch_add(1, Ordering::Relaxed);
+        return;
     }
+    // SAFETY: a free slot is the interrupt's until marked full.
+    unsafe { SLOTS[i].get() }.fill(ev, last_byte_at_us);
+    SLOT_STATE[i].store(SLOT_FULL, Ordering::Release);
+    *write_slot = i ^ 1;
+    FRAME_READY.signal(());
 }
 
 /// Sends `bytes` (≤ 256) in one burst, its first start bit no earlier than
 /// `not_before_us` from now, and returns once the last stop bit has left
 /// the wire and DE is released.
 pub async fn send(bytes: &[u8], not_before_us: u32) {
-    let [lead, tail] = load_reply(bytes);
+    if TX_STATE.load(Ordering::Acquire) != TX_IDLE {
+        return; // never: the dispatcher sends one reply at a time
+    }
+    let n = bytes.len().min(MAX_FRAME);
+    // SAFETY: TX_STATE is idle: the buffer is ours until we request.
+    let tx = unsafe { TX.get() };
+    tx.bytes[..n].copy_from_slice(&bytes[..n]);
+    tx.len = n;
+    let de = with_link(|link| link.de_drive);
+    let lead = if de.software { de.lead_us } else { 0 };
     // DE rises the lead before the earliest start (or now, and the start
     // waits for the lead); the tail follows transmission complete, and
     // whatever follows the reply (`apply_line` disables the USART) waits
     // for it. One await point for the three waits: each await of a timer
     // is a state of its own in the dispatcher's future, and flash is short
     // on the F103.
-    let waits = [not_before_us.saturating_sub(lead), lead, tail];
+    let waits = [not_before_us.saturating_sub(lead), lead, de.tail_us];
     for (phase, us) in waits.into_iter().enumerate() {
-        if phase == 1 {
+        if phase == 1 && de.software {
+            // no transmission runs: the interrupt leaves DE alone
             set_de(true);
         } else if phase == 2 {
-            // inside the critical section: the interrupt modifies CR1 too
-            with_link(|_| board::UART.cr1().modify(|w| w.set_txeie(true)));
+            TX_DONE.reset();
+            TX_STATE.store(TX_REQUESTED, Ordering::Release);
+            board::UartIrq::pend(); // the interrupt starts it
             TX_DONE.wait().await;
         }
         // one time-driver tick more: a wait of n ticks may start late in
@@ -440,56 +591,35 @@ pub async fn send(bytes: &[u8], not_before_us: u32) {
     }
 }
 
-/// Loads the reply for the interrupt. Returns the DE lead software times
-/// (0 when the USART times it) and the tail, µs; whether the USART or the
-/// interrupt drops DE after the tail, `send` waits for it.
-fn load_reply(bytes: &[u8]) -> [u32; 2] {
-    let n = bytes.len().min(MAX_FRAME);
-    TX_DONE.reset();
-    with_link(|link| {
-        link.tx[..n].copy_from_slice(&bytes[..n]);
-        link.tx_len = n;
-        link.tx_pos = 0;
-        link.transmitting = true;
-        let de = link.de_drive;
-        // (always software on the F103: it has no hardware DE)
-        let software = de.software || cfg!(feature = "board-f103");
-        [if software { de.lead_us } else { 0 }, de.tail_us]
-    })
-}
-
-/// Raises or drops DE if software drives it (on the G431 while PA57 /
+/// Raises or drops DE where software drives it (on the G431 while PA57 /
 /// PA58 exceed DEAT / DEDT): the USART's DE pin taken over as a GPIO
 /// (output data set first, so the switch from the alternate function, low
 /// between frames, is glitch-free) and handed back to the USART low.
+/// Called by [`send`] to raise it and by the interrupt to drop it, never
+/// both at once (a transmission runs between them); GPIOA's mode register
+/// has no other writer while the drive runs.
 #[cfg(feature = "board-g431")]
-#[inline(never)]
 fn set_de(high: bool) {
     use embassy_stm32::pac::gpio::vals::Moder;
-    with_link(|link| {
-        if !link.de_drive.software {
-            return;
-        }
-        let (port, pin) = (board::DE_PORT, board::DE_PIN);
-        port.bsrr().write(|w| {
-            w.set_bs(pin, high);
-            w.set_br(pin, !high);
-        });
-        port.moder().modify(|w| {
-            w.set_moder(
-                pin,
-                if high {
-                    Moder::OUTPUT
-                } else {
-                    Moder::ALTERNATE
-                },
-            )
-        });
+    let (port, pin) = (board::DE_PORT, board::DE_PIN);
+    port.bsrr().write(|w| {
+        w.set_bs(pin, high);
+        w.set_br(pin, !high);
+    });
+    port.moder().modify(|w| {
+        w.set_moder(
+            pin,
+            if high {
+                Moder::OUTPUT
+            } else {
+                Moder::ALTERNATE
+            },
+        )
     });
 }
 
 /// Raises or drops DE: always software on the F103 (a GPIO; one write to
-/// its set/reset register, atomic, so no critical section).
+/// its set/reset register, atomic).
 #[cfg(feature = "board-f103")]
 fn set_de(high: bool) {
     board::DE_PORT.bsrr().write(|w| {
@@ -506,25 +636,17 @@ fn set_de(high: bool) {
 pub async fn frame_gap_task() {
     loop {
         RX_ACTIVITY.wait().await;
-        loop {
-            let (receiving, last, t35) = with_link(|link| {
-                (
-                    link.assembler.is_receiving(),
-                    link.assembler.last_byte_at_us(),
-                    link.t35_us,
-                )
-            });
-            if !receiving {
-                break;
-            }
+        while RECEIVING.load(Ordering::Relaxed) {
+            let last = LAST_BYTE_AT_US.load(Ordering::Relaxed);
+            let t35 = T35_US.load(Ordering::Relaxed);
             let wait = super::calc::reply_wait_us(now_us(), last, t35);
             embassy_time::Timer::after_micros(u64::from(wait)).await;
-            with_link(|link| {
-                let last = link.assembler.last_byte_at_us();
-                if let Some(ev) = link.assembler.poll(now_us()) {
-                    deliver(Received::new(ev, last));
-                }
-            });
+            POLL_REQUESTED.store(true, Ordering::Relaxed);
+            board::UartIrq::pend();
+            // the interrupt outranks this task: it has polled once the
+            // pend has taken effect
+            cortex_m::asm::dsb();
+            cortex_m::asm::isb();
         }
     }
 }

@@ -24,14 +24,19 @@
 //! period starting now, so the core's position leads the STEP pin by at
 //! most one period.
 //!
-//! Shared state: [`STEPPER`] behind a critical section (this interrupt; the
-//! control loop sets the shape), [`SCHEDULE`] lock-free (atomics only),
-//! [`DIR_INVERTED`] an atomic.
+//! Shared state, none of it behind a lock (priority.rs: nothing masks this
+//! interrupt): [`SCHEDULE`] lock-free (atomics only), [`STEPPER`] owned by
+//! this interrupt alone (set up before it is enabled), the STEP width / DIR
+//! set-up and PA11 handed over in atomics ([`set_shape`],
+//! [`set_dir_inverted`]) and taken at the next update event.
+//!
+//! DIR: [`start`] writes it for the positive direction, which is what the
+//! shaper assumes of the first step; a PA11 change flips the pin's meaning,
+//! so the interrupt then tells the shaper the pin now stands for the other
+//! direction, and the next step gets the set-up stretch of a reversal.
 
-use core::cell::RefCell;
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use critical_section::Mutex;
 use embassy_stm32::gpio::Output;
 use embassy_stm32::interrupt::typelevel::Handler;
 use embassy_stm32::pac::timer::vals::Ocm;
@@ -40,6 +45,7 @@ use modbus_drive::motion::{StepSchedule, StepSource};
 
 use super::board;
 use super::calc::{Period, Step, StepShape, StepShaper};
+use super::owned::IrqOwned;
 
 /// The step schedule between the control loop and this interrupt. Its
 /// `const` initialiser is all zeros, so it lives in .bss and costs no flash
@@ -53,60 +59,94 @@ pub fn schedule() -> &'static StepSchedule {
 
 /// PA11: DIR inverted (written by the control loop).
 static DIR_INVERTED: AtomicBool = AtomicBool::new(false);
+/// STEP width and DIR set-up in ticks, packed (`StepShape::packed`).
+static SHAPE: AtomicU32 = AtomicU32::new(0);
 
 struct Stepper {
     shaper: StepShaper,
     source: StepSource,
     dir: Option<DirectionOutput<Output<'static>>>,
-    /// Direction of the pulse preloaded for the next period.
+    /// PA11 as the pin levels in the timer were computed with.
+    inverted: bool,
+    /// Shape last taken from [`SHAPE`].
+    shape: u32,
+    /// DIR level for the pulse preloaded for the next period.
     pulse_next: Option<bool>,
 }
 
-static STEPPER: Mutex<RefCell<Stepper>> = Mutex::new(RefCell::new(Stepper {
+/// Owned by the step interrupt once it is enabled (`start` fills it before).
+static STEPPER: IrqOwned<Stepper> = IrqOwned::new(Stepper {
     shaper: StepShaper::new(StepShape::safe(board::STEP_TICK_HZ)),
     source: StepSource::new(),
     dir: None,
+    inverted: false,
+    shape: 0,
     pulse_next: None,
-}));
+});
 
 /// Sets the timer up (tick `board::STEP_TICK_HZ`, PWM mode 2 on channel 1,
-/// preloads, update interrupt) and starts it idle. The STEP pin is already
-/// in its alternate function (`board::split`). `prescaler` is
+/// preloads, update interrupt) and starts it idle, DIR set for the positive
+/// direction under PA11 = `dir_inverted`. The STEP pin is already in its
+/// alternate function (`board::split`). `prescaler` is
 /// `calc::step_prescaler` of the timer's clock. Returns the step schedule
-/// for the control loop.
-pub fn start(dir: Output<'static>, prescaler: u16) -> &'static StepSchedule {
+/// for the control loop. Call it before the step interrupt is enabled.
+pub fn start(dir: Output<'static>, prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
     let t = board::STEP_TIMER;
-    let idle = StepShape::safe(board::STEP_TICK_HZ).idle_ticks;
-    critical_section::with(|cs| {
-        STEPPER.borrow_ref_mut(cs).dir = Some(DirectionOutput { dir });
-        t.cr1().modify(|w| {
-            w.set_cen(false);
-            w.set_arpe(true);
-        });
-        t.psc().write_value(prescaler);
-        t.arr().write(|w| w.set_arr((idle - 1) as u16));
-        t.ccr(0).write(|w| w.set_ccr(u16::MAX));
-        t.ccmr_output(0).modify(|w| {
-            w.set_ocm(0, Ocm::PWM_MODE2);
-            w.set_ocpe(0, true);
-        });
-        t.ccer().modify(|w| w.set_cce(0, true));
-        t.egr().write(|w| w.set_ug(true)); // load PSC/ARR/CCR1 now
-        t.sr().write_value(Default::default());
-        t.dier().modify(|w| w.set_uie(true));
-        t.cr1().modify(|w| w.set_cen(true));
+    let shape = StepShape::safe(board::STEP_TICK_HZ);
+    DIR_INVERTED.store(dir_inverted, Ordering::Relaxed);
+    SHAPE.store(shape.packed(), Ordering::Relaxed);
+    // SAFETY: the step interrupt is not enabled yet: nothing else runs on it.
+    let s = unsafe { STEPPER.get() };
+    let mut dir = DirectionOutput { dir };
+    // the shaper starts out assuming the last step went forward
+    dir.set(true, dir_inverted);
+    s.dir = Some(dir);
+    s.inverted = dir_inverted;
+    s.shape = shape.packed();
+    t.cr1().modify(|w| {
+        w.set_cen(false);
+        w.set_arpe(true);
     });
+    t.psc().write_value(prescaler);
+    t.arr().write(|w| w.set_arr((shape.idle_ticks - 1) as u16));
+    t.ccr(0).write(|w| w.set_ccr(u16::MAX));
+    t.ccmr_output(0).modify(|w| {
+        w.set_ocm(0, Ocm::PWM_MODE2);
+        w.set_ocpe(0, true);
+    });
+    t.ccer().modify(|w| w.set_cce(0, true));
+    t.egr().write(|w| w.set_ug(true)); // load PSC/ARR/CCR1 now
+    t.sr().write_value(Default::default());
+    t.dier().modify(|w| w.set_uie(true));
+    t.cr1().modify(|w| w.set_cen(true));
     &SCHEDULE
 }
 
 /// New STEP width / DIR set-up (PA15/PA16); applies from the next step.
 pub fn set_shape(shape: StepShape) {
-    critical_section::with(|cs| STEPPER.borrow_ref_mut(cs).shaper.set_shape(shape));
+    SHAPE.store(shape.packed(), Ordering::Relaxed);
 }
 
 /// PA11 (DIR inverted); applies from the next step.
 pub fn set_dir_inverted(inverted: bool) {
     DIR_INVERTED.store(inverted, Ordering::Relaxed);
+}
+
+/// Nothing is queued and no step is under way: flash work may start
+/// (SPEC §9). Only the control loop fills the schedule, and it cannot run
+/// while the dispatcher does flash work, so this stays true through it.
+pub fn idle() -> bool {
+    SCHEDULE.is_empty() && !SCHEDULE.is_running()
+}
+
+/// The latest this interrupt has started after its update event, in timer
+/// ticks (the counter at entry): its measured worst-case latency, which the
+/// DIR set-up stretch assumes below `calc::ISR_LATENCY_NS`.
+static WORST_ENTRY_TICKS: AtomicU32 = AtomicU32::new(0);
+
+/// [`WORST_ENTRY_TICKS`] (for the control loop's log).
+pub fn worst_entry_ticks() -> u32 {
+    WORST_ENTRY_TICKS.load(Ordering::Relaxed)
 }
 
 /// The step timer's update interrupt (priority: `PRIO_STEP`).
@@ -115,11 +155,15 @@ pub struct StepHandler;
 impl Handler<board::StepIrq> for StepHandler {
     unsafe fn on_interrupt() {
         let t = board::STEP_TIMER;
+        // the counter restarted at the update event: it is how late we are
+        let late = u32::from(t.cnt().read().cnt());
         if !t.sr().read().uif() {
             return;
         }
         t.sr().modify(|w| w.set_uif(false));
-        critical_section::with(|cs| on_update(&mut STEPPER.borrow_ref_mut(cs)));
+        WORST_ENTRY_TICKS.fetch_max(late, Ordering::Relaxed);
+        // SAFETY: this interrupt is the stepper's only user once enabled.
+        on_update(unsafe { STEPPER.get() });
     }
 }
 
@@ -128,9 +172,19 @@ impl Handler<board::StepIrq> for StepHandler {
 fn on_update(s: &mut Stepper) {
     let t = board::STEP_TIMER;
     // the period now starting was preloaded last time: DIR for its pulse
-    if let (Some(forward), Some(dir)) = (s.pulse_next.take(), s.dir.as_mut()) {
-        // Output is infallible; DirectionOutput applies PA11
-        dir.set(forward, DIR_INVERTED.load(Ordering::Relaxed));
+    if let (Some(level), Some(dir)) = (s.pulse_next.take(), s.dir.as_mut()) {
+        // Output is infallible; the level has PA11 applied already
+        dir.set(level, false);
+    }
+    let inverted = DIR_INVERTED.load(Ordering::Relaxed);
+    if inverted != s.inverted {
+        s.inverted = inverted;
+        s.shaper.dir_pin_flipped();
+    }
+    let shape = SHAPE.load(Ordering::Relaxed);
+    if shape != s.shape {
+        s.shape = shape;
+        s.shaper.set_packed_shape(shape);
     }
     let Stepper { shaper, source, .. } = s;
     let Period { arr, ccr, dir } = shaper.next_period(|| {
@@ -141,5 +195,5 @@ fn on_update(s: &mut Stepper) {
     });
     t.arr().write(|w| w.set_arr(arr));
     t.ccr(0).write(|w| w.set_ccr(ccr));
-    s.pulse_next = dir;
+    s.pulse_next = dir.map(|forward| forward != s.inverted);
 }

@@ -4,8 +4,10 @@
 //! hal `InputPin`, PA13 polarity: a normally open switch is active when its
 //! pin is high), the same code the host doubles run.
 //!
-//! Every edge raises the EXTI interrupt. It reads the three pins at once and
-//! hands the enabled limits (PA14) to the step schedule
+//! Every edge raises the EXTI interrupt. It clears the pending bits of all
+//! its lines first, whatever their state (an edge it cannot attribute would
+//! otherwise re-enter the handler for ever), reads the three pins at once
+//! and hands the enabled limits (PA14) to the step schedule
 //! (`StepSchedule::set_limits`): the step interrupt then brakes any motion
 //! towards an active limit with 0x6085 at its next step, without waiting
 //! for the control loop (schedule.rs "Limit brake"; disarmed in homing,
@@ -19,9 +21,14 @@
 //! schedule's position (`StepSchedule::position`); the control loop hands
 //! it to the core with the debounced change (`Device::control_latched`),
 //! which takes it as the origin if it lies on the current search leg. The
-//! position is read inside the critical section: the step interrupt cannot
-//! be half-way through a step then (it is either done or not started), so
-//! the read is consistent.
+//! step interrupt outranks the critical section (priority.rs) and may step
+//! during the read; `StepSchedule::position` is a sequence-counted read
+//! made for exactly that, so it is consistent.
+//!
+//! A limit brakes only when a second read of its pin [`CONFIRM_US`] after
+//! the first agrees: a spike shorter than that (motor cables next to the
+//! switch wiring) no longer latches a quick stop. A release needs no
+//! confirmation (a brake already under way is the schedule's business).
 //!
 //! Shared state: the inputs and latches behind a critical section
 //! ([`INPUTS`]), inside which the limits are also sent, so the EXTI
@@ -36,6 +43,7 @@ use critical_section::Mutex;
 use embassy_stm32::exti::ExtiInput;
 use embassy_stm32::interrupt::typelevel::Handler;
 use embassy_stm32::mode::Blocking;
+use embassy_stm32::pac;
 use modbus_drive::drive::io;
 use modbus_drive::motion::{SwitchEdges, Switches};
 
@@ -59,6 +67,10 @@ static INPUTS: Mutex<RefCell<Option<Inputs>>> = Mutex::new(RefCell::new(None));
 static POLARITY: AtomicU16 = AtomicU16::new(0);
 /// PA14: bit 0 CW, bit 1 CCW limit enabled (default both).
 static LIMIT_ENABLE: AtomicU16 = AtomicU16::new(3);
+/// Time between the two reads of an active limit.
+pub const CONFIRM_US: u32 = 2;
+/// EXTI lines of the EXTI15_10 vector: pending bits cleared at every entry.
+const EXTI_LINES_10_15: u32 = 0xFC00;
 
 /// The debounced states start inactive: a switch active at power-up is
 /// reported 3 ms later, like any change.
@@ -84,13 +96,18 @@ pub fn set_params(polarity: u16, limit_enable: u16) {
 /// state; returns the logical states (after PA13, before PA14: the core
 /// applies PA14 itself).
 fn read(i: &mut Inputs) -> Switches {
-    let s = i.pins.read(POLARITY.load(Ordering::Relaxed));
+    let polarity = POLARITY.load(Ordering::Relaxed);
+    let s = i.pins.read(polarity);
+    let (mut cw, mut ccw) = (s.cw_limit, s.ccw_limit);
+    if cw || ccw {
+        cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000 * CONFIRM_US);
+        let again = i.pins.read(polarity);
+        cw &= again.cw_limit;
+        ccw &= again.ccw_limit;
+    }
     let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
     let schedule = steps::schedule();
-    schedule.set_limits(
-        s.cw_limit && enabled & 1 != 0,
-        s.ccw_limit && enabled & 2 != 0,
-    );
+    schedule.set_limits(cw && enabled & 1 != 0, ccw && enabled & 2 != 0);
     let position = schedule.position();
     i.cw.edge(s.cw_limit, position);
     i.ccw.edge(s.ccw_limit, position);
@@ -132,11 +149,12 @@ pub struct SwitchHandler;
 
 impl Handler<board::SwitchIrq> for SwitchHandler {
     unsafe fn on_interrupt() {
+        // before the pins are read: an edge after the read raises it again
+        pac::EXTI
+            .pr(0)
+            .write_value(pac::exti::regs::Lines(EXTI_LINES_10_15));
         critical_section::with(|cs| {
             if let Some(i) = INPUTS.borrow_ref_mut(cs).as_mut() {
-                i.pins.cw_limit.clear_pending();
-                i.pins.ccw_limit.clear_pending();
-                i.pins.home.clear_pending();
                 read(i);
             }
         });

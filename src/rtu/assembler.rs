@@ -83,6 +83,9 @@ pub struct FrameAssembler {
 }
 
 impl FrameAssembler {
+    // Inlined: the firmware builds it in place in its static, instead of
+    // through a call that clears both buffers with a generic memclr.
+    #[inline(always)]
     pub const fn new(timing: FrameTiming) -> Self {
         Self {
             bufs: [[0; MAX_FRAME]; 2],
