@@ -40,7 +40,7 @@ use modbus_drive::boards::Board;
 use super::flash::FlashRegion;
 use super::switches::SwitchInputs;
 
-/// Core clock set by [`config`].
+/// Core clock set by [`config`] (8 MHz HSE × 9): busy waits count its cycles.
 pub const SYSCLK_HZ: u32 = 72_000_000;
 
 pub const NAME: &str = Board::F103.chip();
@@ -52,10 +52,6 @@ pub const STEP_TICK_HZ: u32 = Board::F103.step_tick_hz();
 /// 0x0800_0000), which `memory-f103.x` leaves out of FLASH.
 pub const PARAM_FLASH_START: u32 = 0xF000;
 pub const PARAM_FLASH_LEN: u32 = 0x1000;
-
-/// Core clock as [`config`] sets it (8 MHz HSE × 9): busy waits count its
-/// cycles.
-pub const CPU_HZ: u32 = 72_000_000;
 
 pub const UART: pac::usart::Usart = pac::USART1;
 /// DE (PA8): configured as a push-pull output by [`split`] and driven

@@ -37,7 +37,7 @@ use modbus_drive::boards::Board;
 use super::flash::FlashRegion;
 use super::switches::SwitchInputs;
 
-/// Core clock set by [`config`].
+/// Core clock set by [`config`] (HSI16 / 4 × 85 / 2): busy waits count its cycles.
 pub const SYSCLK_HZ: u32 = 170_000_000;
 
 pub const NAME: &str = Board::G431.chip();
@@ -49,10 +49,6 @@ pub const STEP_TICK_HZ: u32 = Board::G431.step_tick_hz();
 /// which `memory-g431.x` leaves out of FLASH.
 pub const PARAM_FLASH_START: u32 = 0x1_F000;
 pub const PARAM_FLASH_LEN: u32 = 0x1000;
-
-/// Core clock as [`config`] sets it (HSI16 / 4 × 85 / 2): busy waits count its
-/// cycles.
-pub const CPU_HZ: u32 = 170_000_000;
 
 pub const UART: pac::usart::Usart = pac::USART1;
 /// USART1_DE (PA12), taken over as a GPIO when PA57 / PA58 exceed what the

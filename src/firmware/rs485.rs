@@ -392,7 +392,7 @@ impl Handler<board::UartIrq> for UartHandler {
             // that many, more if preempted) rather than reads of the time
             // driver: the wait touches no peripheral, and the step
             // interrupt outranks this one meanwhile.
-            cortex_m::asm::delay(tail_us.saturating_mul(board::CPU_HZ / 1_000_000));
+            cortex_m::asm::delay(tail_us.saturating_mul(board::SYSCLK_HZ / 1_000_000));
             set_de(false);
         }
     }
