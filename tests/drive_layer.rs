@@ -80,15 +80,7 @@ impl Rig {
 
     /// One whole frame through the dispatcher at address 1.
     fn frame(&mut self, bytes: &[u8]) -> Option<Vec<u8>> {
-        let mut regs = Registers {
-            od: &mut self.od,
-            pa: &mut self.pa,
-            drive: &mut self.drive,
-            identity: &self.identity,
-            busy: false,
-            store_status: Default::default(),
-            ee_request: None,
-        };
+        let mut regs = Registers::new(&mut self.od, &mut self.pa, &mut self.drive, &self.identity);
         let mut reply = [0u8; MAX_FRAME];
         let rx = RxEvent::Frame {
             bytes,

@@ -153,20 +153,54 @@ impl Region {
 /// The register space as one request sees it: the values, the drive layer
 /// behind the live entries and the state of the parameter store.
 pub struct Registers<'a, D> {
-    pub od: &'a mut OdValues,
-    pub pa: &'a mut Params,
-    pub drive: &'a mut D,
-    pub identity: &'a Identity,
+    pub(crate) od: &'a mut OdValues,
+    pub(crate) pa: &'a mut Params,
+    pub(crate) drive: &'a mut D,
+    pub(crate) identity: &'a Identity,
     /// A parameter-storage operation is running: register requests that
     /// pass validation get exception 6 (§5.2 step 9). Set by the parameter
     /// store.
-    pub busy: bool,
+    pub(crate) busy: bool,
     /// State of the parameter store, for DP-Err (SPEC §9).
-    pub store_status: StoreStatus,
+    pub(crate) store_status: StoreStatus,
     /// Set by an accepted write of an EE command register (0x003A, or
     /// 0x0000 in the old format): the operation to run. The reply waits
     /// until it is done (`Device::poll_storage`).
-    pub ee_request: Option<EeOp>,
+    pub(crate) ee_request: Option<EeOp>,
+}
+
+impl<'a, D> Registers<'a, D> {
+    /// The register space of a drive that is not busy and whose store is
+    /// fine ([`Self::with_store`] tells otherwise).
+    pub fn new(
+        od: &'a mut OdValues,
+        pa: &'a mut Params,
+        drive: &'a mut D,
+        identity: &'a Identity,
+    ) -> Self {
+        Self {
+            od,
+            pa,
+            drive,
+            identity,
+            busy: false,
+            store_status: StoreStatus::default(),
+            ee_request: None,
+        }
+    }
+
+    /// The parameter store's side: busy with an operation (§5.2 step 9),
+    /// and its state for DP-Err (SPEC §9).
+    pub fn with_store(mut self, busy: bool, store_status: StoreStatus) -> Self {
+        self.busy = busy;
+        self.store_status = store_status;
+        self
+    }
+
+    /// The EE operation an accepted write asked for, if any.
+    pub fn ee_request(&self) -> Option<EeOp> {
+        self.ee_request
+    }
 }
 
 /// Word `i` of big-endian request data (0 past its end; the dispatcher has

@@ -25,9 +25,10 @@ pub fn t35_rto_bits(line: LineConfig) -> u32 {
     }
 }
 
-/// How long the reply must still wait: SPEC §1 wants it no earlier than
-/// `delay_us` (t3.5 + PA56, `Device::reply_delay_us`) after the request's
-/// last byte. Timestamps are wrapping µs (`rtu::FrameAssembler`).
+/// How long a wait of `delay_us` after the last byte must still run (the
+/// F103's frame gap: t3.5 after the last byte, SPEC §1). Timestamps are
+/// wrapping µs (`rtu::FrameAssembler`).
+#[cfg_attr(feature = "board-g431", allow(dead_code))]
 pub fn reply_wait_us(now_us: u32, last_byte_at_us: u32, delay_us: u32) -> u32 {
     delay_us.saturating_sub(now_us.wrapping_sub(last_byte_at_us))
 }
@@ -95,9 +96,9 @@ impl DeDrive {
 
 // ---------------------------------------------------------------- step output
 
-/// Safe minimum STEP pulse width: 2.5 µs (issue 6).
+/// Safe minimum STEP pulse width: 2.5 µs.
 pub const MIN_STEP_PULSE_NS: u32 = 2_500;
-/// Safe minimum DIR set-up time before the STEP edge: 5 µs (issue 6).
+/// Safe minimum DIR set-up time before the STEP edge: 5 µs.
 pub const MIN_DIR_SETUP_NS: u32 = 5_000;
 /// Longest pulse or set-up time a parameter may ask for: 100 µs.
 pub const MAX_SHAPE_NS: u32 = 100_000;

@@ -11,8 +11,8 @@
 //! frame's set-point reaches the planner ≤ 1 ms after its reply, and the
 //! debounced switch states come 2–3 ms after their edges — with the step
 //! count latched at each edge (switches.rs), which the core takes as the
-//! homing origin (`Device::control_latched`, SPEC §8.6; README "Firmware",
-//! "Homing origin"). Limits do not wait for this loop (switches.rs).
+//! homing origin (`Device::control_latched`, SPEC §8.6; docs/firmware.md).
+//! Limits do not wait for this loop (switches.rs).
 //!
 //! Each tick feeds the independent watchdog: the loop, not an interrupt,
 //! so that a thread that hangs (or an executor that no longer runs this

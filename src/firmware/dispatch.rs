@@ -1,6 +1,6 @@
-//! The dispatcher task: closed frames → `Device::handle_rx` → (EE operation
-//! on the parameter store) → reply after `Device::reply_delay_us` →
-//! `Device::reply_sent` (SPEC §1, §3, §7, §9). It also logs what the core
+//! The dispatcher task: hands each closed frame to `Device::poll` (SPEC §1,
+//! §3, §7, §9), then sends the reply `poll` queued at its time and puts a
+//! new line format and DE lead / tail in force. It also logs what the core
 //! reports (`Device::take_event`).
 //!
 //! The device lives in `DEVICE`, a thread-mode mutex: only tasks of the
@@ -16,21 +16,21 @@ use embassy_stm32::usart::Uart;
 use embassy_sync::blocking_mutex::raw::ThreadModeRawMutex;
 use embassy_sync::blocking_mutex::Mutex;
 use embassy_sync::once_lock::OnceLock;
-use modbus_drive::device::Response;
+use modbus_drive::device::{Line, Request, Storage};
 use modbus_drive::event::Event;
 use modbus_drive::params::ParamStore;
-use modbus_drive::rtu::MAX_FRAME;
+use modbus_drive::rtu::{DriverEnable, LineConfig, MAX_FRAME};
 use modbus_drive::Device;
 
-use super::calc::{reply_wait_us, RateLimit};
+use super::calc::RateLimit;
 use super::flash::FlashRegion;
-use super::rs485::{self, FRAMES_DROPPED};
+use super::rs485::{self, RxFrame, FRAMES_DROPPED};
 use super::steps;
 
 /// The drive core, shared by the dispatcher and the control loop.
 /// Installed once by `main` ([`install`]). A `OnceLock` is zero-initialised
 /// (.bss): an `Option<Device>` initialiser is not (`None` is a niche value),
-/// and its 2 KiB image would sit in flash as .data (README "Sizes").
+/// and its image would sit in flash as .data.
 static DEVICE: OnceLock<Mutex<ThreadModeRawMutex, RefCell<Device>>> = OnceLock::new();
 
 /// The parameter store (SPEC §9) on the board's parameter pages.
@@ -91,47 +91,49 @@ impl EventLog {
     }
 }
 
-#[embassy_executor::task]
-pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
-    let mut reply = [0u8; MAX_FRAME];
-    let mut log = EventLog::new();
-    loop {
-        let rx = rs485::receive().await;
-        #[cfg(feature = "fault-test")]
-        super::fault::test_trigger(rx.event());
-        let Some((mut response, delay_us)) =
-            with_device(|d| (d.handle_rx(rx.event(), &mut reply), d.reply_delay_us()))
-        else {
-            continue;
-        };
-        // An accepted EE request (SPEC §9) runs now; its reply is deferred
-        // until it is done. Erasing or programming stalls every fetch from
-        // the single flash bank, interrupts included, so it starts only
-        // with the step output idle (the core refuses it while statusword
-        // bit 9 is set; this is the glue's own check of the step schedule),
-        // and nothing can queue a step until it is done: the control loop
-        // shares this thread.
-        if let Some(Some(deferred)) = with_device(|d| {
-            d.pending_ee()?;
-            if steps::idle() {
-                d.poll_storage(&mut store, &mut reply)
+/// The RS-485 line as [`Device::poll`] sees it: the frame the link
+/// received, and the reply and line format `poll` queues, which the task
+/// carries out after it, in that order ([`Rs485Line::carry_out`]).
+struct Rs485Line<'a> {
+    received: Option<&'a RxFrame>,
+    /// The time driver's µs now, and the frame's last byte on that scale
+    /// (the link stamps bytes with its wrapping 32-bit µs).
+    now_us: u64,
+    last_byte_us: u64,
+    reply: [u8; MAX_FRAME],
+    /// Bytes of `reply` to send, and when.
+    queued: Option<(usize, u64)>,
+    line: Option<LineConfig>,
+}
+
+impl<'a> Rs485Line<'a> {
+    fn new(received: &'a RxFrame) -> Self {
+        let now_us = embassy_time::Instant::now().as_micros();
+        let ago = (now_us as u32).wrapping_sub(received.last_byte_at_us());
+        Self {
+            received: Some(received),
+            now_us,
+            last_byte_us: now_us.saturating_sub(u64::from(ago)),
+            reply: [0; MAX_FRAME],
+            queued: None,
+            line: None,
+        }
+    }
+
+    /// Sends the queued reply at its time, then puts a new line format and
+    /// the DE lead / tail `de` in force (SPEC §7: after the reply).
+    async fn carry_out(&mut self, uart: &mut Uart<'static, Blocking>, de: DriverEnable) {
+        if let Some((n, at_us)) = self.queued.take() {
+            if n > 0 {
+                // `send` waits itself: DE rises its lead before `at_us`
+                let wait_us = at_us.saturating_sub(embassy_time::Instant::now().as_micros());
+                rs485::send(&self.reply[..n], u32::try_from(wait_us).unwrap_or(u32::MAX)).await;
             } else {
-                d.refuse_storage(&mut reply)
+                embassy_time::Timer::at(embassy_time::Instant::from_micros(at_us)).await;
             }
-        }) {
-            response = deferred;
         }
-        log.drain();
-        if let Response::Reply(n) = response {
-            let wait = reply_wait_us(rs485::now_us(), rx.last_byte_at_us(), delay_us);
-            rs485::send(&reply[..n.min(MAX_FRAME)], wait).await;
-        }
-        // a new address, line format or DE lead / tail takes effect after
-        // the reply (SPEC §7)
-        if let Some(Some((line, de))) =
-            with_device(|d| d.reply_sent().map(|line| (line, d.driver_enable())))
-        {
-            if let Err(e) = rs485::apply_line(&mut uart, line, de) {
+        if let Some(line) = self.line.take() {
+            if let Err(e) = rs485::apply_line(uart, line, de) {
                 defmt::error!(
                     "line {} refused by the USART: {}",
                     line,
@@ -139,6 +141,66 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
                 );
             }
         }
+    }
+}
+
+impl Line for Rs485Line<'_> {
+    fn receive(&mut self) -> Option<Request<'_>> {
+        let received = self.received.take()?;
+        Some(Request {
+            event: received.event(),
+            last_byte_us: Some(self.last_byte_us),
+        })
+    }
+
+    fn send(&mut self, bytes: &[u8], at_us: u64) {
+        let n = bytes.len().min(MAX_FRAME);
+        self.reply[..n].copy_from_slice(&bytes[..n]);
+        self.queued = Some((n, at_us));
+    }
+
+    fn reconfigure(&mut self, line: LineConfig) {
+        self.line = Some(line);
+    }
+}
+
+/// The parameter store as [`Device::poll`] sees it. An accepted EE request
+/// (SPEC §9) runs inside `poll`, its reply deferred until it is done.
+/// Erasing or programming stalls every fetch from the single flash bank,
+/// interrupts included, so it starts only with the step output idle (the
+/// core refuses it while statusword bit 9 is set; this is the glue's own
+/// check of the step schedule), and nothing can queue a step until it is
+/// done: the control loop shares this thread.
+struct FlashStorage<'s>(&'s mut Store);
+
+impl Storage for FlashStorage<'_> {
+    type Flash = FlashRegion<Flash<'static, FlashBlocking>>;
+    fn store(&mut self) -> &mut Store {
+        self.0
+    }
+    fn ready(&mut self) -> bool {
+        steps::idle()
+    }
+}
+
+#[embassy_executor::task]
+pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
+    let mut log = EventLog::new();
+    loop {
+        let rx = rs485::receive().await;
+        #[cfg(feature = "fault-test")]
+        super::fault::test_trigger(rx.event());
+        let mut line = Rs485Line::new(&rx);
+        let mut storage = FlashStorage(&mut store);
+        // PA57 / PA58 as the request left them, for a reconfigured line
+        let Some(de) = with_device(|d| {
+            d.poll(line.now_us, &mut line, &mut storage);
+            d.driver_enable()
+        }) else {
+            continue;
+        };
+        log.drain();
+        line.carry_out(&mut uart, de).await;
         log.drain();
     }
 }

@@ -1,12 +1,12 @@
-//! STM32 firmware (issue 6): embassy-stm32 glue around the core, one file
+//! STM32 firmware: embassy-stm32 glue around the core, one file
 //! per concern.
 //!
 //! Follow one request: `rs485.rs` (USART interrupt: timestamp → the core's
 //! `FrameAssembler`; t3.5 from the G431 receiver timeout or the F103 gap
-//! task) → `dispatch.rs` (`Device::handle_rx`, reply after
-//! `Device::reply_delay_us`, `Device::reply_sent`) → `rs485.rs` (one burst,
-//! DE). Follow one set-point: `control.rs` (1 kHz loop, `Device::control`
-//! fills the core's `StepSchedule`) → `steps.rs` (step timer interrupt,
+//! task) → `dispatch.rs` (`Device::poll`, then the reply at the time it
+//! gave and a new line format) → `rs485.rs` (one burst, DE). Follow one
+//! set-point: `control.rs` (1 kHz loop, `Device::control` fills the core's
+//! `StepSchedule`) → `steps.rs` (step timer interrupt,
 //! `StepSource::advance`). Switches: `switches.rs` (EXTI → the schedule's
 //! limit brake); parameter flash: `flash.rs`;
 //! pins and peripherals: `board_g431.rs` / `board_f103.rs`; arithmetic:
@@ -71,8 +71,7 @@ async fn main(spawner: Spawner) {
     let (range, capacity) = (region.range(), region.capacity() as u32);
     let mut store = defmt::unwrap!(ParamStore::new(region, 0..capacity));
     // In a block: a `Device` local of `main` would stay in main's future
-    // (a static) after it has been moved to the dispatcher — 2.9 KiB of RAM
-    // twice (llvm-nm of the F103 ELF).
+    // (a static) after it has been moved to the dispatcher: its RAM twice.
     let (line, address, de, dir_inverted) = {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks

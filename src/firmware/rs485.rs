@@ -130,7 +130,7 @@ impl RxFrame {
         unsafe { SLOTS[self.index].get() }
     }
 
-    /// The core's view of it, for `Device::handle_rx`.
+    /// The core's view of it, for `Device::poll`.
     pub fn event(&self) -> RxEvent<'_> {
         let s = self.slot();
         match s.kind {
@@ -291,9 +291,9 @@ pub fn config_error(e: usart::ConfigError) -> defmt::Str {
     }
 }
 
-/// Applies a line and the DE lead / tail PA57 / PA58 (at boot, and after
-/// a reply when `Device::reply_sent` changed the line or the parameters
-/// changed) and (re)arms the receive interrupts. Call it between frames.
+/// Applies a line and the DE lead / tail PA57 / PA58 (at boot and after a
+/// reply that changed either) and (re)arms the receive interrupts. Call it
+/// between frames.
 pub fn apply_line(
     uart: &mut Uart<'static, Blocking>,
     line: LineConfig,

@@ -49,7 +49,7 @@ use super::owned::IrqOwned;
 
 /// The step schedule between the control loop and this interrupt. Its
 /// `const` initialiser is all zeros, so it lives in .bss and costs no flash
-/// image (README "Sizes").
+/// image.
 static SCHEDULE: StepSchedule = StepSchedule::new();
 
 /// The step schedule.

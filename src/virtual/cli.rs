@@ -1,5 +1,6 @@
-//! Command line of the virtual drive. Hand-written: a dozen flags do not
-//! justify a parser dependency, and the messages can name the flag at fault.
+//! Command line of the virtual drive, read with `lexopt`: the parser splits
+//! the arguments (`--flag value`, `--flag=value`, `-h`), and the messages,
+//! which name the flag at fault, stay the program's own.
 
 use std::fmt;
 use std::net::SocketAddr;
@@ -76,6 +77,21 @@ OUTPUT:
     --no-status              No status line on stderr (logs remain).
     -h, --help               This text.
     -V, --version            Version.
+
+EXAMPLES:
+    modbus-drive
+        One drive at address 1 on a pseudo-terminal; point a master at the
+        path printed on stderr, e.g. the statusword 0x6041 (= 24641):
+        mbpoll -m rtu -b 115200 -P none -a 1 -0 -1 -t 4:hex -r 24641 PATH
+    modbus-drive --pty-link /tmp/drive --no-status
+        The same, reachable as /tmp/drive, without the status line.
+    modbus-drive --no-pty --modbus-tcp 127.0.0.1:5502 --web 127.0.0.1:8080
+        Modbus TCP for a PLC or SCADA, and the commissioning page.
+    modbus-drive --drives 1,2,3 --state drives.bin --trace run.csv
+        Three drives on one bus; saved parameters survive a restart; every
+        drive's motion recorded.
+    modbus-drive --cw-limit -20000 --ccw-limit 20000 --home-switch -100:100
+        Limit and home switches on every axis, for homing (mode 6).
 
 stdout carries exactly one line, `ready`, once every transport accepts frames.
 Ctrl-C or SIGTERM stop the drive cleanly (trace and plot are written).
@@ -162,30 +178,28 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
     let mut o = Options::default();
     let mut limit_overlap = false;
     let mut seen: Vec<String> = Vec::new();
-    let mut args = args.into_iter();
-    while let Some(arg) = args.next() {
-        // `--flag=value` and `--flag value` are both accepted.
-        let (flag, inline) = match arg.split_once('=') {
-            Some((f, v)) if f.starts_with("--") => (f.to_string(), Some(v.to_string())),
-            _ => (arg.clone(), None),
+    let mut parser = lexopt::Parser::from_args(args);
+    loop {
+        let arg = match parser.next() {
+            Ok(Some(arg)) => arg,
+            Ok(None) => break,
+            Err(e) => return err(format!("{e} (see --help)")),
         };
-        let mut value = |name: &str| -> Result<String, UsageError> {
-            match inline.clone().or_else(|| args.next()) {
-                // `--pty-link --no-status` forgot the path; negative
-                // numbers (`--cw-limit -500`) have one dash
-                Some(v) if v.starts_with("--") => err(format!(
-                    "{name} needs a value, got the flag `{v}` (see --help)"
-                )),
-                Some(v) if v.trim().is_empty() => {
-                    err(format!("{name} needs a value, got an empty one"))
-                }
-                Some(v) => Ok(v),
-                None => err(format!("{name} needs a value (see --help)")),
+        let flag = match arg {
+            lexopt::Arg::Short('h') => "--help".to_string(),
+            lexopt::Arg::Short('V') => "--version".to_string(),
+            lexopt::Arg::Long(name) => format!("--{name}"),
+            lexopt::Arg::Short(c) => return err(format!("unknown argument `-{c}` (see --help)")),
+            lexopt::Arg::Value(v) => {
+                return err(format!(
+                    "unknown argument `{}` (see --help)",
+                    v.to_string_lossy()
+                ))
             }
         };
         // a flag given twice would silently lose its first value
         const REPEATABLE: [&str; 2] = ["--tcp", "--modbus-tcp"];
-        if flag.starts_with("--") && !REPEATABLE.contains(&flag.as_str()) {
+        if !REPEATABLE.contains(&flag.as_str()) {
             if seen.contains(&flag) {
                 return err(format!("{flag} given twice"));
             }
@@ -199,12 +213,30 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             "--allow-limit-overlap",
             "--standard-exceptions",
         ];
-        if inline.is_some() && SWITCHES.contains(&flag.as_str()) {
-            return err(format!("{flag} takes no value (got `{arg}`)"));
+        if SWITCHES.contains(&flag.as_str()) {
+            if let Some(v) = parser.optional_value() {
+                let v = v.to_string_lossy().into_owned();
+                return err(format!("{flag} takes no value (got `{flag}={v}`)"));
+            }
         }
+        let mut value = |name: &str| -> Result<String, UsageError> {
+            match parser.value() {
+                // `--pty-link --no-status` forgot the path; negative
+                // numbers (`--cw-limit -500`) have one dash
+                Ok(v) if v.to_string_lossy().starts_with("--") => err(format!(
+                    "{name} needs a value, got the flag `{}` (see --help)",
+                    v.to_string_lossy()
+                )),
+                Ok(v) if v.to_string_lossy().trim().is_empty() => {
+                    err(format!("{name} needs a value, got an empty one"))
+                }
+                Ok(v) => Ok(v.to_string_lossy().into_owned()),
+                Err(_) => err(format!("{name} needs a value (see --help)")),
+            }
+        };
         match flag.as_str() {
-            "-h" | "--help" => return Ok(Command::Help),
-            "-V" | "--version" => return Ok(Command::Version),
+            "--help" => return Ok(Command::Help),
+            "--version" => return Ok(Command::Version),
             "--no-pty" => o.pty = false,
             "--no-status" => o.status_line = false,
             "--allow-limit-overlap" => limit_overlap = true,
@@ -233,7 +265,7 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
             "--state" => o.state = Some(PathBuf::from(value("--state")?)),
             "--trace" => o.trace = Some(PathBuf::from(value("--trace")?)),
             "--plot" => o.plot = Some(PathBuf::from(value("--plot")?)),
-            _ => return err(format!("unknown argument `{arg}` (see --help)")),
+            _ => return err(format!("unknown argument `{flag}` (see --help)")),
         }
     }
     if !o.pty && o.pty_link.is_some() {
@@ -352,6 +384,27 @@ mod tests {
         match parse(args.iter().map(|s| s.to_string()))? {
             Command::Run(o) => Ok(*o),
             c => panic!("{c:?}"),
+        }
+    }
+
+    /// Every example in --help is a command line the parser accepts.
+    #[test]
+    fn the_help_examples_parse() {
+        let examples: Vec<&str> = HELP
+            .split("EXAMPLES:")
+            .nth(1)
+            .unwrap()
+            .lines()
+            .map(str::trim)
+            .filter(|l| l.starts_with("modbus-drive"))
+            .collect();
+        assert_eq!(examples.len(), 5);
+        for line in examples {
+            let args = line.split_whitespace().skip(1).map(String::from);
+            assert!(
+                matches!(parse(args), Ok(Command::Run(_))),
+                "example `{line}` does not parse"
+            );
         }
     }
 

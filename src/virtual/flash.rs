@@ -29,8 +29,7 @@ use embedded_storage::nor_flash::{
 };
 use modbus_drive::params::{SimFlash, SimFlashError, SIM_PAGE_SIZE, SIM_WORD_SIZE};
 
-/// Pages per drive: the two the parameter store needs (README, Parameters
-/// and storage).
+/// Pages per drive: the two the parameter store needs (docs/parameters.md).
 pub const REGION_PAGES: usize = 2;
 pub const REGION_BYTES: usize = REGION_PAGES * SIM_PAGE_SIZE;
 /// STM32G4 page erase, typical (DS12589, t_ERASE).

@@ -1,4 +1,4 @@
-//! The virtual drive (issue 4): the drive core in real time on a host, with
+//! The virtual drive: the drive core in real time on a host, with
 //! a simulated axis per drive, reachable by Modbus-RTU masters over a
 //! pseudo-terminal and over TCP. Host glue only: framing, dispatch and drive
 //! behaviour are the core's ([`modbus_drive::Device`]).

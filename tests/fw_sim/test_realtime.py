@@ -180,7 +180,8 @@ def fault_test_elf():
     elfs = {}
     for board, target in TARGETS.items():
         subprocess.run(["cargo", "build", "--profile", "fw", "--bin", "modbus-drive",
-                        "--target", target, "--features", f"board-{board},fault-test",
+                        "--target", target, "--no-default-features",
+                        "--features", f"board-{board},fault-test",
                         "--target-dir", str(target_dir)], cwd=ROOT, check=True)
         elfs[board] = target_dir / target / "fw" / "modbus-drive"
     return elfs

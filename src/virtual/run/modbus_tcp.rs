@@ -39,10 +39,10 @@ use std::net::{SocketAddr, TcpStream};
 use std::os::fd::AsFd;
 
 use modbus_drive::mbap::{self, Decoder, Frame, Header, MAX_ADU, MAX_PDU};
-use modbus_drive::rtu::{with_crc, RxEvent, MAX_FRAME};
+use modbus_drive::rtu::{with_crc, LineConfig, RxEvent, MAX_FRAME};
 use nix::poll::{PollFd, PollFlags};
 
-use super::{handle_due, log_events, Listener, VirtualDrive};
+use super::{log_events, serve, Listener, VirtualDrive};
 
 /// Connections served at once; more are accepted and closed at once.
 pub(super) const MAX_CLIENTS: usize = 32;
@@ -85,9 +85,9 @@ struct Queued {
     due_us: u64,
     /// The MBAP response; empty: nothing to send (a broadcast).
     adu: Vec<u8>,
-    /// The drive whose reply this is, and whether it is an EE operation's
-    /// (the drive is busy until it is out).
-    drive: Option<(usize, bool)>,
+    /// The drive whose reply this is, and its new line format (in force
+    /// once the reply is out).
+    drive: Option<(usize, Option<LineConfig>)>,
 }
 
 struct Conn {
@@ -337,10 +337,10 @@ impl VirtualDrive {
                 bytes: &frame[..n],
                 parity_error: false,
             };
-            let queued = handle_due(&mut self.drives[di], di, rx, now, now, &mut replies);
+            let served = serve(&mut self.drives[di], di, rx, None, now, &mut replies);
             log_events(&mut self.console, &mut self.drives[di], Some(&label));
-            if !queued {
-                self.reply_done(di);
+            if !served.queued {
+                self.reply_done(di, served.line);
                 continue;
             }
             for r in replies {
@@ -357,7 +357,7 @@ impl VirtualDrive {
                 self.mbap.conns[ci].queued.push_back(Queued {
                     due_us: r.due_us,
                     adu,
-                    drive: Some((r.drive, r.ee)),
+                    drive: Some((r.drive, r.line)),
                 });
             }
         }
@@ -432,12 +432,9 @@ impl VirtualDrive {
         }
     }
 
-    fn finish_replies(&mut self, done: Vec<(usize, bool)>) {
-        for (di, ee) in done {
-            if ee {
-                self.drives[di].device.set_storage_busy(false);
-            }
-            self.reply_done(di);
+    fn finish_replies(&mut self, done: Vec<(usize, Option<LineConfig>)>) {
+        for (di, line) in done {
+            self.reply_done(di, line);
         }
     }
 
@@ -461,8 +458,9 @@ impl VirtualDrive {
     }
 
     /// Closes connection `ci` (`why` is appended to the log line). Replies
-    /// it still waited for count as sent: a drive busy with an EE operation
-    /// must not stay busy for a client that went away.
+    /// it still waited for count as sent: a line change they carry takes
+    /// effect now (a drive stays busy after an EE operation only until its
+    /// reply was due, whoever waits for it).
     fn close_conn(&mut self, ci: usize, why: &str) {
         let conn = self.mbap.conns.remove(ci);
         let mut note = String::new();

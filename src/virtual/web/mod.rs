@@ -29,6 +29,7 @@ use std::net::SocketAddr;
 use std::sync::mpsc::{self, Receiver, Sender};
 use std::sync::{Arc, Condvar, Mutex};
 
+use modbus_drive::rtu::LineConfig;
 use modbus_drive::slave::Slave;
 
 pub use exceptions::ExceptionLog;
@@ -109,14 +110,23 @@ impl WebPort {
     }
 
     /// Runs the page's waiting commands and publishes what is due. Returns
-    /// the drives that handled requests: the caller logs their events and
-    /// applies a deferred address or line change, as after a bus reply.
-    pub fn serve<T: Target>(&mut self, now_us: u64, drives: &mut [T]) -> Vec<usize> {
-        let mut touched = Vec::new();
+    /// the drives that handled requests, each with the new line format its
+    /// requests set (if any): the caller logs their events and puts the
+    /// line format in force, as after a bus reply.
+    pub fn serve<T: Target>(
+        &mut self,
+        now_us: u64,
+        drives: &mut [T],
+    ) -> Vec<(usize, Option<LineConfig>)> {
+        let mut touched: Vec<(usize, Option<LineConfig>)> = Vec::new();
         while let Ok(job) = self.jobs.try_recv() {
-            let answer = self.execute(job.drive, &job.command, now_us, drives);
-            if !touched.contains(&job.drive) && job.drive < drives.len() {
-                touched.push(job.drive);
+            let mut line = None;
+            let answer = self.execute(job.drive, &job.command, now_us, drives, &mut line);
+            if job.drive < drives.len() {
+                match touched.iter_mut().find(|(di, _)| *di == job.drive) {
+                    Some((_, l)) => *l = line.or(*l),
+                    None => touched.push((job.drive, line)),
+                }
             }
             // The page may have given up waiting; nothing to do then.
             let _ = job.answer.send(answer);
@@ -143,6 +153,7 @@ impl WebPort {
         command: &Command,
         now_us: u64,
         drives: &mut [T],
+        line: &mut Option<LineConfig>,
     ) -> String {
         let (Some(drive), Some(port)) = (drives.get_mut(di), self.ports.get_mut(di)) else {
             return error_json(&format!("there is no drive number {di}"));
@@ -158,8 +169,10 @@ impl WebPort {
         let mut ok = true;
         let mut out = String::from("[");
         for (i, step) in steps.iter().enumerate() {
-            let answer = transact(drive, port, &step.pdu, now_us);
+            // the request as it went out: from the address it was sent to
             let address = drive.device().address();
+            let (answer, changed) = transact(drive, port, &step.pdu, now_us);
+            *line = changed.or(*line);
             let (kind, code, reply) = match &answer {
                 Answer::Ok(pdu) => ("ok", 0, hex(pdu)),
                 Answer::Exception(c) => ("exception", *c, String::new()),

@@ -1,6 +1,6 @@
 //! The page's way into a drive: every read, edit and command is a Modbus
-//! request frame addressed to the drive and handed to the same dispatcher
-//! ([`Device::handle_rx`]) as a frame from the bus, so the page gets the
+//! request frame addressed to the drive and handed to the same entry
+//! ([`Device::poll`]) as a frame from the bus, so the page gets the
 //! reply — and the exception code — a master would get.
 //!
 //! The page is a second port of the drive (a service port, as a USB or
@@ -11,8 +11,8 @@
 //! communication-loss timer (a valid request from either port feeds it: the
 //! drive cannot tell which master is in charge).
 
-use modbus_drive::device::Response;
-use modbus_drive::rtu::{crc16, with_crc, RxEvent, MAX_FRAME};
+use modbus_drive::device::{Line, Polled, Request};
+use modbus_drive::rtu::{crc16, with_crc, LineConfig, RxEvent};
 use modbus_drive::slave::Slave;
 use modbus_drive::Device;
 
@@ -128,9 +128,9 @@ pub fn read_words(pdu: &[u8]) -> Vec<u16> {
 /// What a drive must offer so that the page's requests take the bus path.
 pub trait Dispatch {
     fn device(&mut self) -> &mut Device;
-    /// Runs the EE operation the request started, on the drive's flash
-    /// ([`Device::poll_storage`]); its reply is the request's reply.
-    fn run_storage(&mut self, reply: &mut [u8; MAX_FRAME]) -> Option<Response>;
+    /// Hands the page's frame on `line` to the drive ([`Device::poll`])
+    /// with the drive's parameter flash.
+    fn poll(&mut self, now_us: u64, line: &mut impl Line) -> Polled;
     /// Brings the axis and the control loop up to `now_us`: the drive acts
     /// on a frame at the time it arrives, as on the bus path.
     fn advance(&mut self, now_us: u64);
@@ -138,42 +138,60 @@ pub trait Dispatch {
     fn control_at(&mut self, now_us: u64);
 }
 
+/// The page as a line to the drive: one request, its reply taken at once
+/// (the page waits for no reply delay), and the line change it made.
+struct PageLine<'f> {
+    frame: Option<&'f [u8]>,
+    reply: Vec<u8>,
+    line: Option<LineConfig>,
+}
+
+impl Line for PageLine<'_> {
+    fn receive(&mut self) -> Option<Request<'_>> {
+        let bytes = self.frame.take()?;
+        Some(Request {
+            event: RxEvent::Frame {
+                bytes,
+                parity_error: false,
+            },
+            last_byte_us: None,
+        })
+    }
+
+    fn send(&mut self, bytes: &[u8], _at_us: u64) {
+        self.reply = bytes.to_vec();
+    }
+
+    fn reconfigure(&mut self, line: LineConfig) {
+        self.line = Some(line);
+    }
+}
+
 /// Sends `request` to the drive through `port` (the page's own slave
-/// state) and returns the answer. The caller applies a deferred address or
-/// line change afterwards ([`Device::reply_sent`]), as after a bus reply.
+/// state) and returns the answer, and the drive's new line format if the
+/// request changed it (the caller puts it in force on the bus, as after a
+/// bus reply).
 pub fn transact<D: Dispatch>(
     drive: &mut D,
     port: &mut Slave,
     request: &Pdu,
     now_us: u64,
-) -> Answer {
+) -> (Answer, Option<LineConfig>) {
     drive.advance(now_us);
     let address = drive.device().address();
     let frame = request.frame(address);
-    let mut reply = [0u8; MAX_FRAME];
-    let device = drive.device();
-    device.swap_slave(port);
-    let mut response = device.handle_rx(
-        RxEvent::Frame {
-            bytes: &frame,
-            parity_error: false,
-        },
-        &mut reply,
-    );
-    if device.pending_ee().is_some() {
-        if let Some(r) = drive.run_storage(&mut reply) {
-            response = r;
-        }
-    }
+    let mut page = PageLine {
+        frame: Some(&frame),
+        reply: Vec::new(),
+        line: None,
+    };
     // The exception 4 of a failed EE operation is counted on the port that
-    // asked (`poll_storage` counts it on the slave in place).
+    // asked too: the port is swapped in for the whole request.
+    drive.device().swap_slave(port);
+    drive.poll(now_us, &mut page);
     drive.device().swap_slave(port);
     drive.control_at(now_us);
-    let bytes = match response {
-        Response::Reply(n) => &reply[..n.min(MAX_FRAME)],
-        Response::Silent => &[][..],
-    };
-    parse_reply(address, request, bytes)
+    (parse_reply(address, request, &page.reply), page.line)
 }
 
 #[cfg(test)]
@@ -206,8 +224,8 @@ mod tests {
         fn device(&mut self) -> &mut Device {
             &mut self.device
         }
-        fn run_storage(&mut self, reply: &mut [u8; MAX_FRAME]) -> Option<Response> {
-            self.device.poll_storage(&mut self.store, reply)
+        fn poll(&mut self, now_us: u64, line: &mut impl Line) -> Polled {
+            self.device.poll(now_us, line, &mut self.store)
         }
         fn advance(&mut self, _now_us: u64) {}
         fn control_at(&mut self, now_us: u64) {
@@ -249,17 +267,17 @@ mod tests {
         ];
         for (pdu, code) in &cases {
             assert_eq!(
-                transact(&mut b, &mut port, pdu, 0),
+                transact(&mut b, &mut port, pdu, 0).0,
                 Answer::Exception(*code),
                 "{pdu:?}"
             );
         }
         // PA55 = 1: the standard profile maps 11 → 2 and 5 → 2 (SPEC §5.2).
-        let ok = transact(&mut b, &mut port, &Pdu::write_single(0x0064 + 55, 1), 0);
+        let ok = transact(&mut b, &mut port, &Pdu::write_single(0x0064 + 55, 1), 0).0;
         assert!(matches!(ok, Answer::Ok(_)), "{ok:?}");
-        let a = transact(&mut b, &mut port, &Pdu::write_single(0x6090, 3), 0);
+        let a = transact(&mut b, &mut port, &Pdu::write_single(0x6090, 3), 0).0;
         assert_eq!(a, Answer::Exception(2));
-        let a = transact(&mut b, &mut port, &Pdu::write_single(0x6041, 1), 0);
+        let a = transact(&mut b, &mut port, &Pdu::write_single(0x6041, 1), 0).0;
         assert_eq!(a, Answer::Exception(2));
         // The drive still refused nothing it should have stored.
         assert_eq!(b.device.od().mode, 0);
@@ -271,15 +289,18 @@ mod tests {
         let mut b = Bench::new();
         let mut port = Slave::new();
         let w = Pdu::write_multiple(0x607A, &Pdu::words32(-1234i32 as u32, false));
-        assert!(matches!(transact(&mut b, &mut port, &w, 0), Answer::Ok(_)));
+        assert!(matches!(
+            transact(&mut b, &mut port, &w, 0).0,
+            Answer::Ok(_)
+        ));
         assert_eq!(b.device.od().target_position, -1234);
-        let Answer::Ok(pdu) = transact(&mut b, &mut port, &Pdu::read(0x607A, 2), 0) else {
+        let Answer::Ok(pdu) = transact(&mut b, &mut port, &Pdu::read(0x607A, 2), 0).0 else {
             panic!("read refused");
         };
         assert_eq!(read_words(&pdu), Pdu::words32(-1234i32 as u32, false));
         // The controlword acts as from the bus: 0x06, 0x07, 0x0F → enabled.
         for cw in [0x06, 0x07, 0x0F] {
-            let a = transact(&mut b, &mut port, &Pdu::write_single(0x6040, cw), 0);
+            let a = transact(&mut b, &mut port, &Pdu::write_single(0x6040, cw), 0).0;
             assert!(matches!(a, Answer::Ok(_)), "{cw:#x}: {a:?}");
         }
         assert_eq!(b.device.drive().statusword() & 0x6F, 0x27);
@@ -291,8 +312,8 @@ mod tests {
     fn the_page_counts_on_its_own_port_not_on_the_bus() {
         let mut b = Bench::new();
         let mut port = Slave::new();
-        transact(&mut b, &mut port, &Pdu::read(0x6041, 1), 0);
-        transact(&mut b, &mut port, &Pdu::write_single(0x6060, 2), 0);
+        let _ = transact(&mut b, &mut port, &Pdu::read(0x6041, 1), 0);
+        let _ = transact(&mut b, &mut port, &Pdu::write_single(0x6060, 2), 0);
         assert_eq!(b.device.slave().counters().bus_messages, 0);
         assert_eq!(b.device.slave().counters().exceptions, 0);
         assert_eq!(port.counters().bus_messages, 2);
@@ -305,7 +326,7 @@ mod tests {
         let mut b = Bench::new();
         let mut port = Slave::new();
         b.device.set_storage_busy(true);
-        let a = transact(&mut b, &mut port, &Pdu::write_single(0x6060, 1), 0);
+        let a = transact(&mut b, &mut port, &Pdu::write_single(0x6060, 1), 0).0;
         assert_eq!(a, Answer::Exception(6));
         assert_eq!(b.device.od().mode, 0);
     }
@@ -315,10 +336,13 @@ mod tests {
         let mut b = Bench::new();
         let mut port = Slave::new();
         let w = Pdu::write_single(0x0064 + 12, 1500);
-        assert!(matches!(transact(&mut b, &mut port, &w, 0), Answer::Ok(_)));
+        assert!(matches!(
+            transact(&mut b, &mut port, &w, 0).0,
+            Answer::Ok(_)
+        ));
         let save = Pdu::write_multiple(EE_REGISTER, &[1]);
         assert_eq!(
-            transact(&mut b, &mut port, &save, 0),
+            transact(&mut b, &mut port, &save, 0).0,
             Answer::Ok(vec![0x10, 0x00, 0x3A, 0x00, 0x01])
         );
         assert!(!b.device.busy());

@@ -1,14 +1,12 @@
 //! The whole drive as the glue sees it: frames in, replies out; time and
 //! switch states in, steps out; events out for the glue to log.
 //!
-//! Frame path (firmware UART interrupt or virtual-drive transport):
-//! 1. feed bytes to an [`crate::rtu::FrameAssembler`];
-//! 2. hand each [`RxEvent`] to [`Device::handle_rx`] with a reply buffer;
-//! 3. on [`Response::Reply`], send those bytes no earlier than
-//!    [`Device::reply_delay_us`] after the request's last byte, in one burst;
-//! 4. then call [`Device::reply_sent`] (also after [`Response::Silent`]) so
-//!    that a new address or line format takes effect (SPEC §7) — it returns
-//!    the new line settings when they changed.
+//! Frame path: the host feeds bytes to an [`crate::rtu::FrameAssembler`]
+//! and calls [`Device::poll`] with its [`Line`] and [`Storage`]; `poll`
+//! runs the rest (dispatch, EE operation, reply timing, address and line
+//! changes, `poll.rs`). The steps it is made of ([`Device::handle_rx`],
+//! [`Device::poll_storage`], [`Device::reply_delay_us`],
+//! [`Device::reply_sent`]) stay public for tests and tools.
 //!
 //! Parameter storage (SPEC §9, `params/storage.rs`):
 //! - at power-up, `device.apply_boot(&store.boot())` before the first frame;
@@ -16,9 +14,8 @@
 //!   `06 00 00 00 0k`) is answered [`Response::Silent`] for now and makes the
 //!   device busy: every register request that passes validation meanwhile
 //!   gets exception 6 (§5.2 step 9); the UART keeps receiving;
-//! - the glue then calls [`Device::poll_storage`] with the store (the
-//!   firmware from its flash task, the virtual drive right away or after a
-//!   simulated delay). It runs the operation and returns the deferred reply:
+//! - [`Device::poll`] then calls [`Device::poll_storage`] with the store.
+//!   It runs the operation and returns the deferred reply:
 //!   the 0x10 reply / the echo of the old frame once done, exception 4 if
 //!   the flash failed, nothing for a broadcast. Send it like any reply
 //!   (step 3, no earlier than `reply_delay_us` after the request) and call
@@ -29,7 +26,11 @@
 //!   to run; glue that sees its step output busy by its own means refuses
 //!   it with [`Device::refuse_storage`] instead of running it.
 
+mod poll;
+
 use heapless::Deque;
+
+pub use poll::{Line, Polled, Request, Storage};
 
 pub use crate::dictionary::Identity;
 use embedded_storage::nor_flash::NorFlash;
@@ -63,6 +64,9 @@ pub struct Device {
     storage_busy: bool,
     /// The EE operation accepted and not yet run (§5.2 step 9: busy).
     ee_pending: Option<PendingEe>,
+    /// An EE operation ran in [`Device::poll`] and its reply is due then
+    /// (host µs): busy until that time.
+    ee_busy_until_us: Option<u64>,
     /// What DP-Err says about the store.
     store_status: StoreStatus,
     /// Address, line and RS-485 DE lead / tail in force: PA51/52/53 and
@@ -88,6 +92,7 @@ impl Device {
             slave: Slave::new(),
             storage_busy: false,
             ee_pending: None,
+            ee_busy_until_us: None,
             store_status: StoreStatus::default(),
             events: Deque::new(),
             events_dropped: 0,
@@ -157,18 +162,11 @@ impl Device {
     /// (§6) and reported as events.
     pub fn handle_rx(&mut self, rx: RxEvent<'_>, reply: &mut [u8; MAX_FRAME]) -> Response {
         let busy = self.busy();
-        let mut regs = Registers {
-            od: &mut self.od,
-            pa: &mut self.pa,
-            drive: &mut self.drive,
-            identity: &self.identity,
-            busy,
-            store_status: self.store_status,
-            ee_request: None,
-        };
+        let mut regs = Registers::new(&mut self.od, &mut self.pa, &mut self.drive, &self.identity)
+            .with_store(busy, self.store_status);
         let messages = self.slave.counters().slave_messages;
         let outcome = self.slave.handle(rx, self.address, &mut regs, reply);
-        let ee_request = regs.ee_request;
+        let ee_request = regs.ee_request();
         if self.slave.counters().slave_messages != messages {
             // a valid frame for us (or a broadcast): PA20 timer (SPEC §8.7)
             self.drive.frame_received();
@@ -191,9 +189,10 @@ impl Device {
     }
 
     /// Register requests get exception 6 (§5.2 step 9): an EE operation is
-    /// waiting for [`Self::poll_storage`], or the glue set `storage_busy`.
+    /// waiting for [`Self::poll_storage`] or its reply is not yet due
+    /// ([`Self::poll`]), or the glue set `storage_busy`.
     pub fn busy(&self) -> bool {
-        self.storage_busy || self.ee_pending.is_some()
+        self.storage_busy || self.ee_pending.is_some() || self.ee_busy_until_us.is_some()
     }
 
     /// The EE operation waiting, if any (the glue may log it or decide when
