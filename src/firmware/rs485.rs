@@ -182,6 +182,10 @@ static TX: IrqOwned<TxBuf> = IrqOwned::new(TxBuf {
     len: 0,
 });
 static TX_STATE: AtomicU8 = AtomicU8::new(TX_IDLE);
+/// The DE lead software times (0: the USART does, or none) and the tail
+/// (µs), as [`apply_line`] left them for [`send`].
+static DE_LEAD_US: AtomicU32 = AtomicU32::new(0);
+static DE_TAIL_US: AtomicU32 = AtomicU32::new(0);
 /// The interrupt has sent the last stop bit of the reply.
 static TX_DONE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
@@ -306,6 +310,14 @@ pub fn apply_line(
     #[cfg(feature = "board-f103")]
     T35_US.store(timing.t35_us, Ordering::Relaxed);
     let de_drive = DeDrive::new(de, line, de_samples_per_bit());
+    // `send`'s copy: thread code only (the dispatcher, main before it)
+    let lead = if de_drive.software {
+        de_drive.lead_us
+    } else {
+        0
+    };
+    DE_LEAD_US.store(lead, Ordering::Relaxed);
+    DE_TAIL_US.store(de_drive.tail_us, Ordering::Relaxed);
     with_link(|link| {
         link.assembler.set_timing(timing);
         link.de_drive = de_drive;
@@ -564,17 +576,19 @@ pub async fn send(bytes: &[u8], not_before_us: u32) {
     let tx = unsafe { TX.get() };
     tx.bytes[..n].copy_from_slice(&bytes[..n]);
     tx.len = n;
-    let de = with_link(|link| link.de_drive);
-    let lead = if de.software { de.lead_us } else { 0 };
+    let (lead, tail) = (
+        DE_LEAD_US.load(Ordering::Relaxed),
+        DE_TAIL_US.load(Ordering::Relaxed),
+    );
     // DE rises the lead before the earliest start (or now, and the start
     // waits for the lead); the tail follows transmission complete, and
     // whatever follows the reply (`apply_line` disables the USART) waits
     // for it. One await point for the three waits: each await of a timer
     // is a state of its own in the dispatcher's future, and flash is short
     // on the F103.
-    let waits = [not_before_us.saturating_sub(lead), lead, de.tail_us];
+    let waits = [not_before_us.saturating_sub(lead), lead, tail];
     for (phase, us) in waits.into_iter().enumerate() {
-        if phase == 1 && de.software {
+        if phase == 1 && lead > 0 {
             // no transmission runs: the interrupt leaves DE alone
             set_de(true);
         } else if phase == 2 {
