@@ -3,9 +3,9 @@
 # fw-f103) run on the emulated STM32 of fw-sim/ (docs/fw-sim.md) and are
 # driven over the emulated USART by the pytest tests in tests/fw_sim (seed
 # 000 frames byte for byte, exceptions, addressing, a position move counted
-# in step pulses, DE around every reply, a limit through GPIO/EXTI, a
-# parameter save through the flash controller, mbpoll over the pty). Run by
-# .ci/run.
+# in step pulses, one at the acceleration limit, DE around every reply and
+# its lead / tail PA57 / PA58, a limit through GPIO/EXTI, a parameter save
+# through the flash controller, mbpoll over the pty). Run by .ci/run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

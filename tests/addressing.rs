@@ -130,6 +130,33 @@ fn address_in_force_is_used_until_the_reply_has_gone() {
 }
 
 #[test]
+fn de_lead_and_tail_take_effect_after_the_reply() {
+    // PA57 = 3 (0x0064 + 57): the reply to the write still goes out with
+    // the DE lead / tail in force; `reply_sent` then hands the glue the
+    // line (unchanged) to apply with the new ones, once.
+    use modbus_drive::device::{Device, Identity, Response};
+    use modbus_drive::rtu::{DriverEnable, RxEvent, MAX_FRAME};
+    let mut dev = Device::new(Identity::new(TEST_HARDWARE));
+    let line = dev.line();
+    let mut reply = [0u8; MAX_FRAME];
+    let req = frame(1, &[0x06, 0x00, 0x9D, 0x00, 0x03]);
+    let rx = RxEvent::Frame {
+        bytes: &req,
+        parity_error: false,
+    };
+    assert_eq!(dev.handle_rx(rx, &mut reply), Response::Reply(8));
+    assert_eq!(dev.driver_enable(), DriverEnable::new(1, 1));
+    assert_eq!(dev.params().driver_enable(), DriverEnable::new(3, 1));
+    assert_eq!(
+        dev.reply_sent(),
+        Some(line),
+        "apply the line with the new DE"
+    );
+    assert_eq!(dev.driver_enable(), DriverEnable::new(3, 1));
+    assert_eq!(dev.reply_sent(), None, "nothing changed since");
+}
+
+#[test]
 fn baud_change_takes_effect_after_the_reply() {
     // PA52 = 0 (9600) written at 115200: the reply goes out at 115200
     // timing, the next request is received at 9600 timing.

@@ -524,6 +524,70 @@ fn the_region_refuses_what_is_outside_it() {
     assert!(FlashRegion::new(RamFlash(vec![0; 8192]), 0, 0).is_none());
 }
 
+// ---------------------------------------------------------------- RS-485 DE
+
+/// PA57 / PA58 on the G431's hardware DE: one bit time fits DEAT / DEDT
+/// (16 samples), as does 0; two bit times do not (32 > 31), so software
+/// raises DE earlier by what DEAT lacks (1/16 bit) and times the tail.
+#[test]
+fn de_lead_and_tail_on_the_g431_hardware_de() {
+    use modbus_drive::rtu::DriverEnable;
+    let fast = line(115_200, CharFormat::N1);
+    let d = DeDrive::new(DriverEnable::new(1, 1), fast, 16);
+    assert_eq!((d.deat, d.dedt, d.software), (16, 16, false));
+    let d = DeDrive::new(DriverEnable::new(0, 0), fast, 16);
+    assert_eq!((d.deat, d.dedt, d.software), (0, 0, false));
+    let d = DeDrive::new(DriverEnable::new(1, 1), fast, 8);
+    assert_eq!((d.deat, d.dedt, d.software), (8, 8, false));
+    // 2 bits at 9600 baud: DEAT 31/16 bit, 1/16 bit (6.5 µs) in software
+    let slow = line(9_600, CharFormat::N1);
+    let d = DeDrive::new(DriverEnable::new(2, 1), slow, 16);
+    assert_eq!(
+        (d.deat, d.software, d.lead_us, d.tail_us),
+        (31, true, 7, 105)
+    );
+    // the lead made is never shorter than asked: software + DEAT
+    for baud in [9_600, 19_200, 38_400, 57_600, 115_200] {
+        for bits in 0..=modbus_drive::rtu::MAX_DE_BITS {
+            for spb in [0u32, 8, 16] {
+                let l = line(baud, CharFormat::E1);
+                let de = DriverEnable::new(bits, bits);
+                let d = DeDrive::new(de, l, spb);
+                let hw_us = if spb == 0 {
+                    0.0
+                } else {
+                    f64::from(d.deat) / f64::from(spb) * 1e6 / f64::from(baud)
+                };
+                let want = f64::from(bits) * 1e6 / f64::from(baud);
+                let sw = if d.software {
+                    f64::from(d.lead_us)
+                } else {
+                    0.0
+                };
+                assert!(hw_us + sw >= want - 1e-9, "{baud} {bits} {spb}: {d:?}");
+                if !d.software {
+                    assert!((hw_us - want).abs() < 1e-9, "{baud} {bits} {spb}: {d:?}");
+                    let tail = f64::from(d.dedt) / f64::from(spb) * 1e6 / f64::from(baud);
+                    assert!((tail - want).abs() < 1e-9);
+                } else {
+                    assert!(f64::from(d.tail_us) >= want);
+                }
+                assert!(d.deat as u32 <= MAX_DE_SAMPLES && d.dedt as u32 <= MAX_DE_SAMPLES);
+            }
+        }
+    }
+}
+
+/// The F103 has no hardware DE: software lead and tail, the full time.
+#[test]
+fn de_lead_and_tail_on_the_f103_gpio() {
+    use modbus_drive::rtu::DriverEnable;
+    let d = DeDrive::new(DriverEnable::default(), line(115_200, CharFormat::N1), 0);
+    assert_eq!((d.software, d.lead_us, d.tail_us), (true, 9, 9));
+    let d = DeDrive::new(DriverEnable::new(0, 0), line(9_600, CharFormat::N1), 0);
+    assert_eq!((d.software, d.lead_us, d.tail_us), (true, 0, 0));
+}
+
 /// The chip's out-of-band report of a failed read (the G431's ECC NMI sets
 /// it in the firmware): the failed address, taken and cleared by the
 /// region's hook. `u32::MAX`: none.

@@ -7,7 +7,9 @@ mod common;
 use common::*;
 use modbus_drive::device::{Device, Identity};
 use modbus_drive::event::Event;
-use modbus_drive::params::{BootOutcome, EeOp, ParamStore, Params, SimFlash, FIRMWARE_VERSION, PA};
+use modbus_drive::params::{
+    BootOutcome, EeOp, ParamSet, ParamStore, Params, SimFlash, FIRMWARE_VERSION, PA,
+};
 
 type Store = ParamStore<SimFlash<2>>;
 
@@ -75,7 +77,7 @@ fn pa_addr(n: u16) -> u16 {
 
 #[test]
 fn every_assigned_pa_accepts_its_range_and_refuses_beyond_it() {
-    let assigned = [10usize, 11, 12, 13, 14, 20, 51, 52, 53, 54, 55, 56];
+    let assigned = [10usize, 11, 12, 13, 14, 20, 51, 52, 53, 54, 55, 56, 57, 58];
     let mut tried = 0;
     for n in assigned {
         let d = PA[n];
@@ -115,7 +117,7 @@ fn every_assigned_pa_accepts_its_range_and_refuses_beyond_it() {
         }
     }
     println!("PA ranges: {tried} writes checked");
-    assert!(tried >= 12 * 2 * 3);
+    assert!(tried >= 14 * 2 * 3);
 }
 
 #[test]
@@ -133,13 +135,61 @@ fn pa2_is_read_only_and_reports_the_firmware_version() {
 #[test]
 fn unassigned_pas_store_any_value() {
     let mut bus = Bus::new();
-    for n in [0u16, 1, 3, 9, 15, 50, 57, 59] {
+    for n in [0u16, 1, 3, 9, 15, 50, 59] {
         assert_eq!(bus.write(pa_addr(n), &[0xFFFF]), Ok(()));
         assert_eq!(bus.write_single(pa_addr(n), 0), Ok(()));
     }
 }
 
 // ---- SPEC §7: effects -----------------------------------------------------
+
+/// PA57 / PA58, the RS-485 driver-enable lead and tail (docs/firmware.md):
+/// one bit time by default, 0..=MAX_DE_BITS bit times, exception 3 beyond (nothing
+/// stored), saved by EE-Set and in force after a power cycle; a saved value
+/// out of that range (PA57/PA58 were unassigned before, any value) loads
+/// as the default.
+#[test]
+fn pa57_pa58_driver_enable_lead_and_tail() {
+    use modbus_drive::params::Slot;
+    use modbus_drive::rtu::{DriverEnable, MAX_DE_BITS};
+    let mut s = store();
+    let mut bus = booted(&mut s);
+    assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 1]));
+    assert_eq!(bus.device.params().driver_enable(), DriverEnable::new(1, 1));
+    for (n, v) in [
+        (57u16, MAX_DE_BITS + 1),
+        (58, MAX_DE_BITS + 1),
+        (57, 0xFFFF),
+    ] {
+        assert_eq!(bus.write_single(pa_addr(n), v), Err(3), "PA{n} = {v}");
+        assert_eq!(bus.write(pa_addr(n), &[v]), Err(3), "PA{n} = {v}");
+    }
+    // a block write with one value out of range stores neither
+    assert_eq!(bus.write(pa_addr(57), &[4, MAX_DE_BITS + 1]), Err(3));
+    assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 1]));
+    assert_eq!(bus.write(pa_addr(57), &[4, MAX_DE_BITS]), Ok(()));
+    assert_eq!(
+        bus.device.params().driver_enable(),
+        DriverEnable::new(4, MAX_DE_BITS)
+    );
+    ee_new_ok(&mut bus, &mut s, 1); // EE-Set
+    assert_eq!(bus.write(pa_addr(57), &[0, 0]), Ok(()));
+    assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![0, 0]));
+    let mut bus = booted(&mut s);
+    assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![4, MAX_DE_BITS]));
+    // EE-dEF: back to one bit time
+    ee_new_ok(&mut bus, &mut s, 5);
+    assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 1]));
+
+    let mut old = ParamSet::defaults();
+    old.pa.set_unchecked(57, 500);
+    old.pa.set_unchecked(58, 7);
+    s.save(Slot::Saved, &old).unwrap();
+    let boot = s.boot();
+    assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 1 });
+    let mut bus = booted(&mut s);
+    assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 7]));
+}
 
 #[test]
 fn address_change_is_answered_from_the_old_address_then_effective() {

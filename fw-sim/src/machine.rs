@@ -196,10 +196,15 @@ impl Machine {
         }
         self.step_edges();
         let de = self.gpio_de();
-        // a GPIO DE pin: its changes (and a first rise) are edges
-        if let (Some(level), true) = (de, de != self.usart.gpio_de) {
-            if self.usart.gpio_de.is_some() || level {
-                self.usart.de_edges.push((t, level));
+        // The pin changes hands (GPIO ↔ the G4 USART's DE function) or
+        // level as a GPIO: an edge where its level changes. The USART's own
+        // edges are its (usart.rs), recorded only while it has the pin.
+        if de != self.usart.gpio_de {
+            let usart_de = self.usart.de_output().unwrap_or(false);
+            let was = self.usart.gpio_de.unwrap_or(usart_de);
+            let now = de.unwrap_or(usart_de);
+            if now != was {
+                self.usart.de_edges.push((t, now));
             }
         }
         self.usart.gpio_de = de;

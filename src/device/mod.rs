@@ -42,7 +42,7 @@ use crate::motion::{PlannerConfig, StepSchedule, SwitchEdges, Switches};
 use crate::params::{
     execute, Boot, BootOutcome, EeError, EeOp, ParamStore, Params, PendingEe, StoreStatus,
 };
-use crate::rtu::{with_crc, LineConfig, RxEvent, MAX_FRAME};
+use crate::rtu::{with_crc, DriverEnable, LineConfig, RxEvent, MAX_FRAME};
 pub use crate::slave::Response;
 use crate::slave::Slave;
 
@@ -69,10 +69,11 @@ pub struct Device {
     ee_busy_until_us: Option<u64>,
     /// What DP-Err says about the store.
     store_status: StoreStatus,
-    /// Address and line in force: PA51/52/53 as they were when the last
-    /// reply left (SPEC §7).
+    /// Address, line and RS-485 DE lead / tail in force: PA51/52/53 and
+    /// PA57/58 as they were when the last reply left (SPEC §7).
     address: u8,
     line: LineConfig,
+    driver_enable: DriverEnable,
     events: Deque<Event, EVENT_QUEUE_LEN>,
     events_dropped: u32,
 }
@@ -85,6 +86,7 @@ impl Device {
             od: OdValues::default(),
             address: pa.address(),
             line: pa.line(),
+            driver_enable: pa.driver_enable(),
             pa,
             drive: Drive::new(),
             slave: Slave::new(),
@@ -207,6 +209,7 @@ impl Device {
         boot.set.apply_to(&mut self.pa, &mut self.od);
         self.address = self.pa.address();
         self.line = self.pa.line();
+        self.driver_enable = self.pa.driver_enable();
         self.store_status = StoreStatus {
             defaulted_blank: boot.outcome == BootOutcome::Blank,
             defaulted_unreadable: matches!(boot.outcome, BootOutcome::Unreadable(_)),
@@ -310,9 +313,11 @@ impl Device {
     }
 
     /// The reply (if any) has left the wire: apply a deferred change of
-    /// address or line format (SPEC §7) — the reply to the write that made
-    /// it went out from the old address on the old line. Returns the new
-    /// line settings if they changed. Call it after [`Response::Silent`] too.
+    /// address, line format or DE lead / tail (SPEC §7) — the reply to the
+    /// write that made it went out from the old address on the old line.
+    /// Returns the line settings if they or the DE lead / tail
+    /// ([`Self::driver_enable`]) changed: the glue applies both. Call it
+    /// after [`Response::Silent`] too.
     pub fn reply_sent(&mut self) -> Option<LineConfig> {
         let address = self.pa.address();
         if address != self.address {
@@ -320,8 +325,11 @@ impl Device {
             self.push_event(Event::AddressChanged { address });
         }
         let line = self.pa.line();
+        let driver_enable = self.pa.driver_enable();
+        let de_changed = driver_enable != self.driver_enable;
+        self.driver_enable = driver_enable;
         if line == self.line {
-            return None;
+            return de_changed.then_some(line);
         }
         self.line = line;
         self.push_event(Event::LineChanged(line));
@@ -343,6 +351,11 @@ impl Device {
     /// The line settings in force (PA52/PA53, same rule as the address).
     pub fn line(&self) -> LineConfig {
         self.line
+    }
+
+    /// The RS-485 DE lead and tail in force (PA57/PA58, same rule).
+    pub fn driver_enable(&self) -> DriverEnable {
+        self.driver_enable
     }
 
     /// The control loop (SPEC §8): call it at least every millisecond

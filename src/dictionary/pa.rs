@@ -1,5 +1,7 @@
 //! The PA set: 60 16-bit parameters at legacy addresses 0x0064..=0x009F.
 
+use crate::rtu::{DriverEnable, DEFAULT_DE_BITS, MAX_DE_BITS};
+
 /// Number of parameters, PA0..=PA59.
 pub const PA_COUNT: usize = 60;
 
@@ -52,6 +54,8 @@ pub const PA: [PaDef; PA_COUNT] = {
     t[54] = rw(0, 1, 1); // answer frame errors with 9/10
     t[55] = rw(0, 1, 0); // exception profile
     t[56] = rw(0, 100, 0); // minimum response delay, ms
+    t[57] = rw(0, MAX_DE_BITS, DEFAULT_DE_BITS); // RS-485 DE lead, bit times
+    t[58] = rw(0, MAX_DE_BITS, DEFAULT_DE_BITS); // RS-485 DE tail, bit times
     t
 };
 
@@ -176,6 +180,10 @@ impl Params {
     }
     pub fn response_delay_ms(&self) -> u16 {
         self.values[56]
+    }
+    /// PA57 / PA58: the RS-485 driver-enable lead and tail.
+    pub fn driver_enable(&self) -> DriverEnable {
+        DriverEnable::new(self.values[57], self.values[58])
     }
     pub fn line(&self) -> crate::rtu::LineConfig {
         crate::rtu::LineConfig::from_params(self.values[52], self.values[53]).unwrap_or_default()

@@ -5,7 +5,7 @@
 //! |---|---|---|
 //! | RS-485 RO → RX | PA10 | USART1_RX (no remap) |
 //! | RS-485 DI ← TX | PA9 | USART1_TX (no remap) |
-//! | RS-485 DE + /RE | PA8 | GPIO: high before the first byte, low at TC |
+//! | RS-485 DE + /RE | PA8 | GPIO: high the lead PA57 before the first byte, low the tail PA58 after TC |
 //! | STEP | PA6 | TIM3_CH1 (no remap), PWM mode 2 |
 //! | DIR | PB0 | GPIO, written by the step interrupt (`drive::io::DirectionOutput`, PA11) |
 //! | ENABLE | PB1 | GPIO, high = power stage enabled |
@@ -22,7 +22,8 @@
 //! otherwise. ENABLE / BRAKE go through `drive::io::PowerOutputs`.
 //!
 //! This USART has no receiver timeout and no driver-enable output: t3.5 is
-//! timed by `rs485::frame_gap_task`, DE is a GPIO dropped in the TC interrupt.
+//! timed by `rs485::frame_gap_task`, DE is a GPIO raised and dropped by
+//! `rs485::send`.
 
 use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
@@ -41,7 +42,7 @@ use modbus_drive::boards::Board;
 use super::flash::FlashRegion;
 use super::switches::SwitchInputs;
 
-/// Core clock set by [`config`].
+/// Core clock set by [`config`] (8 MHz HSE × 9): busy waits count its cycles.
 pub const SYSCLK_HZ: u32 = 72_000_000;
 
 pub const NAME: &str = Board::F103.chip();
@@ -55,6 +56,10 @@ pub const PARAM_FLASH_START: u32 = 0xF000;
 pub const PARAM_FLASH_LEN: u32 = 0x1000;
 
 pub const UART: pac::usart::Usart = pac::USART1;
+/// DE (PA8): configured as a push-pull output by [`split`] and driven
+/// through its set/reset register by rs485.rs.
+pub const DE_PORT: pac::gpio::Gpio = pac::GPIOA;
+pub const DE_PIN: usize = 8;
 pub const STEP_TIMER: pac::timer::TimGp16 = pac::TIM3;
 pub type UartIrq = interrupt::typelevel::USART1;
 pub type StepIrq = interrupt::typelevel::TIM3;

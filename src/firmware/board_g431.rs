@@ -4,7 +4,7 @@
 //! |---|---|---|
 //! | RS-485 RO → RX | PA10 | USART1_RX (AF7) |
 //! | RS-485 DI ← TX | PA9 | USART1_TX (AF7) |
-//! | RS-485 DE + /RE | PA12 | USART1_DE (AF7), driven by the USART (CR3.DEM) |
+//! | RS-485 DE + /RE | PA12 | USART1_DE (AF7), driven by the USART (CR3.DEM); a GPIO during a reply whose PA57 / PA58 exceed DEAT / DEDT |
 //! | STEP | PA6 | TIM3_CH1 (AF2), PWM mode 2 |
 //! | DIR | PB0 | GPIO, written by the step interrupt (`drive::io::DirectionOutput`, PA11) |
 //! | ENABLE | PB1 | GPIO, high = power stage enabled |
@@ -21,7 +21,7 @@
 //! otherwise. ENABLE / BRAKE go through `drive::io::PowerOutputs`.
 //!
 //! t3.5 comes from the USART's receiver timeout (RTOR), DE from its hardware
-//! driver-enable with assertion/deassertion times (rs485.rs).
+//! driver-enable with assertion/deassertion times PA57 / PA58 (rs485.rs).
 
 use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
@@ -39,7 +39,7 @@ use modbus_drive::boards::Board;
 use super::flash::FlashRegion;
 use super::switches::SwitchInputs;
 
-/// Core clock set by [`config`].
+/// Core clock set by [`config`] (HSI16 / 4 × 85 / 2): busy waits count its cycles.
 pub const SYSCLK_HZ: u32 = 170_000_000;
 
 pub const NAME: &str = Board::G431.chip();
@@ -53,6 +53,10 @@ pub const PARAM_FLASH_START: u32 = 0x1_F000;
 pub const PARAM_FLASH_LEN: u32 = 0x1000;
 
 pub const UART: pac::usart::Usart = pac::USART1;
+/// USART1_DE (PA12), taken over as a GPIO when PA57 / PA58 exceed what the
+/// USART's DEAT / DEDT can time (rs485.rs).
+pub const DE_PORT: pac::gpio::Gpio = pac::GPIOA;
+pub const DE_PIN: usize = 12;
 pub const STEP_TIMER: pac::timer::TimGp16 = pac::TIM3;
 pub type UartIrq = interrupt::typelevel::USART1;
 pub type StepIrq = interrupt::typelevel::TIM3;

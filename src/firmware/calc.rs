@@ -6,7 +6,7 @@
 //! and checks it on the host — the rest of `src/firmware/` only builds for
 //! the boards.
 
-use modbus_drive::rtu::LineConfig;
+use modbus_drive::rtu::{DriverEnable, LineConfig};
 
 // ---------------------------------------------------------------- serial line
 
@@ -31,6 +31,67 @@ pub fn t35_rto_bits(line: LineConfig) -> u32 {
 #[cfg_attr(feature = "board-g431", allow(dead_code))]
 pub fn reply_wait_us(now_us: u32, last_byte_at_us: u32, delay_us: u32) -> u32 {
     delay_us.saturating_sub(now_us.wrapping_sub(last_byte_at_us))
+}
+
+/// Longest DE assertion / deassertion time the STM32G4 USART makes itself
+/// (`USART_CR1.DEAT` / `DEDT`, 5 bits, in sample times: 1/16 bit, or 1/8
+/// with OVER8).
+pub const MAX_DE_SAMPLES: u32 = 31;
+
+/// How the glue drives DE for PA57 / PA58 (docs/firmware.md, "RS-485 driver enable").
+/// `Default`: the USART alone, no lead or tail (what the glue holds until
+/// the line is first applied, before any reply).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct DeDrive {
+    /// `DEAT` / `DEDT` for the USART's hardware DE (sample times).
+    pub deat: u8,
+    pub dedt: u8,
+    /// The glue drives DE as a GPIO: raised `lead_us` before the first byte
+    /// is handed to the USART (whose `deat` adds to it), dropped `tail_us`
+    /// after transmission complete. Otherwise the USART alone drives it,
+    /// and the glue still waits `tail_us` before touching the USART again.
+    pub software: bool,
+    pub lead_us: u32,
+    pub tail_us: u32,
+}
+
+impl DeDrive {
+    /// `de` on `line`. `samples_per_bit`: 16 or 8 for a USART with hardware
+    /// DE (the G431's), 0 for none (the F103's, DE a GPIO). The hardware
+    /// does it alone while lead and tail fit `DEAT` / `DEDT`; beyond,
+    /// software extends the lead by what `DEAT` lacks and times the tail.
+    pub const fn new(de: DriverEnable, line: LineConfig, samples_per_bit: u32) -> Self {
+        let lead = de.lead_bits() as u32 * samples_per_bit;
+        let tail = de.tail_bits() as u32 * samples_per_bit;
+        let fits = samples_per_bit > 0 && lead <= MAX_DE_SAMPLES && tail <= MAX_DE_SAMPLES;
+        let deat = if lead > MAX_DE_SAMPLES {
+            MAX_DE_SAMPLES
+        } else {
+            lead
+        };
+        let dedt = if tail > MAX_DE_SAMPLES {
+            MAX_DE_SAMPLES
+        } else {
+            tail
+        };
+        let (lead_us, tail_us) = if fits || samples_per_bit == 0 {
+            (de.lead_us(line), de.tail_us(line))
+        } else {
+            // what DEAT does not cover, rounded up (µs = samples / (baud·spb))
+            // (u32: lead ≤ MAX_DE_BITS · 16 samples, so `rest` < 2^32)
+            let rest = (lead - deat) * 1_000_000;
+            let per_s = line.baud.saturating_mul(samples_per_bit);
+            (rest.div_ceil(per_s), de.tail_us(line))
+        };
+        Self {
+            deat: deat as u8,
+            dedt: dedt as u8,
+            software: !fits,
+            lead_us,
+            tail_us,
+        }
+    }
 }
 
 // ---------------------------------------------------------------- step output

@@ -1,7 +1,7 @@
 //! The dispatcher task: hands each closed frame to `Device::poll` (SPEC §1,
 //! §3, §7, §9), then sends the reply `poll` queued at its time and puts a
-//! new line format in force. It also logs what the core reports
-//! (`Device::take_event`).
+//! new line format and DE lead / tail in force. It also logs what the core
+//! reports (`Device::take_event`).
 //!
 //! The device lives in `DEVICE`, a thread-mode mutex: only tasks of the
 //! thread-mode executor (this one and the control loop) touch it, never an
@@ -20,7 +20,7 @@ use embassy_sync::once_lock::OnceLock;
 use modbus_drive::device::{Line, Request, Storage};
 use modbus_drive::event::Event;
 use modbus_drive::params::ParamStore;
-use modbus_drive::rtu::{LineConfig, MAX_FRAME};
+use modbus_drive::rtu::{DriverEnable, LineConfig, MAX_FRAME};
 use modbus_drive::Device;
 
 use super::calc::RateLimit;
@@ -121,17 +121,20 @@ impl<'a> Rs485Line<'a> {
         }
     }
 
-    /// Sends the queued reply at its time, then puts a new line format in
-    /// force (SPEC §7: after the reply).
-    async fn carry_out(&mut self, uart: &mut Uart<'static, Blocking>) {
+    /// Sends the queued reply at its time, then puts a new line format and
+    /// the DE lead / tail `de` in force (SPEC §7: after the reply).
+    async fn carry_out(&mut self, uart: &mut Uart<'static, Blocking>, de: DriverEnable) {
         if let Some((n, at_us)) = self.queued.take() {
-            embassy_time::Timer::at(embassy_time::Instant::from_micros(at_us)).await;
             if n > 0 {
-                rs485::send(&self.reply[..n]).await;
+                // `send` waits itself: DE rises its lead before `at_us`
+                let wait_us = at_us.saturating_sub(embassy_time::Instant::now().as_micros());
+                rs485::send(&self.reply[..n], u32::try_from(wait_us).unwrap_or(u32::MAX)).await;
+            } else {
+                embassy_time::Timer::at(embassy_time::Instant::from_micros(at_us)).await;
             }
         }
         if let Some(line) = self.line.take() {
-            if let Err(e) = rs485::apply_line(uart, line) {
+            if let Err(e) = rs485::apply_line(uart, line, de) {
                 defmt::error!(
                     "line {} refused by the USART: {}",
                     line,
@@ -190,11 +193,15 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
         super::fault::test_trigger(rx.event());
         let mut line = Rs485Line::new(&rx);
         let mut storage = FlashStorage(&mut store);
-        if with_device(|d| d.poll(line.now_us, &mut line, &mut storage)).is_none() {
+        // PA57 / PA58 as the request left them, for a reconfigured line
+        let Some(de) = with_device(|d| {
+            d.poll(line.now_us, &mut line, &mut storage);
+            d.driver_enable()
+        }) else {
             continue;
-        }
+        };
         log.drain();
-        line.carry_out(&mut uart).await;
+        line.carry_out(&mut uart, de).await;
         log.drain();
     }
 }

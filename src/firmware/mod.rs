@@ -73,7 +73,7 @@ async fn main(spawner: Spawner) {
     let mut store = defmt::unwrap!(ParamStore::new(region, 0..capacity));
     // In a block: a `Device` local of `main` would stay in main's future
     // (a static) after it has been moved to the dispatcher: its RAM twice.
-    let (line, address, dir_inverted) = {
+    let (line, address, de, dir_inverted) = {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks
         // (calc::step_prescaler).
@@ -97,6 +97,7 @@ async fn main(spawner: Spawner) {
         let at = (
             device.line(),
             device.address(),
+            device.driver_enable(),
             device.params().direction_inverted(),
         );
         dispatch::install(device);
@@ -104,9 +105,7 @@ async fn main(spawner: Spawner) {
     };
 
     let mut uart = parts.uart;
-    defmt::unwrap!(rs485::apply_line(&mut uart, line).map_err(rs485::config_error));
-    #[cfg(feature = "board-f103")]
-    rs485::set_de_pin(parts.de);
+    defmt::unwrap!(rs485::apply_line(&mut uart, line, de).map_err(rs485::config_error));
     let timer_clock_hz = parts.step_timer.get_clock_frequency().0;
     let prescaler = defmt::unwrap!(
         calc::step_prescaler(timer_clock_hz, board::STEP_TICK_HZ),
@@ -141,8 +140,11 @@ async fn main(spawner: Spawner) {
         "task spawned twice"
     ));
 
-    // The step pin stays owned here for good.
+    // The step pin stays owned here for good, and so does the F103's DE
+    // pin (an output that rs485 drives through its set/reset register).
     let _step_pin = parts.step_pin;
+    #[cfg(feature = "board-f103")]
+    let _de_pin = parts.de;
     // From here on a hung thread resets the chip (fault.rs).
     let watchdog = fault::Watchdog::start();
     control::run(

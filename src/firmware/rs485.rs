@@ -13,12 +13,15 @@
 //!   timestamps.
 //!
 //! Transmit: [`send`] hands the reply to the interrupt, which feeds the data
-//! register on TXE (one burst, no gaps) and finishes at TC. DE is the
-//! USART's hardware driver-enable on the G431 and a GPIO raised before the
-//! first byte and dropped at TC on the F103.
+//! register on TXE (one burst, no gaps) and finishes at TC. DE leads the
+//! first start bit and trails the last stop bit by PA57 / PA58
+//! ([`apply_line`], `calc::DeDrive`): on the G431 the USART's
+//! hardware driver-enable does it (DEAT / DEDT) while they fit; beyond
+//! that, and always on the F103, DE is a GPIO that [`send`] raises the
+//! lead before the first byte and the interrupt drops the tail after TC.
 //!
 //! Shared state, no lock held while bytes are copied (priority.rs):
-//! - the link (assembler, line timing, DE pin) belongs to the USART
+//! - the link (assembler, line timing, DE lead / tail) belongs to the USART
 //!   interrupt; thread code changes it only with that one interrupt
 //!   disabled in the NVIC ([`with_link`]), which masks nothing else;
 //! - a closed frame goes into one of two [`FrameSlot`]s, owned by the
@@ -28,6 +31,9 @@
 //! - a reply goes the same way: [`send`] fills the transmit buffer while
 //!   no transmission runs, marks it requested and pends the interrupt,
 //!   which starts it (only the interrupt writes CR1 while the link runs);
+//!   a software DE is raised by [`send`] before the request (the interrupt
+//!   leaves the pin alone while no transmission runs) and dropped by the
+//!   interrupt after TC;
 //! - F103: the frame-gap task asks the interrupt to poll the assembler
 //!   through an atomic flag and a pended interrupt.
 //!
@@ -43,10 +49,11 @@ use embassy_stm32::usart::{self, Uart};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use modbus_drive::rtu::{
-    CharFormat, FrameAssembler, FrameTiming, LineConfig, RxEvent, RxFlags, MAX_FRAME,
+    CharFormat, DriverEnable, FrameAssembler, FrameTiming, LineConfig, RxEvent, RxFlags, MAX_FRAME,
 };
 
 use super::board;
+use super::calc::DeDrive;
 use super::owned::IrqOwned;
 
 /// A closed frame (or frame error), as the interrupt left it in its slot.
@@ -175,6 +182,10 @@ static TX: IrqOwned<TxBuf> = IrqOwned::new(TxBuf {
     len: 0,
 });
 static TX_STATE: AtomicU8 = AtomicU8::new(TX_IDLE);
+/// The DE lead software times (0: the USART does, or none) and the tail
+/// (µs), as [`apply_line`] left them for [`send`].
+static DE_LEAD_US: AtomicU32 = AtomicU32::new(0);
+static DE_TAIL_US: AtomicU32 = AtomicU32::new(0);
 /// The interrupt has sent the last stop bit of the reply.
 static TX_DONE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
@@ -197,8 +208,8 @@ struct Link {
     /// The slot the next frame goes to.
     write_slot: usize,
     tx_pos: usize,
-    #[cfg(feature = "board-f103")]
-    de: Option<embassy_stm32::gpio::Output<'static>>,
+    /// PA57 / PA58 as this board makes them.
+    de_drive: DeDrive,
 }
 
 /// Owned by the USART interrupt once [`LINK_READY`] is set, which also
@@ -224,8 +235,8 @@ fn with_link<R>(f: impl FnOnce(&mut Link) -> R) -> R {
             assembler: FrameAssembler::new(FrameTiming::new(LineConfig::DEFAULT)),
             write_slot: 0,
             tx_pos: 0,
-            #[cfg(feature = "board-f103")]
-            de: None,
+            // replaced by `apply_line` before the first reply
+            de_drive: DeDrive::default(),
         })
     };
     let r = f(link);
@@ -284,37 +295,68 @@ pub fn config_error(e: usart::ConfigError) -> defmt::Str {
     }
 }
 
-/// Applies a line (at boot and after a reply that changed it) and
-/// (re)arms the receive interrupts. Call it between frames.
+/// Applies a line and the DE lead / tail PA57 / PA58 (at boot and after a
+/// reply that changed either) and (re)arms the receive interrupts. Call it
+/// between frames.
 pub fn apply_line(
     uart: &mut Uart<'static, Blocking>,
     line: LineConfig,
+    de: DriverEnable,
 ) -> Result<(), usart::ConfigError> {
     // embassy rewrites CR1/CR2 here (for the whole USART, whichever half is
     // asked), clearing our interrupt enables
     uart.split_ref().1.set_config(&usart_config(line))?;
+    let timing = line.timing();
     #[cfg(feature = "board-f103")]
-    T35_US.store(line.timing().t35_us, Ordering::Relaxed);
+    T35_US.store(timing.t35_us, Ordering::Relaxed);
+    let de_drive = DeDrive::new(de, line, de_samples_per_bit());
+    // `send`'s copy: thread code only (the dispatcher, main before it)
+    let lead = if de_drive.software {
+        de_drive.lead_us
+    } else {
+        0
+    };
+    DE_LEAD_US.store(lead, Ordering::Relaxed);
+    DE_TAIL_US.store(de_drive.tail_us, Ordering::Relaxed);
     with_link(|link| {
-        link.assembler.set_timing(line.timing());
-        arm_receiver(line);
+        link.assembler.set_timing(timing);
+        link.de_drive = de_drive;
+        arm_receiver(line, de_drive);
     });
     Ok(())
 }
 
-/// STM32G4 (RM0440 USART chapter): FIFO off so that each byte gets its own
-/// interrupt and timestamp; DE assertion/deassertion one bit time (DEAT /
-/// DEDT in 1/16 bit; embassy-stm32 0.6.0 writes DEAT into both, so set them
-/// here); receiver timeout = t3.5 in bit times. FIFOEN, DEAT and DEDT may
-/// only be written with UE = 0.
+/// USART samples per bit for its hardware DE timing (DEAT / DEDT count
+/// them): 16, or 8 when embassy chose 8× oversampling for the baud.
 #[cfg(feature = "board-g431")]
-fn arm_receiver(line: LineConfig) {
+fn de_samples_per_bit() -> u32 {
+    use embassy_stm32::pac::usart::vals::Over8;
+    if board::UART.cr1().read().over8() == Over8::OVERSAMPLING8 {
+        8
+    } else {
+        16
+    }
+}
+
+/// The F103's USART has no hardware DE.
+#[cfg(feature = "board-f103")]
+fn de_samples_per_bit() -> u32 {
+    0
+}
+
+/// STM32G4 (RM0440 USART chapter): FIFO off so that each byte gets its own
+/// interrupt and timestamp; DE assertion/deassertion times from PA57 /
+/// PA58 (DEAT / DEDT in sample times; embassy-stm32 0.6.0 writes DEAT into
+/// both, so set them here); receiver timeout = t3.5 in bit times. FIFOEN,
+/// DEAT and DEDT may only be written with UE = 0.
+#[cfg(feature = "board-g431")]
+fn arm_receiver(line: LineConfig, de: DeDrive) {
     let r = board::UART;
     r.cr1().modify(|w| w.set_ue(false));
     r.cr1().modify(|w| {
         w.set_fifoen(false);
-        w.set_deat(16);
-        w.set_dedt(16);
+        w.set_deat(de.deat);
+        w.set_dedt(de.dedt);
     });
     r.rtor()
         .write(|w| w.set_rto(super::calc::t35_rto_bits(line)));
@@ -337,7 +379,7 @@ fn arm_receiver(line: LineConfig) {
 /// STM32F103 (RM0008 USART chapter): RXNE interrupt only; t3.5 is timed by
 /// [`frame_gap_task`]. Error flags are read with RXNE (SR then DR clears them).
 #[cfg(feature = "board-f103")]
-fn arm_receiver(_line: LineConfig) {
+fn arm_receiver(_line: LineConfig, _de: DeDrive) {
     board::UART.cr1().modify(|w| w.set_rxneie(true));
 }
 
@@ -354,7 +396,17 @@ impl Handler<board::UartIrq> for UartHandler {
         // before touching the link), initialised (LINK_READY).
         let link = unsafe { LINK.get().assume_init_mut() };
         start_tx(link);
-        on_uart(link, at_us);
+        if let Some(tail_us) = on_uart(link, at_us) {
+            // The software DE tail, here rather than in `send`: the
+            // dispatcher task may wake much later (thread mode shares the
+            // CPU with the control loop), and a master may send its next
+            // request soon after our last stop bit. Core cycles (at least
+            // that many, more if preempted) rather than reads of the time
+            // driver: the wait touches no peripheral, and the step
+            // interrupt outranks this one meanwhile.
+            cortex_m::asm::delay(tail_us.saturating_mul(board::SYSCLK_HZ / 1_000_000));
+            set_de(false);
+        }
     }
 }
 
@@ -365,10 +417,6 @@ fn start_tx(link: &mut Link) {
     }
     TX_STATE.store(TX_SENDING, Ordering::Relaxed);
     link.tx_pos = 0;
-    #[cfg(feature = "board-f103")]
-    if let Some(de) = link.de.as_mut() {
-        de.set_high();
-    }
     board::UART.cr1().modify(|w| w.set_txeie(true));
 }
 
@@ -381,13 +429,18 @@ fn next_tx_byte(link: &mut Link) -> Option<u8> {
     b
 }
 
-fn tx_done() {
+/// The reply has left the wire. Returns the DE tail to hold (µs) when
+/// software drives DE for it.
+fn tx_done(link: &Link) -> Option<u32> {
     TX_STATE.store(TX_IDLE, Ordering::Release);
     TX_DONE.signal(());
+    link.de_drive.software.then_some(link.de_drive.tail_us)
 }
 
+/// Serves the USART; returns the DE tail to hold (µs) when a reply that
+/// software drives DE for has just left the wire.
 #[cfg(feature = "board-g431")]
-fn on_uart(link: &mut Link, at_us: u32) {
+fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
     let r = board::UART;
     let isr = r.isr().read();
     // RTOF before the byte: with both set, the timeout ended the frame
@@ -431,14 +484,18 @@ fn on_uart(link: &mut Link, at_us: u32) {
     }
     if cr1.tcie() && isr.tc() {
         // last stop bit sent; the USART drops DE after DEDT by itself
+        // unless software drives it
         r.cr1().modify(|w| w.set_tcie(false));
         r.icr().write(|w| w.set_tc(true));
-        tx_done();
+        return tx_done(link);
     }
+    None
 }
 
+/// Serves the USART; returns the DE tail to hold (µs) when a reply has
+/// just left the wire (DE is always software's here).
 #[cfg(feature = "board-f103")]
-fn on_uart(link: &mut Link, at_us: u32) {
+fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
     let r = board::UART;
     if POLL_REQUESTED.swap(false, Ordering::Relaxed) {
         let last = link.assembler.last_byte_at_us();
@@ -474,13 +531,12 @@ fn on_uart(link: &mut Link, at_us: u32) {
         }
     }
     if cr1.tcie() && sr.tc() {
-        // the last stop bit has left: release the bus (SPEC §1)
+        // the last stop bit has left: the bus is released after the DE
+        // tail (SPEC §1)
         r.cr1().modify(|w| w.set_tcie(false));
-        if let Some(de) = link.de.as_mut() {
-            de.set_low();
-        }
-        tx_done();
+        return tx_done(link);
     }
+    None
 }
 
 fn on_byte(link: &mut Link, byte: u8, at_us: u32, flags: RxFlags) {
@@ -508,9 +564,10 @@ fn deliver(write_slot: &mut usize, ev: RxEvent<'_>, last_byte_at_us: u32) {
     FRAME_READY.signal(());
 }
 
-/// Sends `bytes` (≤ 256) in one burst and returns once the last stop bit has
-/// left the wire.
-pub async fn send(bytes: &[u8]) {
+/// Sends `bytes` (≤ 256) in one burst, its first start bit no earlier than
+/// `not_before_us` from now, and returns once the last stop bit has left
+/// the wire and DE is released.
+pub async fn send(bytes: &[u8], not_before_us: u32) {
     if TX_STATE.load(Ordering::Acquire) != TX_IDLE {
         return; // never: the dispatcher sends one reply at a time
     }
@@ -519,16 +576,70 @@ pub async fn send(bytes: &[u8]) {
     let tx = unsafe { TX.get() };
     tx.bytes[..n].copy_from_slice(&bytes[..n]);
     tx.len = n;
-    TX_DONE.reset();
-    TX_STATE.store(TX_REQUESTED, Ordering::Release);
-    board::UartIrq::pend(); // the interrupt starts it
-    TX_DONE.wait().await;
+    let (lead, tail) = (
+        DE_LEAD_US.load(Ordering::Relaxed),
+        DE_TAIL_US.load(Ordering::Relaxed),
+    );
+    // DE rises the lead before the earliest start (or now, and the start
+    // waits for the lead); the tail follows transmission complete, and
+    // whatever follows the reply (`apply_line` disables the USART) waits
+    // for it. One await point for the three waits: each await of a timer
+    // is a state of its own in the dispatcher's future, and flash is short
+    // on the F103.
+    let waits = [not_before_us.saturating_sub(lead), lead, tail];
+    for (phase, us) in waits.into_iter().enumerate() {
+        if phase == 1 && lead > 0 {
+            // no transmission runs: the interrupt leaves DE alone
+            set_de(true);
+        } else if phase == 2 {
+            TX_DONE.reset();
+            TX_STATE.store(TX_REQUESTED, Ordering::Release);
+            board::UartIrq::pend(); // the interrupt starts it
+            TX_DONE.wait().await;
+        }
+        // one time-driver tick more: a wait of n ticks may start late in
+        // a tick
+        if us > 0 {
+            embassy_time::Timer::after_micros(u64::from(us) + 1).await;
+        }
+    }
 }
 
-/// The F103's DE GPIO, driven by the interrupt around each reply.
+/// Raises or drops DE where software drives it (on the G431 while PA57 /
+/// PA58 exceed DEAT / DEDT): the USART's DE pin taken over as a GPIO
+/// (output data set first, so the switch from the alternate function, low
+/// between frames, is glitch-free) and handed back to the USART low.
+/// Called by [`send`] to raise it and by the interrupt to drop it, never
+/// both at once (a transmission runs between them); GPIOA's mode register
+/// has no other writer while the drive runs.
+#[cfg(feature = "board-g431")]
+fn set_de(high: bool) {
+    use embassy_stm32::pac::gpio::vals::Moder;
+    let (port, pin) = (board::DE_PORT, board::DE_PIN);
+    port.bsrr().write(|w| {
+        w.set_bs(pin, high);
+        w.set_br(pin, !high);
+    });
+    port.moder().modify(|w| {
+        w.set_moder(
+            pin,
+            if high {
+                Moder::OUTPUT
+            } else {
+                Moder::ALTERNATE
+            },
+        )
+    });
+}
+
+/// Raises or drops DE: always software on the F103 (a GPIO; one write to
+/// its set/reset register, atomic).
 #[cfg(feature = "board-f103")]
-pub fn set_de_pin(de: embassy_stm32::gpio::Output<'static>) {
-    with_link(|link| link.de = Some(de));
+fn set_de(high: bool) {
+    board::DE_PORT.bsrr().write(|w| {
+        w.set_bs(board::DE_PIN, high);
+        w.set_br(board::DE_PIN, !high);
+    });
 }
 
 /// STM32F103: closes a frame t3.5 after its last byte (no receiver timeout

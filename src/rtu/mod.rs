@@ -4,12 +4,14 @@
 
 mod assembler;
 mod crc16;
+mod driver_enable;
 mod exception;
 pub mod pdu;
 mod timing;
 
 pub use assembler::{FrameAssembler, RxEvent, RxFlags};
 pub use crc16::{crc16, with_crc};
+pub use driver_enable::{DriverEnable, DEFAULT_DE_BITS, MAX_DE_BITS};
 pub use exception::Exception;
 pub use timing::{CharFormat, FrameTiming, LineConfig};
 

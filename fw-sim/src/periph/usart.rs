@@ -294,7 +294,10 @@ impl Usart {
                 _ => {
                     self.de_on = false;
                     self.de_off_at = None;
-                    self.de_edges.push((at, false));
+                    // on the pin only while it is in the USART's function
+                    if self.gpio_de.is_none() {
+                        self.de_edges.push((at, false));
+                    }
                 }
             }
         }
@@ -361,7 +364,9 @@ impl Usart {
             let mut start = t;
             if self.dem() && !self.de_on {
                 self.de_on = true;
-                self.de_edges.push((t, true));
+                if self.gpio_de.is_none() {
+                    self.de_edges.push((t, true));
+                }
                 start += ((self.cr1 >> 21) & 0x1F) as u64 * self.bit_ps() / 16;
             }
             self.de_off_at = None;
