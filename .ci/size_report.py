@@ -30,10 +30,12 @@ FLASH = (0x0800_0000, 0x0810_0000)
 RAM = (0x2000_0000, 0x2010_0000)
 TOP_FUNCTIONS = 40
 # board: (flash budget, static RAM budget) in bytes; the firmware stage fails
-# above either
+# above either. These guard against growth only: the targets (F103 48 KiB,
+# G431 52 KiB) are not met yet (docs/firmware-size.md). The F103's is one
+# KiB short of its parameter pages.
 BUDGETS = {
     "STM32G431CB": (64 * 1024, 16 * 1024),
-    "STM32F103C8": (57 * 1024, 12 * 1024),
+    "STM32F103C8": (59 * 1024, 12 * 1024),
 }
 UNNAMED = "unnamed constants in .rodata (literals, switch and lookup tables)"
 PADDING = "alignment padding, unsized symbols"
