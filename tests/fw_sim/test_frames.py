@@ -34,13 +34,7 @@ def test_exception_codes(start_fw, board):
 def test_bad_crc_gets_exception_10(start_fw, board):
     fw = start_fw(board)
     with fw.raw() as bus:
-        bad = bytearray(with_crc(hexb("01 03 60 41 00 01")))
-        bad[-1] ^= 0xFF
-        assert bus.exchange(bytes(bad)) == exception(1, 0x03, 10)  # SPEC §3, PA54 = 1
-        # PA54 = 0: strict Modbus, a bad CRC is silence
-        pa54 = with_crc(hexb("01 06 00 9A 00 00"))
-        assert bus.exchange(pa54) == pa54
-        assert bus.exchange(bytes(bad), timeout=NO_REPLY_WAIT_S) == b""
+        bus_tests.crc_error_gets_code_10_then_silence_with_pa54_0(bus)
 
 
 def test_other_addresses_and_broadcast_get_no_reply(start_fw, board):
