@@ -31,10 +31,10 @@ import argparse
 import csv
 import os
 import re
+import socket
 import statistics
 import subprocess
 import sys
-import socket
 import tempfile
 import threading
 import time
