@@ -14,18 +14,29 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
 - the highest step rate at which every pulse is on time: position moves at
   0x6081 rising to the planner's ceiling, each traced pulse (`--trace-steps`)
   compared with the core planner's schedule for the same move at the board's
-  step tick (examples/step_schedule.rs) within one tick.
+  step tick (examples/step_schedule.rs) within one tick;
+- the step interrupt's worst entry latency: a move at the highest rate the
+  board keeps on time while the master floods the bus with reads, the
+  maximum of the firmware's own log line `step interrupt: worst latency N
+  ns` and whether the runner warned of an update event with UIF still set.
+
+`--only latency` runs the last section alone, taking each board's rate
+from the docs/generated/fw-sim.md of an earlier full run, and prints it
+without writing the file.
 """
 
 from __future__ import annotations
 
+import argparse
 import csv
 import os
 import re
+import socket
 import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -58,6 +69,12 @@ TICK_NS = {"g431": 100, "f103": 125}
 SCHEDULE = Path(os.environ.get("FW_SIM_SCHEDULE_BIN")
                 or ROOT / "target" / "debug" / "examples" / "step_schedule")
 STEPS_PER_REV = 10_000  # PA10 default (SPEC §7)
+# what the DIR set-up stretch assumes of the step interrupt's entry
+ISR_LATENCY_NS = int(re.search(r"pub const ISR_LATENCY_NS: u32 = ([0-9_]+);",
+                               (ROOT / "src" / "firmware" / "calc.rs").read_text())[1])
+LATENCY_LOG = re.compile(r"step interrupt: worst latency (\d+) ns")
+MISSED_LOG = re.compile(r"step timer: (\d+) update event\(s\) with UIF still set")
+LATENCY_MOVE_S = 0.3  # emulated seconds at the top rate, each way
 
 
 def latencies(fw: c.Firmware, trace: Path, n: int) -> list[float]:
@@ -194,8 +211,132 @@ def on_time(board: str, work: Path, polled: bool) -> list[tuple[int, int, int, f
     return out
 
 
+def read_flood(port: int, stop: threading.Event, answered: list[int]):
+    """Reads of 0x6041 for this drive, the next sent as soon as the reply
+    is in (after a short gap so it opens a new frame; resent after 0.2 s of
+    wall time without one). `answered[0]`: replies received."""
+    request = c.with_crc(c.hexb("01 03 60 41 00 01"))
+    reply_len = 7  # address, function, byte count, one register, CRC
+    with socket.create_connection(("127.0.0.1", port), timeout=2) as s:
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        got = 0
+        while not stop.is_set():
+            s.sendall(request)
+            want, deadline = got + reply_len, time.monotonic() + 0.2
+            while got < want and time.monotonic() < deadline:
+                s.settimeout(max(0.001, deadline - time.monotonic()))
+                try:
+                    chunk = s.recv(256)
+                except socket.timeout:
+                    break
+                if not chunk:
+                    return
+                got += len(chunk)
+            answered[0] = got // reply_len
+            time.sleep(0.003)
+
+
+def entry_latency(board: str, rate: int, work: Path) -> tuple[int, int, int, int | None]:
+    """A position move of `rate` steps/s at the steepest ramp there and
+    back while `read_flood` runs. (distance, reads answered, worst latency
+    ns from the firmware's log, update events with UIF still set or None)."""
+    st = work / f"{board}-latency.stats"
+    fw = c.Firmware(work, board, ["--stats", str(st)])
+    distance = int(rate * LATENCY_MOVE_S) + rate * rate // MAX_ACCEL
+    answered = [0]
+    try:
+        m = c.Master(fw.client())
+        m.enable()
+        m.write(c.MODE, 1)
+        m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
+        steps0 = stats(st)["steps"]
+        for k, target in enumerate((distance, 0)):
+            m.write32(c.TARGET_POSITION, target)
+            m.write(c.CONTROLWORD, 0x001F)
+            m.write(c.CONTROLWORD, 0x000F)
+            # the master is silent while the flood has the bus: two senders
+            # would garble each other's frames on the one line
+            m.c.close()
+            stop, count = threading.Event(), [0]
+            flooder = threading.Thread(target=read_flood, args=(fw.port, stop, count))
+            flooder.start()
+            try:
+                deadline = time.monotonic() + 120
+                while stats(st)["steps"] < steps0 + (k + 1) * distance:
+                    assert time.monotonic() < deadline, f"{board}: move at {rate} steps/s"
+                    time.sleep(0.05)
+            finally:
+                stop.set()
+                flooder.join()
+            answered[0] += count[0]
+            time.sleep(0.2)  # the last reply is out, and a new worst is logged
+            # a fresh client: the old one's socket heard the flood's replies
+            m = c.Master(fw.client())
+            m.wait(lambda sw: sw & c.TARGET_REACHED and not sw & c.MOTOR_RUNNING, 10,
+                   f"{board}: move at {rate} steps/s")
+            assert m.read32(c.ACTUAL_POSITION) == target
+        fw.alive()
+    finally:
+        fw.stop()
+    log = fw.stderr()
+    late = [int(x) for x in LATENCY_LOG.findall(log)]
+    assert late, f"{board}: no latency log line:\n{log}"
+    missed = [int(x) for x in MISSED_LOG.findall(log)]
+    return distance, answered[0], max(late), max(missed) if missed else None
+
+
+def latency_section(work: Path, rates: dict[str, int]) -> list[str]:
+    lines = ["", "## Step interrupt: worst entry latency", "",
+             "At entry the step interrupt reads the step timer's counter, which",
+             "restarted at the update event, and keeps the largest value; the control",
+             "loop logs it each time it grows (`step interrupt: worst latency N ns`,",
+             "src/firmware/control.rs). The figure below is the largest of those log",
+             "lines: the time from the update event to the handler's first read of the",
+             "counter, in whole ticks of the step timer, with the emulator's one cycle",
+             "per instruction (docs/fw-sim.md, \"Time\"; a real core with flash wait",
+             "states and pipeline refills takes longer). A period the interrupt misses",
+             "altogether does not show in it (the counter has restarted again): the",
+             "runner warns of every update event that comes with UIF still set, and",
+             "the last column says whether it did.", "",
+             "Each board: a position move at the highest rate it keeps every pulse on",
+             f"time (the section above, bus polled), ramps at MAX_ACCEL, {LATENCY_MOVE_S} s",
+             "of emulated time at that rate each way, there and back. From each move's",
+             "start to its last pulse the master floods the bus with reads of 0x6041",
+             "for this drive, the next request 3 ms of wall-clock time after each",
+             "reply (less emulated time when the emulator lags). The DIR set-up stretch",
+             f"assumes {ISR_LATENCY_NS} ns (calc::ISR_LATENCY_NS).", "",
+             "| board | steps/s | distance each way | reads answered | worst latency ns "
+             "| ticks | within ISR_LATENCY_NS | update events with UIF still set |",
+             "|---|---|---|---|---|---|---|---|"]
+    for board in c.BOARDS:
+        rate = rates[board]
+        distance, answered, late, missed = entry_latency(board, rate, work)
+        lines.append(f"| {board} | {rate} | {distance} | {answered} | {late} "
+                     f"| {late / TICK_NS[board]:.0f} | {'yes' if late <= ISR_LATENCY_NS else 'no'} "
+                     f"| {'none' if missed is None else f'{missed} (warned)'} |")
+        print(lines[-1], flush=True)
+    return lines
+
+
+def rates_from_file() -> dict[str, int]:
+    """Each board's highest on-time rate with the bus polled, from the last
+    full run's output."""
+    found = dict(re.findall(r"^- (\w+), bus polled: every pulse on time up to \*\*(\d+) steps/s",
+                            OUT.read_text(), re.M))
+    return {b: int(found[b]) for b in c.BOARDS}
+
+
 def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--only", choices=["latency"],
+                    help="run one section and print it; the file is not written")
+    args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="fw-sim-measure-"))
+    if args.only == "latency":
+        print("\n".join(latency_section(work, rates_from_file())))
+        return 0
     lines = ["# fw-sim measurements (generated)", "",
              "Written by `fw-sim/measure.py` from emulated time; do not edit. Method and",
              "assumptions (one cycle per instruction) in [../fw-sim.md](../fw-sim.md).", ""]
@@ -269,6 +410,7 @@ def main() -> int:
     for (board, bus), top in sorted(highest.items()):
         ceiling = " (the planner's ceiling)" if top == MAX_STEP_RATE else ""
         lines.append(f"- {board}, bus {bus}: every pulse on time up to **{top} steps/s**{ceiling}.")
+    lines += latency_section(work, {b: highest.get((b, "polled"), 25_000) for b in c.BOARDS})
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
     return 0
