@@ -233,11 +233,13 @@ fn a_slip_below_the_window_does_not_fault_and_shows_in_the_error() {
     assert_eq!(rig.statusword() & (STATE_MASK | BIT13), OPERATION_ENABLED);
     assert_eq!(rig.error_register(), 0);
     assert_eq!(motor(&rig), 100_000 - 150);
-    // ±2 counts of noise are ±5 steps
+    // two noisy readings count: the one the encoder's reference was taken
+    // from at enable and the last; ±2 counts each are ±10 steps, and each
+    // of the two count-to-step conversions rounds down by less than a step
     let e = following_error(&mut rig);
-    assert!((145..=156).contains(&e), "error {e}");
+    assert!((139..=161).contains(&e), "error {e}");
     let p = rig.position();
-    assert!((99_844..=99_855).contains(&p), "measured {p}");
+    assert!((99_839..=99_861).contains(&p), "measured {p}");
 }
 
 #[test]
