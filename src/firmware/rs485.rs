@@ -583,7 +583,7 @@ pub async fn send(bytes: &[u8], not_before_us: u32) {
     // DE rises the lead before the earliest start (or now, and the start
     // waits for the lead); the tail follows transmission complete, and
     // whatever follows the reply (`apply_line` disables the USART) waits
-    // for it. One await point for the three waits: each await of a timer
+    // for it. One await point for the timer waits: each await of a timer
     // is a state of its own in the dispatcher's future, and flash is short
     // on the F103.
     let waits = [not_before_us.saturating_sub(lead), lead, tail];
@@ -591,6 +591,12 @@ pub async fn send(bytes: &[u8], not_before_us: u32) {
         if phase == 1 && lead > 0 {
             // no transmission runs: the interrupt leaves DE alone
             set_de(true);
+            // The lead by the core clock, with no await between DE and the
+            // start: an await resumes only once the other task (the control
+            // loop) yields, which stretched the lead by its run time. At
+            // most PA57's ten bit times; the planner's horizon covers it.
+            cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000 * lead);
+            continue;
         } else if phase == 2 {
             TX_DONE.reset();
             TX_STATE.store(TX_REQUESTED, Ordering::Release);
