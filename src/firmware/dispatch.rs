@@ -25,7 +25,8 @@ use modbus_drive::Device;
 
 use super::calc::RateLimit;
 use super::flash::FlashRegion;
-use super::rs485::{self, RxFrame, FRAMES_DROPPED};
+use super::rs485;
+use super::rx_slots::{self, RxFrame, FRAMES_DROPPED};
 use super::steps;
 
 /// The drive core, shared by the dispatcher and the control loop.
@@ -188,7 +189,7 @@ impl Storage for FlashStorage<'_> {
 pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
     let mut log = EventLog::new();
     loop {
-        let rx = rs485::receive().await;
+        let rx = rx_slots::receive().await;
         #[cfg(feature = "fault-test")]
         super::fault::test_trigger(rx.event());
         let mut line = Rs485Line::new(&rx);

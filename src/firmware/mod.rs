@@ -3,7 +3,7 @@
 //!
 //! Follow one request: `rs485.rs` (USART interrupt: timestamp → the core's
 //! `FrameAssembler`; t3.5 from the G431 receiver timeout or the F103 gap
-//! task) → `dispatch.rs` (`Device::poll`, then the reply at the time it
+//! task) → `rx_slots.rs` (the closed frame handed over) → `dispatch.rs` (`Device::poll`, then the reply at the time it
 //! gave and a new line format) → `rs485.rs` (one burst, DE). Follow one
 //! set-point: `control.rs` (1 kHz loop, `Device::control` fills the core's
 //! `StepSchedule`) → `steps.rs` (step timer interrupt,
@@ -40,6 +40,7 @@ mod flash;
 mod owned;
 mod priority;
 mod rs485;
+mod rx_slots;
 mod steps;
 mod switches;
 

@@ -3,7 +3,8 @@
 //! Receive: every byte is time-stamped in the interrupt (µs from the
 //! embassy-time driver, a free-running timer) and pushed into the core's
 //! [`FrameAssembler`] with its parity / framing / overrun flags. A closed
-//! frame is copied into [`FRAMES`] for the dispatcher task (dispatch.rs).
+//! frame is copied into a slot of `rx_slots.rs` for the dispatcher task
+//! (dispatch.rs).
 //! The frame closes after t3.5 of silence:
 //! - STM32G431: the USART receiver timeout (RTOF) fires t3.5 after the last
 //!   stop bit → [`FrameAssembler::end_of_frame`];
@@ -24,10 +25,10 @@
 //! - the link (assembler, line timing, DE lead / tail) belongs to the USART
 //!   interrupt; thread code changes it only with that one interrupt
 //!   disabled in the NVIC ([`with_link`]), which masks nothing else;
-//! - a closed frame goes into one of two [`FrameSlot`]s, owned by the
-//!   interrupt while free and by the dispatcher once marked full, handed
-//!   over with an atomic state ([`receive`], [`RxFrame`]); a frame that
-//!   finds no free slot is dropped and counted;
+//! - a closed frame goes into one of two slots (`rx_slots.rs`), owned by
+//!   the interrupt while free and by the dispatcher once marked full,
+//!   handed over with an atomic state; a frame that finds no
+//!   free slot is dropped and counted;
 //! - a reply goes the same way: [`send`] fills the transmit buffer while
 //!   no transmission runs, marks it requested and pends the interrupt,
 //!   which starts it (only the interrupt writes CR1 while the link runs);
@@ -37,11 +38,11 @@
 //! - F103: the frame-gap task asks the interrupt to poll the assembler
 //!   through an atomic flag and a pended interrupt.
 //!
-//! [`FRAME_READY`] and [`TX_DONE`] only wake tasks (embassy-sync signals;
+//! `FRAME_READY` and [`TX_DONE`] only wake tasks (embassy-sync signals;
 //! their critical section is short and leaves the step interrupt alone).
 
 use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, AtomicU32, AtomicU8, AtomicUsize, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, AtomicU8, Ordering};
 
 use embassy_stm32::interrupt::typelevel::{Handler, Interrupt};
 use embassy_stm32::mode::Blocking;
@@ -49,123 +50,13 @@ use embassy_stm32::usart::{self, Uart};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use modbus_drive::rtu::{
-    CharFormat, DriverEnable, FrameAssembler, FrameTiming, LineConfig, RxEvent, RxFlags, MAX_FRAME,
+    CharFormat, DriverEnable, FrameAssembler, FrameTiming, LineConfig, RxFlags, MAX_FRAME,
 };
 
 use super::board;
 use super::calc::DeDrive;
 use super::owned::IrqOwned;
-
-/// A closed frame (or frame error), as the interrupt left it in its slot.
-pub struct FrameSlot {
-    bytes: [u8; MAX_FRAME],
-    len: u16,
-    kind: u8,
-    parity_error: bool,
-    /// End of the request's last byte (the reply waits from here, SPEC §1).
-    last_byte_at_us: u32,
-}
-
-const KIND_FRAME: u8 = 0;
-const KIND_BROKEN: u8 = 1;
-const KIND_TOO_SHORT: u8 = 2;
-const KIND_OVERRUN: u8 = 3;
-
-impl FrameSlot {
-    /// All zeros: the slots live in .bss, no flash image.
-    const EMPTY: Self = Self {
-        bytes: [0; MAX_FRAME],
-        len: 0,
-        kind: KIND_FRAME,
-        parity_error: false,
-        last_byte_at_us: 0,
-    };
-
-    fn fill(&mut self, ev: RxEvent<'_>, last_byte_at_us: u32) {
-        self.last_byte_at_us = last_byte_at_us;
-        (self.kind, self.len) = match ev {
-            RxEvent::Frame {
-                bytes,
-                parity_error,
-            } => {
-                // a frame is at most MAX_FRAME bytes (the assembler's buffer)
-                let n = bytes.len().min(MAX_FRAME);
-                self.bytes[..n].copy_from_slice(&bytes[..n]);
-                self.parity_error = parity_error;
-                (KIND_FRAME, n as u16)
-            }
-            RxEvent::Broken => (KIND_BROKEN, 0),
-            RxEvent::TooShort => (KIND_TOO_SHORT, 0),
-            RxEvent::Overrun => (KIND_OVERRUN, 0),
-        };
-    }
-}
-
-const SLOT_FREE: u8 = 0;
-const SLOT_FULL: u8 = 1;
-
-/// Two slots: one being answered, one arriving (a master does not send
-/// more before our reply).
-static SLOTS: [IrqOwned<FrameSlot>; 2] = [
-    IrqOwned::new(FrameSlot::EMPTY),
-    IrqOwned::new(FrameSlot::EMPTY),
-];
-static SLOT_STATE: [AtomicU8; 2] = [AtomicU8::new(SLOT_FREE), AtomicU8::new(SLOT_FREE)];
-/// The next slot the dispatcher reads (thread only).
-static READ_SLOT: AtomicUsize = AtomicUsize::new(0);
-/// A slot became full.
-static FRAME_READY: Signal<CriticalSectionRawMutex, ()> = Signal::new();
-/// Frames lost because the dispatcher was behind (logged by the dispatcher).
-pub static FRAMES_DROPPED: AtomicU32 = AtomicU32::new(0);
-
-/// A full slot, the dispatcher's until dropped.
-pub struct RxFrame {
-    index: usize,
-}
-
-impl RxFrame {
-    fn slot(&self) -> &FrameSlot {
-        // SAFETY: the slot is full: the interrupt does not touch it until
-        // `drop` marks it free; only shared references are made here.
-        unsafe { SLOTS[self.index].get() }
-    }
-
-    /// The core's view of it, for `Device::poll`.
-    pub fn event(&self) -> RxEvent<'_> {
-        let s = self.slot();
-        match s.kind {
-            KIND_FRAME => RxEvent::Frame {
-                bytes: &s.bytes[..usize::from(s.len)],
-                parity_error: s.parity_error,
-            },
-            KIND_BROKEN => RxEvent::Broken,
-            KIND_TOO_SHORT => RxEvent::TooShort,
-            _ => RxEvent::Overrun,
-        }
-    }
-
-    pub fn last_byte_at_us(&self) -> u32 {
-        self.slot().last_byte_at_us
-    }
-}
-
-impl Drop for RxFrame {
-    fn drop(&mut self) {
-        SLOT_STATE[self.index].store(SLOT_FREE, Ordering::Release);
-    }
-}
-
-/// The next closed frame, in arrival order.
-pub async fn receive() -> RxFrame {
-    let index = READ_SLOT.load(Ordering::Relaxed);
-    loop {
-        if SLOT_STATE[index].load(Ordering::Acquire) == SLOT_FULL {
-            READ_SLOT.store(index ^ 1, Ordering::Relaxed);
-            return RxFrame { index };
-        }
-        FRAME_READY.wait().await;
-    }
-}
+use super::rx_slots;
 
 const TX_IDLE: u8 = 0;
 const TX_REQUESTED: u8 = 1;
@@ -450,7 +341,7 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
         r.icr().write(|w| w.set_rtof(true));
         let last = link.assembler.last_byte_at_us();
         if let Some(ev) = link.assembler.end_of_frame() {
-            deliver(&mut link.write_slot, ev, last);
+            rx_slots::deliver(&mut link.write_slot, ev, last);
         }
     }
     if isr.rxne() {
@@ -500,7 +391,7 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
     if POLL_REQUESTED.swap(false, Ordering::Relaxed) {
         let last = link.assembler.last_byte_at_us();
         if let Some(ev) = link.assembler.poll(now_us()) {
-            deliver(&mut link.write_slot, ev, last);
+            rx_slots::deliver(&mut link.write_slot, ev, last);
         }
         RECEIVING.store(link.assembler.is_receiving(), Ordering::Relaxed);
     }
@@ -545,23 +436,8 @@ fn on_byte(link: &mut Link, byte: u8, at_us: u32, flags: RxFlags) {
     }
     let last = link.assembler.last_byte_at_us();
     if let Some(ev) = link.assembler.push(byte, at_us, flags) {
-        deliver(&mut link.write_slot, ev, last);
+        rx_slots::deliver(&mut link.write_slot, ev, last);
     }
-}
-
-/// Into the next slot if it is free (else the frame is dropped and
-/// counted), then handed to the dispatcher.
-fn deliver(write_slot: &mut usize, ev: RxEvent<'_>, last_byte_at_us: u32) {
-    let i = *write_slot;
-    if SLOT_STATE[i].load(Ordering::Acquire) != SLOT_FREE {
-        FRAMES_DROPPED.fetch_add(1, Ordering::Relaxed);
-        return;
-    }
-    // SAFETY: a free slot is the interrupt's until marked full.
-    unsafe { SLOTS[i].get() }.fill(ev, last_byte_at_us);
-    SLOT_STATE[i].store(SLOT_FULL, Ordering::Release);
-    *write_slot = i ^ 1;
-    FRAME_READY.signal(());
 }
 
 /// Sends `bytes` (≤ 256) in one burst, its first start bit no earlier than
