@@ -101,16 +101,13 @@ pub fn after_init() {
     });
 }
 
-/// The fault path's outputs (fault.rs), by direct register writes only:
-/// step timer stopped with its output off, STEP (PA6) and DE (PA12) as GPIO
-/// outputs driven low, ENABLE (PB1) low = power stage off, BRAKE (PB2) low
+/// The fault path's pins (fault.rs, which stops the step timer first), by
+/// direct register writes only: STEP (PA6) and DE (PA12) as GPIO outputs
+/// driven low, ENABLE (PB1) low = power stage off, BRAKE (PB2) low
 /// = brake applied. Before `embassy_stm32::init` the GPIO clocks are off,
 /// the writes do nothing and every pin is still a reset-state input.
 pub fn safe_outputs() {
     use pac::gpio::vals::Moder;
-    let t = STEP_TIMER;
-    t.cr1().modify(|w| w.set_cen(false));
-    t.ccer().modify(|w| w.set_cce(0, false));
     pac::GPIOA.bsrr().write(|w| {
         w.set_br(6, true);
         w.set_br(12, true);
