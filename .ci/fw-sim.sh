@@ -23,9 +23,9 @@ if [ ${#missing[@]} -gt 0 ]; then
 fi
 rustup target add thumbv7em-none-eabihf thumbv7m-none-eabi
 
+source .ci/lib.sh
 venv=.venv/e2e
-[ -x "$venv/bin/python" ] || python3 -m venv "$venv"
-"$venv/bin/pip" install --quiet --disable-pip-version-check -r tests/e2e/requirements.txt
+pytest_venv "$venv" tests/e2e/requirements.txt
 
 target_of() {
   cargo metadata --format-version 1 --no-deps "$@" |
@@ -43,12 +43,4 @@ export FW_SIM_ELF_F103="$fw_target/thumbv7m-none-eabi/fw/modbus-drive"
 export FW_SIM_SCHEDULE_BIN="$fw_target/debug/examples/step_schedule"
 export FW_SIM_BIN="$(target_of --manifest-path fw-sim/Cargo.toml)/release/fw-sim"
 
-set +e
-"$venv/bin/python" -m pytest tests/fw_sim -p no:cacheprovider -v "$@"
-rc=$?
-set -e
-if [ "$rc" -eq 5 ]; then
-  echo "fw-sim: no tests ran" >&2
-  exit 1
-fi
-exit "$rc"
+run_pytest fw-sim "$venv" tests/fw_sim "$@"
