@@ -28,10 +28,7 @@ fn main() {
     let n = |i: usize| -> u64 { args[i].parse().expect(usage) };
     let tick_hz = board.step_tick_hz();
     let sched = Box::new(StepSchedule::new());
-    let mut planner = Planner::new(PlannerConfig {
-        tick_hz,
-        ..PlannerConfig::default()
-    });
+    let mut planner = Planner::new(PlannerConfig::for_board(board));
     let mut axis = SimAxis::new(tick_hz);
     // register units are 0.1 steps/s and 0.1 steps/s²
     let goal = Goal::Move {

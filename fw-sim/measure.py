@@ -8,11 +8,11 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
 - reply latency: from the end of a request's last stop bit to the start bit
   of the reply's first character (`--trace-line`), at 115200 and 19200 baud;
 - CPU load while stepping in velocity mode at 50k, 100k steps/s and the
-  planner's ceiling (MAX_STEP_RATE in src/motion/):
+  board's step rate limit (Board::max_step_rate in src/boards.rs):
   the share of core cycles not spent asleep in WFI/WFE (`--stats`), under the
   runner's one-cycle-per-instruction assumption (docs/fw-sim.md, "Time");
 - the highest step rate at which every pulse is on time: position moves at
-  0x6081 rising to the planner's ceiling, each traced pulse (`--trace-steps`)
+  0x6081 rising to the board's limit, each traced pulse (`--trace-steps`)
   compared with the core planner's schedule for the same move at the board's
   step tick (examples/step_schedule.rs) within one tick;
 - the step interrupt's worst entry latency: a move at the highest rate the
@@ -57,12 +57,25 @@ def _max_step_rate() -> int:
 
 
 MAX_STEP_RATE = _max_step_rate()
-RATES = sorted({50_000, 100_000, MAX_STEP_RATE})
+
+
+# each board's step rate limit (Board::max_step_rate in src/boards.rs): the
+# firmware clamps faster set-points to it, so nothing faster can be measured
+def _board_limits() -> dict[str, int]:
+    src = (ROOT / "src" / "boards.rs").read_text()
+    body = re.search(r"pub const fn max_step_rate\(self\) -> u32 \{(.*?)\n    \}", src, re.S)[1]
+    limits = {b.lower(): int(v) for b, v in re.findall(r"Board::(\w+) => ([0-9_]+)", body)}
+    assert set(limits) == set(c.BOARDS), limits
+    return limits
+
+
+LIMITS = _board_limits()
+RATES = {b: sorted({50_000, 100_000, LIMITS[b]}) for b in c.BOARDS}
 # the planner's steepest ramp (MAX_ACCEL, steps/s²): the shortest moves
 # that reach each rate
 MAX_ACCEL = int(re.search(r"pub const MAX_ACCEL: u64 = ([0-9_]+);",
                           (ROOT / "src" / "motion" / "planner" / "mod.rs").read_text())[1])
-ON_TIME_RATES = list(range(25_000, MAX_STEP_RATE + 1, 25_000))
+ON_TIME_RATES = {b: list(range(25_000, LIMITS[b] + 1, 25_000)) for b in c.BOARDS}
 CRUISE_STEPS = 2_000  # steps at the top rate in each move
 # the step timer's tick (Board::step_tick_hz in src/boards.rs)
 TICK_NS = {"g431": 100, "f103": 125}
@@ -175,7 +188,7 @@ def on_time(board: str, work: Path, polled: bool) -> list[tuple[int, int, int, f
         m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
         m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
         at, seen, sign = 0, 0, 1
-        for rate in ON_TIME_RATES:
+        for rate in ON_TIME_RATES[board]:
             distance = rate * rate // MAX_ACCEL + CRUISE_STEPS
             at += sign * distance
             sign = -sign
@@ -364,21 +377,23 @@ def main() -> int:
             print(lines[-1], flush=True)
     lines += ["", "## CPU load while stepping (velocity mode, constant speed)", "",
               "Share of core cycles not asleep over 0.2 s of emulated time, once",
-              "0x606C shows the set speed. The planner caps step rates at",
-              f"{MAX_STEP_RATE} steps/s (MAX_STEP_RATE in src/motion/).", "",
+              "0x606C shows the set speed. Each board's step rate is clamped to",
+              "its limit (Board::max_step_rate in src/boards.rs: "
+              + ", ".join(f"{b} {LIMITS[b]}" for b in c.BOARDS) + " steps/s).", "",
               "The last column is how fast the emulator ran meanwhile: emulated",
               "seconds per wall-clock second on the machine that ran this script",
               "(the runner never runs ahead of wall time; below 1 it lags).", "",
               "| board | steps/s set | steps/s measured | CPU load % | emulator speed |",
               "|---|---|---|---|---|"]
     for board in c.BOARDS:
-        for rate in RATES:
+        for rate in RATES[board]:
             load, measured, speed = load_at(board, rate, work)
             lines.append(f"| {board} | {rate} | {measured:.0f} | {load:.1f} | {speed:.2f} |")
             print(lines[-1], flush=True)
     lines += ["", "## Highest step rate with every pulse on time", "",
               "Position moves from rest at 0x6081 rising in 25 000 steps/s increments",
-              f"up to the planner's ceiling ({MAX_STEP_RATE} steps/s), ramps at its steepest",
+              "up to the board's step rate limit (the firmware clamps above it), ramps",
+              "at the planner's steepest",
               f"acceleration (MAX_ACCEL, {MAX_ACCEL} steps/s²), each long enough for",
               f"{CRUISE_STEPS} steps at the set rate, one runner, back and forth. Every",
               "traced STEP pulse is compared with the core planner's",
@@ -408,7 +423,8 @@ def main() -> int:
                 print(lines[-1], flush=True)
     lines += [""]
     for (board, bus), top in sorted(highest.items()):
-        ceiling = " (the planner's ceiling)" if top == MAX_STEP_RATE else ""
+        ceiling = (" (the planner's ceiling)" if top == MAX_STEP_RATE
+                   else " (the board's limit)" if top == LIMITS[board] else "")
         lines.append(f"- {board}, bus {bus}: every pulse on time up to **{top} steps/s**{ceiling}.")
     lines += latency_section(work, {b: highest.get((b, "polled"), 25_000) for b in c.BOARDS})
     OUT.write_text("\n".join(lines) + "\n")

@@ -27,6 +27,34 @@ impl Board {
         }
     }
 
+    /// Highest step rate, steps/s, at which this board's step engine
+    /// (src/firmware/steps.rs) makes every pulse on time, with a master
+    /// polling throughout: the figure `fw-sim/measure.py` finds under
+    /// emulation ("Highest step rate with every pulse on time" in
+    /// docs/generated/fw-sim.md), rounded down to its 25 000 steps/s grid.
+    /// The drive clamps every speed to it as it clamps to PA12 (SPEC §8.4,
+    /// docs/drive.md "Units and limits"): no board accepts a speed it
+    /// cannot step on time. Never above the planner's ceiling
+    /// (`motion::MAX_STEP_RATE`; the planner checks it at compile time).
+    pub const fn max_step_rate(self) -> u32 {
+        match self {
+            // the planner's ceiling: the G431 keeps every pulse on time there
+            Board::G431 => 200_000,
+            // the next step of the grid is late on the F103
+            Board::F103 => 150_000,
+        }
+    }
+
+    /// Highest acceleration and deceleration, steps/s²: the planner's
+    /// ceiling (`motion::MAX_ACCEL`, which the planner checks it against)
+    /// on both boards, whose step engines keep every ramp at it on time up
+    /// to [`Board::max_step_rate`].
+    pub const fn max_accel(self) -> u64 {
+        match self {
+            Board::G431 | Board::F103 => 2_000_000,
+        }
+    }
+
     /// The chip, as the firmware reports it in 0x1009.
     pub const fn chip(self) -> &'static str {
         match self {

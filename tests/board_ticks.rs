@@ -3,10 +3,12 @@
 //! the limit starts, reaches its target, and its pulses follow the ideal
 //! profile (the planner's step time bound) within the limit's velocity and
 //! acceleration. Limits (docs/drive.md "Units and limits", SPEC §8.4–§8.6):
-//! acceleration and deceleration 2 000 000 steps/s² (0x6083 / 0x6084 /
-//! 0x6085 / 0x609A = 2000 at PA10 = 10000), 200 000 steps/s (0x6081 = 200),
-//! homing 0x6099 / 0x609B up to 100000 capped at 300 r/min (methods 1–4)
-//! and 1200 r/min (5–8).
+//! acceleration and deceleration up to 2 000 000 steps/s² (0x6083 / 0x6084
+//! / 0x6085 / 0x609A = 2000 at PA10 = 10000), the board's own step rate
+//! limit (`Board::max_step_rate`, at most 200 000 steps/s: 0x6081 = 200
+//! asks for the ceiling and is clamped to the board's), homing 0x6099 /
+//! 0x609B up to 100000 capped at 300 r/min (methods 1–4) and 1200 r/min
+//! (5–8), and at the board's limit.
 //!
 //! The frames reach the drive between control calls and the control loop
 //! runs on its own 1 ms grid, as on the firmware: a set-point arrives a
@@ -31,6 +33,26 @@ const VELOCITY_LIMIT_REG: i32 = 200;
 const REACHED: u16 = 1 << 10;
 const BIT12: u16 = 1 << 12;
 const BIT13: u16 = 1 << 13;
+
+/// Each board's limits are its planner's (`PlannerConfig::for_board`, as
+/// the firmware and the virtual drive's `--board` configure it), within
+/// the planner's ceilings.
+#[test]
+fn every_board_has_its_own_limits_within_the_ceiling() {
+    use modbus_drive::motion::PlannerConfig;
+    for board in Board::ALL {
+        let cfg = PlannerConfig::for_board(board);
+        assert_eq!(cfg.tick_hz, board.step_tick_hz());
+        assert_eq!(cfg.max_step_rate, board.max_step_rate());
+        assert_eq!(cfg.max_accel, board.max_accel());
+        assert!(board.max_step_rate() <= MAX_STEP_RATE, "{board:?}");
+        assert!(board.max_accel() <= MAX_ACCEL, "{board:?}");
+    }
+    assert_eq!(
+        PlannerConfig::default(),
+        PlannerConfig::for_board(Board::G431)
+    );
+}
 
 #[test]
 fn the_register_limits_are_the_planners() {
@@ -85,7 +107,7 @@ fn move_at_the_limits(board: Board, velocity_reg: i32, target: i32) {
     rig.run_until(2_000_000, |r| r.at_rest() && r.statusword() & REACHED != 0);
     assert_eq!(rig.position(), target, "{board:?}");
     assert_eq!(rig.axis.position(), i64::from(target), "{board:?}");
-    let (v, a) = (f64::from(MAX_STEP_RATE), MAX_ACCEL as f64);
+    let (v, a) = (f64::from(board.max_step_rate()), board.max_accel() as f64);
     let ideal = ideal_goal(0, 0.0, t0_us as f64 * 1e-6, i64::from(target), v, a, a);
     assert_eq!(ideal.len(), 1);
     check_ideal_times(&rig.steps, tick, &ideal[0]);
@@ -122,7 +144,7 @@ fn a_set_point_at_any_phase_of_the_control_period_starts() {
             assert_eq!(rig.axis.position(), 500, "{board:?} phase {phase_us}");
             let tick = board.step_tick_hz();
             let first = rig.steps[0].tick as f64 / f64::from(tick);
-            let want = t0_us as f64 * 1e-6 + (2.0 / MAX_ACCEL as f64).sqrt();
+            let want = t0_us as f64 * 1e-6 + (2.0 / board.max_accel() as f64).sqrt();
             assert!(
                 (first - want).abs() < 1e-6,
                 "{board:?} phase {phase_us}: first step at {first} s, ideal {want} s"
@@ -150,8 +172,8 @@ fn a_quick_stop_at_the_deceleration_limit_stops_on_every_board() {
             0x0007,
             "{board:?}: quick stop active"
         );
-        let v = f64::from(MAX_STEP_RATE);
-        let a = MAX_ACCEL as f64;
+        let v = f64::from(board.max_step_rate());
+        let a = board.max_accel() as f64;
         let horizon_steps = v * 4e-3; // horizon plus a control period
         let over = (rig.axis.position() - at) as f64;
         let stop = v * v / (2.0 * a);
@@ -197,23 +219,28 @@ fn the_limit_brake_at_the_deceleration_limit_stops_on_every_board() {
         );
         let v_edge = rig.speed_at(edge);
         assert!(
-            v_edge > 0.99 * f64::from(MAX_STEP_RATE),
+            v_edge > 0.99 * f64::from(board.max_step_rate()),
             "{board:?}: {v_edge}"
         );
-        let dist = v_edge * v_edge / (2.0 * MAX_ACCEL as f64);
+        let dist = v_edge * v_edge / (2.0 * board.max_accel() as f64);
         let over = (rig.axis.position() - edge) as f64;
         assert!(
             over <= dist + 2.0 && over >= dist - 4.0,
             "{board:?}: {over} steps past the edge, quick stop distance {dist}"
         );
-        check_dynamics(&rig.steps, tick, f64::from(MAX_STEP_RATE), MAX_ACCEL as f64);
+        check_dynamics(
+            &rig.steps,
+            tick,
+            f64::from(board.max_step_rate()),
+            board.max_accel() as f64,
+        );
     }
 }
 
 /// Homing at the largest valid speeds (100000 = 10 000 r/s, capped to the
 /// method's limit) and 0x609A at the acceleration limit: method 1 (capped
-/// at 300 r/min) and method 5 (1200 r/min = the step rate limit) find the
-/// CW edge and zero there.
+/// at 300 r/min) and method 5 (1200 r/min = the ceiling, so the board's
+/// step rate limit) find the CW edge and zero there.
 #[test]
 fn homing_at_the_speed_and_acceleration_limits_on_every_board() {
     const CW_EDGE: i64 = -60_000;
@@ -238,8 +265,11 @@ fn homing_at_the_speed_and_acceleration_limits_on_every_board() {
             });
             assert_eq!(rig.position(), 0, "{board:?} method {method}: zeroed");
             assert_eq!(rig.axis.position(), CW_EDGE, "{board:?} method {method}");
-            let v_cap = cap_rpm / 60.0 * STEPS_PER_REV;
-            check_dynamics(&rig.steps, tick, v_cap, MAX_ACCEL as f64);
+            let v_cap = f64::min(
+                cap_rpm / 60.0 * STEPS_PER_REV,
+                f64::from(board.max_step_rate()),
+            );
+            check_dynamics(&rig.steps, tick, v_cap, board.max_accel() as f64);
             let top = rig
                 .steps
                 .windows(2)

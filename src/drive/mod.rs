@@ -225,7 +225,7 @@ impl Drive {
             // disabled by itself.
             state: PowerState::SwitchOnDisabled,
             planner: Planner::new(cfg),
-            s: Settings::from(Config { od: &od, pa: &pa }),
+            s: Settings::from(Config { od: &od, pa: &pa }, cfg),
             controlword: 0,
             mode: 0,
             halted: false,
@@ -256,10 +256,12 @@ impl Drive {
         }
     }
 
-    /// The planner's timing (step timer frequency, horizon); at start-up,
+    /// The planner's timing and limits (step timer frequency, horizon, the
+    /// board's step rate and acceleration); at start-up,
     /// before the first control call (it forgets what was planned).
     pub fn set_planner_config(&mut self, cfg: PlannerConfig) {
         self.planner = Planner::new(cfg);
+        self.s.set_planner_config(cfg);
     }
 
     pub fn planner(&self) -> &Planner {

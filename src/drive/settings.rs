@@ -3,8 +3,7 @@
 
 use crate::arith::div_u64;
 use crate::dictionary::{Config, OdValues};
-use crate::motion::planner::MAX_STEP_RATE;
-use crate::motion::{HomingMethod, Ramp};
+use crate::motion::{HomingMethod, PlannerConfig, Ramp};
 use crate::params::Params;
 
 /// What PA10..PA20 mean in steps, and the one OD value the drive shows
@@ -25,21 +24,32 @@ pub(super) struct Settings {
     pub(super) steps_per_rev_reg: u16,
     pub(super) max_speed_rpm_reg: u16,
     pub(super) steps_per_rev: u64,
-    /// PA12 and the maximum step rate, 0.1 steps/s.
+    /// PA12 and the board's maximum step rate, 0.1 steps/s.
     pub(super) max_velocity: u64,
+    /// The planner's configuration: the board's step rate and
+    /// acceleration limits, which clamp every ramp as PA12 does.
+    pub(super) planner: PlannerConfig,
     pub(super) limit_enable: u16,
     pub(super) comm_loss_ms: u16,
 }
 
 impl Settings {
-    pub(super) fn from(cfg: Config<'_>) -> Self {
+    pub(super) fn from(cfg: Config<'_>, planner: PlannerConfig) -> Self {
         let mut s = Self {
             // not PA10's register: `update` derives the step figures
             steps_per_rev_reg: cfg.pa.steps_per_rev().wrapping_add(1),
+            planner,
             ..Self::default()
         };
         s.update(cfg);
         s
+    }
+
+    /// A new planner configuration (the board's limits): the derived
+    /// maximum velocity follows at once.
+    pub(super) fn set_planner_config(&mut self, planner: PlannerConfig) {
+        self.planner = planner;
+        self.max_velocity = self.rpm_to_velocity(u64::from(self.max_speed_rpm_reg));
     }
 
     /// Takes the values of `cfg`; the step figures of PA10/PA12 only when
@@ -55,7 +65,7 @@ impl Settings {
             self.max_speed_rpm_reg = rpm_reg;
             let spr = u64::from(spr_reg.max(1));
             self.steps_per_rev = spr;
-            self.max_velocity = rpm_to_velocity(u64::from(rpm_reg), spr);
+            self.max_velocity = self.rpm_to_velocity(u64::from(rpm_reg));
         }
     }
 
@@ -71,7 +81,7 @@ impl Settings {
             accel: self.steps(u64::from(od.acceleration)),
             decel: self.steps(u64::from(od.deceleration)),
         }
-        .clamped(self.max_velocity)
+        .clamped(self.max_velocity, &self.planner)
     }
 
     /// Homing ramp at 0x6099 (fast) or 0x609B (slow) with 0x609A, capped
@@ -83,13 +93,13 @@ impl Settings {
             od.homing_speed
         };
         let accel = self.steps(u64::from(od.homing_acceleration));
-        let cap = rpm_to_velocity(u64::from(method.max_rpm()), self.steps_per_rev);
+        let cap = self.rpm_to_velocity(u64::from(method.max_rpm()));
         Ramp {
             velocity: self.steps(u64::from(reg)),
             accel,
             decel: accel,
         }
-        .clamped(self.max_velocity.min(cap))
+        .clamped(self.max_velocity.min(cap), &self.planner)
     }
 
     pub(super) fn decel(&self, od: &OdValues) -> u64 {
@@ -109,14 +119,18 @@ impl Settings {
     }
 }
 
-/// r/min → 0.1 steps/s, capped at the maximum step rate.
-pub(super) fn rpm_to_velocity(rpm: u64, steps_per_rev: u64) -> u64 {
-    div_u64(rpm * steps_per_rev, 6).min(u64::from(MAX_STEP_RATE) * 10)
+impl Settings {
+    /// r/min → 0.1 steps/s at PA10, capped at the board's maximum step
+    /// rate.
+    fn rpm_to_velocity(&self, rpm: u64) -> u64 {
+        div_u64(rpm * self.steps_per_rev, 6).min(self.planner.velocity_cap())
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::boards::Board;
 
     #[test]
     fn settings_follow_every_pa10_and_pa12_change() {
@@ -127,7 +141,7 @@ mod tests {
             ..OdValues::default()
         };
         let mut pa = Params::defaults();
-        let mut s = Settings::from(Config { od: &od, pa: &pa });
+        let mut s = Settings::from(Config { od: &od, pa: &pa }, PlannerConfig::default());
         for (spr, rpm) in [
             (400, 3000),
             (400, 100),
@@ -140,7 +154,7 @@ mod tests {
             s.update(Config { od: &od, pa: &pa });
             let spr = u64::from(spr.max(1));
             assert_eq!(s.steps_per_rev, spr);
-            let v = (u64::from(rpm) * spr / 6).min(u64::from(MAX_STEP_RATE) * 10);
+            let v = (u64::from(rpm) * spr / 6).min(u64::from(Board::G431.max_step_rate()) * 10);
             assert_eq!(s.max_velocity, v, "PA10 {spr} PA12 {rpm}");
             assert_eq!(s.profile_velocity, od.profile_velocity);
         }

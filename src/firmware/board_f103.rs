@@ -45,6 +45,8 @@ use super::switches::SwitchInputs;
 /// Core clock set by [`config`] (8 MHz HSE × 9): busy waits count its cycles.
 pub const SYSCLK_HZ: u32 = 72_000_000;
 
+/// This board (its step tick and limits: `PlannerConfig::for_board`).
+pub const BOARD: Board = Board::F103;
 pub const NAME: &str = Board::F103.chip();
 
 /// Step timer tick (`modbus_drive::boards`, shared with the virtual drive).

@@ -42,6 +42,8 @@ use super::switches::SwitchInputs;
 /// Core clock set by [`config`] (HSI16 / 4 × 85 / 2): busy waits count its cycles.
 pub const SYSCLK_HZ: u32 = 170_000_000;
 
+/// This board (its step tick and limits: `PlannerConfig::for_board`).
+pub const BOARD: Board = Board::G431;
 pub const NAME: &str = Board::G431.chip();
 
 /// Step timer tick (`modbus_drive::boards`, shared with the virtual drive).

@@ -77,11 +77,8 @@ async fn main(spawner: Spawner) {
     let (line, address, de, dir_inverted) = {
         let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks
-        // (calc::step_prescaler).
-        device.set_planner_config(PlannerConfig {
-            tick_hz: board::STEP_TICK_HZ,
-            ..PlannerConfig::default()
-        });
+        // (calc::step_prescaler) and keeps to the board's limits.
+        device.set_planner_config(PlannerConfig::for_board(board::BOARD));
         #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
         let mut boot = store.boot();
         // A page the G431 cannot read (flash ECC after a power cut, fault.rs)

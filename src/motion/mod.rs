@@ -11,8 +11,7 @@ pub mod homing;
 pub mod planner;
 pub mod profile;
 pub mod schedule;
-// it reports exact step times, which the schedule keeps only with the
-// feature (schedule.rs module docs)
+// a test double: out of the firmware's public API
 #[cfg(feature = "sim")]
 pub mod sim;
 

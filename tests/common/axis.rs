@@ -34,6 +34,7 @@ impl PlannerRun {
             // what the drive runs (segments end on the fit's error bound
             // or this time, profile.rs `segment_len`)
             max_segment_us: PlannerConfig::default().max_segment_us,
+            ..PlannerConfig::default()
         };
         Self {
             sched: Box::new(StepSchedule::new()),
@@ -492,18 +493,17 @@ impl Rig {
                 tick_hz: 10_000_000,
                 horizon_us: 3000,
                 max_segment_us: 1000,
+                ..Cfg::default()
             },
         )
     }
 
-    /// The planner as `board`'s firmware configures it (its step tick, the
-    /// default horizon and segment length), on an axis at that tick.
+    /// The planner as `board`'s firmware configures it (its step tick and
+    /// limits, the default horizon and segment length), on an axis at that
+    /// tick.
     pub fn on_board(board: Board, axis: impl FnOnce(SimAxis) -> SimAxis) -> Self {
         let tick_hz = board.step_tick_hz();
-        let cfg = Cfg {
-            tick_hz,
-            ..Cfg::default()
-        };
+        let cfg = Cfg::for_board(board);
         Self::with_config(Bus::new(), axis(SimAxis::new(tick_hz)), cfg)
     }
 

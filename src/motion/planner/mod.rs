@@ -38,21 +38,36 @@ mod slots;
 #[cfg(test)]
 mod tests;
 
+use crate::boards::Board;
+
 use super::profile::{isqrt, slope_of, stop_steps, Profile, SegmentBudget, V_FRAC};
 use super::schedule::{StepSchedule, TICK_FRAC_BITS};
 use segment::{signed, Pending};
 use slots::SlotInfo;
 
-/// Highest step rate the drive generates, steps/s. Faster requests are
-/// clamped (like PA12): 5 µs between steps leaves a 170 MHz Cortex-M4 850
-/// cycles per step, many times what the step interrupt takes (the QEMU
-/// benchmark counts it).
+/// Ceiling of every board's step rate, steps/s: what the per-step ring
+/// ([`crate::motion::SCHEDULE_STEPS`], more than two control periods at
+/// this rate) and the planner's arithmetic are sized for. Each board's own
+/// limit ([`crate::boards::Board::max_step_rate`], in
+/// [`PlannerConfig::max_step_rate`]) is at most this; faster requests are
+/// clamped to the board's limit (like PA12).
 pub const MAX_STEP_RATE: u32 = 200_000;
 
-/// Highest acceleration, steps/s². Above it the start of a ramp would need
-/// more single-step segments than [`SCHEDULE_SLOTS`] to cover a 2 ms
-/// control period; larger register values are clamped.
+/// Ceiling of every board's acceleration, steps/s². Above it the start of a
+/// ramp would need more single-step segments than [`SCHEDULE_SLOTS`] to
+/// cover a 2 ms control period; larger register values are clamped to the
+/// board's limit ([`PlannerConfig::max_accel`]).
 pub const MAX_ACCEL: u64 = 2_000_000;
+
+// No board's limits exceed the ceilings above.
+const _: () = {
+    let mut i = 0;
+    while i < Board::ALL.len() {
+        assert!(Board::ALL[i].max_step_rate() <= MAX_STEP_RATE);
+        assert!(Board::ALL[i].max_accel() <= MAX_ACCEL);
+        i += 1;
+    }
+};
 
 /// Segments the planner keeps track of between the interrupt's step and
 /// the end of the queue (a power of two): while they are all queued, the
@@ -76,10 +91,11 @@ impl Ramp {
         self.velocity > 0 && self.accel > 0 && self.decel > 0
     }
 
-    /// Clamped to the drive's limits and to `max_velocity` (0.1 steps/s).
-    pub fn clamped(self, max_velocity: u64) -> Self {
-        let v_cap = max_velocity.min(u64::from(MAX_STEP_RATE) * 10);
-        let a_cap = MAX_ACCEL * 10;
+    /// Clamped to the board's limits in `cfg` and to `max_velocity` (0.1
+    /// steps/s).
+    pub fn clamped(self, max_velocity: u64, cfg: &PlannerConfig) -> Self {
+        let v_cap = max_velocity.min(cfg.velocity_cap());
+        let a_cap = cfg.accel_cap();
         Self {
             velocity: self.velocity.min(v_cap),
             accel: self.accel.min(a_cap),
@@ -138,16 +154,45 @@ pub struct PlannerConfig {
     /// 64 bits). Long segments cost the planner less per step; they do not
     /// delay a change of goal.
     pub max_segment_us: u32,
+    /// Highest step rate, steps/s, and acceleration, steps/s², the board's
+    /// step engine keeps on time ([`Board::max_step_rate`],
+    /// [`Board::max_accel`]; at most [`MAX_STEP_RATE`] / [`MAX_ACCEL`]):
+    /// every ramp is clamped to them ([`Ramp::clamped`]).
+    pub max_step_rate: u32,
+    pub max_accel: u64,
+}
+
+impl PlannerConfig {
+    /// The board's step tick and limits, the default horizon and segment
+    /// length: what the firmware runs with on `board`, and what the host
+    /// runs for it.
+    pub const fn for_board(board: Board) -> Self {
+        Self {
+            tick_hz: board.step_tick_hz(),
+            horizon_us: 3_000,
+            max_segment_us: 100_000,
+            max_step_rate: board.max_step_rate(),
+            max_accel: board.max_accel(),
+        }
+    }
+
+    /// [`PlannerConfig::max_step_rate`] in 0.1 steps/s (the ramps' unit),
+    /// never above the ceiling.
+    pub fn velocity_cap(&self) -> u64 {
+        u64::from(self.max_step_rate.min(MAX_STEP_RATE)) * 10
+    }
+
+    /// [`PlannerConfig::max_accel`] in 0.1 steps/s², never above the
+    /// ceiling.
+    pub fn accel_cap(&self) -> u64 {
+        self.max_accel.min(MAX_ACCEL) * 10
+    }
 }
 
 impl Default for PlannerConfig {
+    /// The primary board's ([`PlannerConfig::for_board`]).
     fn default() -> Self {
-        Self {
-            // the primary board's
-            tick_hz: crate::boards::Board::G431.step_tick_hz(),
-            horizon_us: 3_000,
-            max_segment_us: 100_000,
-        }
+        Self::for_board(Board::G431)
     }
 }
 

@@ -53,10 +53,12 @@ pub struct StepSchedule {
     pub(super) brake_rate: AtomicU32,
     /// The limit brake's state (`BRAKE_*`).
     pub(super) brake: AtomicU8,
-    /// Feature `sim`: each entry's carried fraction, as `frac` after that
-    /// step (module docs).
-    #[cfg(feature = "sim")]
-    pub(super) exact_frac: [AtomicU32; SCHEDULE_STEPS],
+    /// Each step entry's carried fraction, as `frac` after that step
+    /// (module docs, "Exact times"): with its delay and the fraction before
+    /// it, the step's exact interval, which the limit brake starts from.
+    /// Written by the producer before the entry is published, never for
+    /// the slot at `next − 1`.
+    pub(super) fracs: [AtomicU32; SCHEDULE_STEPS],
 }
 
 impl Default for StepSchedule {
@@ -84,8 +86,7 @@ impl StepSchedule {
             limits: AtomicU8::new(0),
             brake_rate: AtomicU32::new(0),
             brake: AtomicU8::new(BRAKE_NONE),
-            #[cfg(feature = "sim")]
-            exact_frac: [const { AtomicU32::new(0) }; SCHEDULE_STEPS],
+            fracs: [const { AtomicU32::new(0) }; SCHEDULE_STEPS],
         }
     }
 
@@ -217,30 +218,35 @@ impl StepSchedule {
     /// (excluded, at least one): writes all but the first, which it
     /// returns, so that the caller can write it last.
     fn expand(&self, seg: &mut Segment, carry: &mut (u32, u32), from: u32, to: u32) -> u32 {
-        #[cfg(feature = "sim")]
-        {
-            let mut shadow = Expansion::of(seg, *carry);
-            let mut i = from;
-            while i != to {
-                shadow.step();
-                let slot = i as usize % SCHEDULE_STEPS;
-                self.exact_frac[slot].store(shadow.frac, Ordering::Relaxed);
-                i = i.wrapping_add(1);
-            }
-        }
-        // the first into a local, the rest to the ring in at most two
-        // contiguous pieces (the `min`s never cut: fewer than
-        // SCHEDULE_STEPS entries)
+        // the first into a local (its fraction straight to its slot: the
+        // sentinel before it keeps the consumer away), the rest to the ring
+        // in at most two contiguous pieces (the `min`s never cut: fewer
+        // than SCHEDULE_STEPS entries)
         let mut first = END;
+        let first_frac = &self.fracs[from as usize % SCHEDULE_STEPS];
         let start = from.wrapping_add(1) as usize % SCHEDULE_STEPS;
         let n = to.wrapping_sub(from).wrapping_sub(1) as usize;
         let (before, after) = self.ring.split_at(start);
+        let (fracs_before, fracs_after) = self.fracs.split_at(start);
         let k = n.min(after.len());
-        Expansion::fill(seg, carry, Some(&mut first), &after[..k]);
+        Expansion::fill(
+            seg,
+            carry,
+            Some((&mut first, first_frac)),
+            &after[..k],
+            &fracs_after[..k],
+        );
         if k < n {
-            Expansion::fill(seg, carry, None, &before[..(n - k).min(before.len())]);
+            let m = (n - k).min(before.len());
+            Expansion::fill(seg, carry, None, &before[..m], &fracs_before[..m]);
         }
         first
+    }
+
+    /// The carried fraction after the entry at `index` (module docs,
+    /// "Exact times").
+    pub(super) fn frac_after(&self, index: u32) -> u32 {
+        self.fracs[index as usize % SCHEDULE_STEPS].load(Ordering::Relaxed)
     }
 
     /// Ring index (wrapping) of the last entry pushed: after a push, its

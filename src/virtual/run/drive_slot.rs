@@ -74,11 +74,7 @@ impl DriveSlot {
         let mut device = Device::new(Identity::new("virtual"));
         // steps timed in the chosen board's timer ticks, as its firmware
         // does: the same limits (`--board`)
-        let planner = PlannerConfig {
-            tick_hz: board.step_tick_hz(),
-            ..PlannerConfig::default()
-        };
-        device.set_planner_config(planner);
+        device.set_planner_config(PlannerConfig::for_board(board));
         let boot = store.boot();
         device.apply_boot(&boot);
         if !matches!(boot.outcome, BootOutcome::Loaded { .. }) {
@@ -93,7 +89,7 @@ impl DriveSlot {
             device,
             store,
             schedule: Box::new(StepSchedule::new()),
-            axis: sim_axis(layout, planner.tick_hz),
+            axis: sim_axis(layout, board.step_tick_hz()),
             encoder: encoder::sim_encoder(layout.encoder),
             encoder_wired: layout.encoder.on,
             next_control_us: 0,
