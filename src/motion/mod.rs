@@ -7,6 +7,7 @@
 //! delays, which the step-timer interrupt's [`schedule::StepSource`] pops.
 //! `sim::SimAxis` (feature `sim`) plays the interrupt and the motor.
 
+pub mod burst;
 pub mod homing;
 pub mod planner;
 pub mod profile;

@@ -1,0 +1,342 @@
+//! The step engine's timer entries: what one DMA burst writes into the
+//! step timer's preload registers at each update event (docs/firmware.md,
+//! "Step engine by timer and DMA"), made from the schedule's per-step
+//! delays by [`BurstWriter`].
+//!
+//! An entry ([`Burst`]) is one timer period, repeated `RCR + 1` times:
+//! ARR, RCR, CCR1 (the STEP pulse at the start of the period, PWM mode 1:
+//! 0 = no pulse) and CCR2 (DIR for the whole entry: 0 low, `0xFFFF` high).
+//! The writer turns "a pulse `delay` ticks after the previous one, with DIR
+//! at `level`" into entries so that
+//!
+//! - every pulse rises exactly `delay` ticks after the previous one (the
+//!   sum of the entries between them), unless the delay is shorter than
+//!   the entries already written since (the schedule ran dry: the writer
+//!   counts the step as late, [`BurstWriter::late`]);
+//! - an interval over 2^16 ticks is a pulse entry followed by idle entries
+//!   of 2^15-tick periods repeated up to 256 times (the F103's 8-bit RCR),
+//!   exact to the tick, no interrupt;
+//! - no entry is shorter than [`MIN_ENTRY_TICKS`], so the next burst always
+//!   lands before the update event that needs it;
+//! - DIR changes only at an update event with no pulse high, at least the
+//!   set-up time before the next rising edge and at least the same time
+//!   (the hold) after the last falling edge;
+//! - a pulse entry's length is only known with the next step; when the
+//!   schedule has none yet, the writer closes it with the last interval (a
+//!   cruise that merely ran late continues on time) and fills on with idle
+//!   entries of [`PulseShape::idle_ticks`] (a start from rest).
+//!
+//! The writer is constant time per entry and per step (no loop, no
+//! division). The firmware's DMA refill calls [`BurstWriter::fill`] on
+//! the half of the buffer just consumed; the host tests run the same code.
+
+/// Shortest entry, ticks: the DMA burst (four half-words) for the entry
+/// after it must complete within it, at any bus load.
+pub const MIN_ENTRY_TICKS: u32 = 64;
+/// Longest single period: a 16-bit ARR.
+const MAX_PERIOD_TICKS: u32 = 1 << 16;
+/// The period of a repeated idle entry.
+const IDLE_UNIT_TICKS: u32 = 1 << 15;
+/// Most repetitions of one entry (an 8-bit RCR on the F103).
+const MAX_REPEAT: u32 = 256;
+
+/// One DMA burst: ARR, RCR, CCR1, CCR2, in the timer's register order.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Burst {
+    arr: u16,
+    rcr: u16,
+    ccr1: u16,
+    ccr2: u16,
+}
+
+impl Burst {
+    fn new(ticks: u32, repeat: u32, pulse_ticks: u32, dir_high: bool) -> Self {
+        debug_assert!(
+            (1..=MAX_PERIOD_TICKS).contains(&ticks) && (1..=MAX_REPEAT).contains(&repeat)
+        );
+        Self {
+            arr: (ticks - 1) as u16,
+            rcr: (repeat - 1) as u16,
+            ccr1: pulse_ticks as u16,
+            ccr2: if dir_high { u16::MAX } else { 0 },
+        }
+    }
+
+    /// The four register values, in burst order (ARR, RCR, CCR1, CCR2).
+    pub fn registers(&self) -> [u16; 4] {
+        [self.arr, self.rcr, self.ccr1, self.ccr2]
+    }
+
+    /// Length of the entry, ticks: `(ARR + 1) · (RCR + 1)`.
+    pub fn ticks(&self) -> u32 {
+        (u32::from(self.arr) + 1) * (u32::from(self.rcr) + 1)
+    }
+
+    /// STEP pulse width at the start of the entry, ticks (0: no pulse).
+    pub fn pulse_ticks(&self) -> u32 {
+        u32::from(self.ccr1)
+    }
+
+    /// DIR level during the whole entry.
+    pub fn dir_high(&self) -> bool {
+        self.ccr2 != 0
+    }
+}
+
+/// STEP width, DIR set-up (and hold) and the idle entry, ticks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PulseShape {
+    width: u32,
+    dir_setup: u32,
+    idle: u32,
+}
+
+impl PulseShape {
+    /// `width` at least 1 tick; `idle_ticks` (the entry length while no
+    /// step is scheduled: the latency of a start from rest) between
+    /// [`MIN_ENTRY_TICKS`] and 2^16.
+    pub fn new(width_ticks: u32, dir_setup_ticks: u32, idle_ticks: u32) -> Self {
+        Self {
+            width: width_ticks.clamp(1, MAX_PERIOD_TICKS / 2),
+            dir_setup: dir_setup_ticks.min(MAX_PERIOD_TICKS),
+            idle: idle_ticks.clamp(MIN_ENTRY_TICKS, MAX_PERIOD_TICKS),
+        }
+    }
+
+    /// The idle entry's length, ticks.
+    pub fn idle_ticks(&self) -> u32 {
+        self.idle
+    }
+
+    /// Ticks after a pulse's rise until DIR may change.
+    fn hold_ticks(&self) -> u32 {
+        (self.width + self.dir_setup).max(MIN_ENTRY_TICKS)
+    }
+}
+
+/// The next step, once known: ticks still to write before its pulse and
+/// the DIR level it needs, and how many of those ticks must keep the old
+/// level (the hold of a reversal).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Next {
+    rest: u32,
+    level: bool,
+    hold: u32,
+}
+
+/// Makes [`Burst`] entries from per-step delays (module docs).
+#[derive(Clone, Debug)]
+pub struct BurstWriter {
+    shape: PulseShape,
+    /// The last step's pulse starts the next entry written.
+    open: bool,
+    /// DIR level of the last pulse (and of the entries since).
+    level: bool,
+    /// Ticks written since the last pulse's rise (saturating), or, while
+    /// idle, since the start of the last idle entry.
+    since: u32,
+    /// Interval between the last two pulses: a pulse entry's length when
+    /// the step after it is not known yet.
+    last_interval: u32,
+    next: Option<Next>,
+    /// At rest: no pulse written since the last idle entry.
+    resting: bool,
+    late: u32,
+    pulses: u32,
+}
+
+impl BurstWriter {
+    /// At rest, DIR at `level`.
+    pub fn new(shape: PulseShape, level: bool) -> Self {
+        Self {
+            shape,
+            open: false,
+            level,
+            since: 0,
+            last_interval: shape.idle,
+            next: None,
+            resting: true,
+            late: 0,
+            pulses: 0,
+        }
+    }
+
+    /// New STEP width / DIR set-up, from the next step on.
+    pub fn set_shape(&mut self, shape: PulseShape) {
+        self.shape = shape;
+    }
+
+    /// Steps whose pulse came later than their delay (the schedule ran dry
+    /// while the entries before them were written), since the start.
+    pub fn late(&self) -> u32 {
+        self.late
+    }
+
+    /// Pulse entries written since the start.
+    pub fn pulses(&self) -> u32 {
+        self.pulses
+    }
+
+    /// The writer has a step it has not finished writing (its pulse, or
+    /// the time before it).
+    pub fn busy(&self) -> bool {
+        self.open || self.next.is_some()
+    }
+
+    /// Writes `out` whole: the entries of the steps `next_step` gives
+    /// (`(delay, dir_level)`: its pulse `delay` ticks after the previous
+    /// one, or after the start of the last idle entry from rest), asked
+    /// for only when the writer needs one, and idle entries when it gives
+    /// none. Returns the pulses written.
+    pub fn fill(
+        &mut self,
+        out: &mut [Burst],
+        mut next_step: impl FnMut() -> Option<(u32, bool)>,
+    ) -> u32 {
+        let before = self.pulses;
+        for slot in out {
+            // a step whose pulse starts right where the entries end leaves
+            // the pulse open: its entry's length is the step after it
+            for _ in 0..2 {
+                if self.next.is_some() {
+                    break;
+                }
+                match next_step() {
+                    Some((delay, level)) => self.accept(delay, level),
+                    None => break,
+                }
+            }
+            *slot = self.entry();
+        }
+        self.pulses - before
+    }
+
+    /// Plans the time up to the next pulse.
+    fn accept(&mut self, delay: u32, level: bool) {
+        let shape = self.shape;
+        let reversal = level != self.level;
+        let mut rest = delay.saturating_sub(self.since);
+        // a step the schedule gave too late (the entries written since the
+        // last pulse already run past it); from rest there is no time to
+        // keep
+        let behind = delay < self.since && !self.resting;
+        if rest == 0 && !reversal && !self.open {
+            // the entries written since the last pulse (or the last idle
+            // one) end on time, or past it: the pulse starts the next entry
+            self.late += u32::from(behind);
+            self.last_interval = delay;
+            self.start_pulse(level);
+            return;
+        }
+        // before the pulse: a whole entry; at a reversal, what the hold
+        // still needs at the old level (a whole entry if anything), then
+        // the set-up at the new one
+        let hold = if reversal {
+            match shape.hold_ticks().saturating_sub(self.since) {
+                0 => 0,
+                h => h.max(MIN_ENTRY_TICKS),
+            }
+        } else {
+            0
+        };
+        let min_rest = hold
+            + if reversal {
+                shape.dir_setup.max(MIN_ENTRY_TICKS)
+            } else {
+                MIN_ENTRY_TICKS
+            };
+        if rest < min_rest {
+            // a reversal's stretch is the shape's, a start from rest has
+            // no time to keep; anything else is a step the schedule gave
+            // too late
+            if !reversal && !self.resting {
+                self.late += 1;
+            }
+            rest = min_rest;
+        }
+        self.last_interval = delay;
+        self.next = Some(Next { rest, level, hold });
+    }
+
+    /// The next entry.
+    fn entry(&mut self) -> Burst {
+        let pulse = if self.open { self.shape.width } else { 0 };
+        let Some(mut n) = self.next else {
+            // no step known: close the pulse with the last interval, or
+            // wait idle
+            let len = if self.open {
+                self.last_interval.clamp(MIN_ENTRY_TICKS, MAX_PERIOD_TICKS)
+            } else {
+                self.resting = true;
+                self.since = 0;
+                self.shape.idle
+            };
+            return self.emit(len, 1, pulse, self.level);
+        };
+        // the part at the old level first (a reversal's hold), then the rest
+        let (budget, level) = if n.hold > 0 {
+            (n.hold, self.level)
+        } else {
+            (n.rest, n.level)
+        };
+        let (period, repeat) = split(budget, pulse != 0);
+        let len = period * repeat;
+        n.rest -= len;
+        n.hold = n.hold.saturating_sub(len);
+        let b = self.emit(period, repeat, pulse, level);
+        if n.rest == 0 {
+            self.next = None;
+            self.start_pulse(n.level);
+        } else {
+            self.next = Some(n);
+        }
+        b
+    }
+
+    /// An entry of `repeat` periods of `period` ticks, with a pulse of
+    /// `pulse` ticks (0: none; never more than half the period, so the
+    /// driver sees both levels) and DIR at `level`.
+    fn emit(&mut self, period: u32, repeat: u32, pulse: u32, level: bool) -> Burst {
+        let pulse = if pulse != 0 {
+            self.open = false;
+            self.pulses += 1;
+            pulse.min(period / 2)
+        } else {
+            0
+        };
+        self.since = self.since.saturating_add(period * repeat);
+        self.level = level;
+        Burst::new(period, repeat, pulse, level)
+    }
+
+    /// The next entry starts with the pulse of the step just reached.
+    fn start_pulse(&mut self, level: bool) {
+        self.open = true;
+        self.resting = false;
+        self.since = 0;
+        self.level = level;
+    }
+}
+
+/// The next piece (period, repetitions) of `rest` ticks (≥ the minimum
+/// entry): all of it if one period holds it; else a pulse entry takes one
+/// idle unit, an idle entry as many units as fit while leaving at least one
+/// unit (up to [`MAX_REPEAT`]), so what remains is never below the minimum.
+fn split(rest: u32, pulse: bool) -> (u32, u32) {
+    if rest <= MAX_PERIOD_TICKS {
+        (rest, 1)
+    } else if pulse {
+        (IDLE_UNIT_TICKS, 1)
+    } else {
+        (
+            IDLE_UNIT_TICKS,
+            (rest / IDLE_UNIT_TICKS - 1).min(MAX_REPEAT),
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,245 @@
+//! The writer's entries played on a model of the timer: pulse times, DIR
+//! timing, entry lengths.
+
+use super::*;
+
+/// What the timer makes of `entries` from tick 0: each pulse's rise and
+/// DIR level, after checking every entry's bounds and that DIR changes
+/// only at least `setup` after a pulse's fall and `setup` before the next
+/// rise.
+fn play(entries: &[Burst], shape: PulseShape) -> Vec<(u64, bool)> {
+    let mut t = 0u64;
+    let mut pulses: Vec<(u64, bool)> = Vec::new();
+    let mut level: Option<bool> = None;
+    let mut changed_at: Option<u64> = None;
+    for (i, b) in entries.iter().enumerate() {
+        let [arr, rcr, ccr1, _] = b.registers();
+        assert!(b.ticks() >= MIN_ENTRY_TICKS, "entry {i}: {b:?}");
+        assert!(u32::from(rcr) < MAX_REPEAT, "entry {i}: {b:?}");
+        if b.pulse_ticks() != 0 {
+            assert_eq!(rcr, 0, "entry {i}: a pulse entry repeats its pulse");
+            assert!(u32::from(ccr1) <= u32::from(arr), "entry {i}: {b:?}");
+        }
+        if level.is_some_and(|l| l != b.dir_high()) {
+            if let Some(&(rise, _)) = pulses.last() {
+                let fall = rise + u64::from(shape.width);
+                assert!(
+                    t >= fall + u64::from(shape.dir_setup),
+                    "entry {i}: DIR held too short"
+                );
+            }
+            changed_at = Some(t);
+        }
+        level = Some(b.dir_high());
+        if b.pulse_ticks() != 0 {
+            if let Some(c) = changed_at.take() {
+                assert!(
+                    t >= c + u64::from(shape.dir_setup),
+                    "entry {i}: DIR set-up too short"
+                );
+            }
+            pulses.push((t, b.dir_high()));
+        }
+        t += u64::from(b.ticks());
+    }
+    pulses
+}
+
+/// Writes `steps` in fills of `chunk` entries (refills of half a DMA
+/// buffer), the schedule giving nothing where `dry(k)` (before step k).
+fn write(
+    shape: PulseShape,
+    steps: &[(u32, bool)],
+    chunk: usize,
+    dry: impl Fn(usize) -> bool,
+) -> (Vec<Burst>, BurstWriter) {
+    let mut w = BurstWriter::new(shape, steps.first().is_none_or(|s| s.1));
+    let mut out = Vec::new();
+    let mut k = 0;
+    let mut buf = vec![Burst::default(); chunk];
+    let mut rounds = 0;
+    // each dry point gives nothing once
+    let mut dried = usize::MAX;
+    while k < steps.len() || w.busy() {
+        w.fill(&mut buf, || {
+            if k < steps.len() && !(dry(k) && dried != k) {
+                k += 1;
+                Some(steps[k - 1])
+            } else {
+                dried = k;
+                None
+            }
+        });
+        out.extend_from_slice(&buf);
+        rounds += 1;
+        assert!(rounds < 1_000_000);
+    }
+    // and a last fill: the pulse entry of the last step is closed
+    w.fill(&mut buf, || None);
+    out.extend_from_slice(&buf);
+    (out, w)
+}
+
+fn shape() -> PulseShape {
+    // 2.5 µs, 5 µs, 100 µs at 72 MHz
+    PulseShape::new(180, 360, 7200)
+}
+
+#[test]
+fn a_cruise_is_one_entry_a_step() {
+    let steps = vec![(144u32, true); 1000]; // 500 000 steps/s at 72 MHz
+    let (out, w) = write(shape(), &steps, 16, |_| false);
+    let pulses = play(&out, shape());
+    assert_eq!(pulses.len(), 1000);
+    assert_eq!(w.late(), 0);
+    for p in pulses.windows(2) {
+        assert_eq!(p[1].0 - p[0].0, 144);
+    }
+    // between the first and the last pulse: one entry per step
+    let first = out.iter().position(|b| b.pulse_ticks() != 0).unwrap();
+    let last = out.iter().rposition(|b| b.pulse_ticks() != 0).unwrap();
+    assert_eq!(last - first, 999);
+}
+
+#[test]
+fn long_intervals_are_exact_without_interrupts() {
+    // from 65 537 ticks (just over one period) to 10 s at 72 MHz
+    let delays = [
+        65_537u32,
+        65_536,
+        65_535,
+        98_304,
+        8_454_143,
+        8_454_144,
+        720_000_000,
+        1_000,
+    ];
+    let steps: Vec<_> = delays.iter().map(|&d| (d, false)).collect();
+    let (out, w) = write(shape(), &steps, 8, |_| false);
+    let pulses = play(&out, shape());
+    assert_eq!(pulses.len(), delays.len());
+    for (k, p) in pulses.windows(2).enumerate() {
+        assert_eq!(p[1].0 - p[0].0, u64::from(delays[k + 1]), "step {}", k + 1);
+    }
+    assert_eq!(w.late(), 0);
+    // 10 s takes few entries: 2^15-tick periods repeated up to 256 times
+    assert!(out.len() < 200, "{} entries", out.len());
+}
+
+#[test]
+fn a_cruise_that_runs_dry_continues_on_time() {
+    // the schedule gives nothing before every 7th step: the pulse entry
+    // is closed with the last interval, which is the next one's
+    let steps = vec![(300u32, true); 200];
+    let (out, w) = write(shape(), &steps, 4, |k| k % 7 == 0);
+    let pulses = play(&out, shape());
+    assert_eq!(pulses.len(), 200);
+    for p in pulses.windows(2) {
+        assert_eq!(p[1].0 - p[0].0, 300);
+    }
+    assert_eq!(w.late(), 0);
+}
+
+#[test]
+fn a_step_the_schedule_gives_too_late_is_counted() {
+    // a ramp up that runs dry: the provisional entry (the last, longer
+    // interval) overruns the next, shorter one
+    let steps: Vec<_> = (0..50).map(|k| (2000 - 20 * k, true)).collect();
+    let (out, w) = write(shape(), &steps, 4, |k| k == 20);
+    let pulses = play(&out, shape());
+    assert_eq!(pulses.len(), 50);
+    assert_eq!(w.late(), 1);
+    for (k, p) in pulses.windows(2).enumerate() {
+        if k + 1 != 20 {
+            assert_eq!(p[1].0 - p[0].0, u64::from(steps[k + 1].0), "step {}", k + 1);
+        }
+    }
+}
+
+#[test]
+fn reversals_keep_dir_set_up_and_hold() {
+    // back and forth, with short and long gaps at the turns
+    let mut steps = Vec::new();
+    for (k, gap) in [100u32, 5_000, 70_000, 64].into_iter().enumerate() {
+        let level = k % 2 == 0;
+        steps.push((gap, level));
+        steps.extend(std::iter::repeat_n((400u32, level), 5));
+    }
+    let (out, _) = write(shape(), &steps, 3, |k| k % 4 == 1);
+    let pulses = play(&out, shape()); // checks set-up and hold
+    assert_eq!(pulses.len(), steps.len());
+    for (p, s) in pulses.iter().zip(&steps) {
+        assert_eq!(p.1, s.1, "DIR at the pulse");
+    }
+}
+
+#[test]
+fn idle_entries_while_nothing_is_scheduled() {
+    let mut w = BurstWriter::new(shape(), true);
+    let mut buf = [Burst::default(); 8];
+    assert_eq!(w.fill(&mut buf, || None), 0);
+    for b in buf {
+        assert_eq!((b.ticks(), b.pulse_ticks(), b.dir_high()), (7200, 0, true));
+    }
+    assert!(!w.busy());
+}
+
+/// Random step streams (delays from the shortest entry to beyond the
+/// repetition counter's reach, random directions, random dry refills):
+/// every entry within the timer's bounds, DIR set-up and hold kept, one
+/// pulse per step, and every pulse exactly its delay after the previous
+/// one unless counted late or a reversal had to be stretched.
+#[test]
+fn random_streams() {
+    let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    for case in 0..300 {
+        let n = 1 + (next() % 200) as usize;
+        let mut level = next() & 1 == 0;
+        let steps: Vec<(u32, bool)> = (0..n)
+            .map(|_| {
+                if next() % 16 == 0 {
+                    level = !level;
+                }
+                let d = match next() % 8 {
+                    0 => 64 + (next() % 200) as u32,
+                    1 => 60_000 + (next() % 20_000) as u32,
+                    2 => (next() % 50_000_000) as u32 + 64,
+                    _ => 100 + (next() % 3_000) as u32,
+                };
+                (d, level)
+            })
+            .collect();
+        let chunk = 1 + (next() % 32) as usize;
+        let dry_mask = next();
+        let shape = PulseShape::new(
+            1 + (next() % 200) as u32,
+            (next() % 400) as u32,
+            64 + (next() % 20_000) as u32,
+        );
+        let (out, w) = write(shape, &steps, chunk, |k| dry_mask >> (k % 64) & 1 != 0);
+        let pulses = play(&out, shape);
+        assert_eq!(pulses.len(), n, "case {case}");
+        let mut off = 0;
+        for (k, p) in pulses.windows(2).enumerate() {
+            let (d, lv) = steps[k + 1];
+            assert_eq!(p[1].1, lv, "case {case} step {}", k + 1);
+            let got = p[1].0 - p[0].0;
+            if got != u64::from(d) {
+                assert!(got > u64::from(d), "case {case} step {}: early", k + 1);
+                off += 1;
+            }
+        }
+        let reversals = steps.windows(2).filter(|s| s[0].1 != s[1].1).count() as u32;
+        assert!(
+            off <= w.late() + reversals,
+            "case {case}: {off} off time, {} late",
+            w.late()
+        );
+    }
+}
