@@ -180,6 +180,66 @@ fn a_reversal_leaves_dir_set_up_time_before_the_edge() {
     }
 }
 
+/// DIR changes only with no pulse pending: at a reversal it is written at
+/// least the set-up time after the last falling edge of the old direction
+/// (the hold) and the set-up time before the next rising edge, counting the
+/// interrupt latency against the write, whatever idle time runs before.
+#[test]
+fn a_reversal_keeps_dir_hold_after_the_last_falling_edge() {
+    for hz in [G431_TICK_HZ, F103_TICK_HZ] {
+        let shape = StepShape::safe(hz);
+        for gap in [1u32, 60, 400, 2_000, 100_000] {
+            let mut steps = Vec::new();
+            for k in 0..6 {
+                let forward = k % 2 == 0;
+                steps.push(Step {
+                    forward,
+                    interval_ticks: gap,
+                });
+                steps.push(Step {
+                    forward,
+                    interval_ticks: 60,
+                });
+            }
+            let mut shaper = StepShaper::new(shape);
+            let mut queue = steps.iter().copied();
+            // DIR starts forward (steps::start). Each period runs from `t`;
+            // the interrupt that begins it writes its DIR (latency later).
+            let (mut t, mut level, mut fall) = (0u64, true, 0u64);
+            let mut pulses = 0;
+            while pulses < steps.len() {
+                let p = shaper.next_period(|| queue.next());
+                let len = u64::from(p.arr) + 1;
+                let mut written = None;
+                if let Some(d) = p.dir.filter(|&d| d != level) {
+                    let at = t + u64::from(shape.latency_ticks);
+                    assert!(
+                        at >= fall + u64::from(shape.dir_setup_ticks),
+                        "{hz} Hz gap {gap}: DIR {} ticks after the falling edge",
+                        at - fall
+                    );
+                    level = d;
+                    written = Some(at);
+                }
+                if p.ccr <= p.arr {
+                    let rise = t + u64::from(p.ccr);
+                    if let Some(w) = written {
+                        assert!(
+                            rise >= w + u64::from(shape.dir_setup_ticks),
+                            "{hz} Hz gap {gap}: rise {} ticks after DIR",
+                            rise - w
+                        );
+                    }
+                    assert_eq!(p.dir, Some(level), "DIR at the pulse");
+                    fall = t + len;
+                    pulses += 1;
+                }
+                t += len;
+            }
+        }
+    }
+}
+
 #[test]
 fn the_first_step_backwards_after_boot_gets_the_dir_set_up() {
     // The step output starts with DIR set for the positive direction, the
@@ -213,6 +273,10 @@ fn a_pa11_change_makes_the_next_step_a_reversal_on_the_pin() {
     let p = shaper.next_period(|| Some(fwd));
     assert_eq!(u32::from(p.arr) + 1, 60, "same direction: no stretch");
     shaper.dir_pin_flipped(); // the same direction is the other pin level now
+                              // DIR is held after the last pulse first (an idle period), then set up
+    let p = shaper.next_period(|| Some(fwd));
+    assert_eq!(p.dir, None, "the hold: no pulse");
+    assert_eq!(u32::from(p.arr) + 1, shape.dir_setup_ticks);
     let p = shaper.next_period(|| Some(fwd));
     assert!(u32::from(p.ccr) >= shape.dir_setup_ticks + shape.latency_ticks);
     let p = shaper.next_period(|| Some(fwd));

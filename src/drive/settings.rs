@@ -26,9 +26,11 @@ pub(super) struct Settings {
     pub(super) steps_per_rev: u64,
     /// PA12 and the board's maximum step rate, 0.1 steps/s.
     pub(super) max_velocity: u64,
-    /// The planner's configuration: the board's step rate and
-    /// acceleration limits, which clamp every ramp as PA12 does.
-    pub(super) planner: PlannerConfig,
+    /// The board's step rate and acceleration limits in 0.1 steps/s and
+    /// 0.1 steps/s² ([`PlannerConfig::velocity_cap`] / `accel_cap`): they
+    /// clamp every ramp as PA12 does.
+    velocity_cap: u64,
+    accel_cap: u64,
     pub(super) limit_enable: u16,
     pub(super) comm_loss_ms: u16,
 }
@@ -38,7 +40,8 @@ impl Settings {
         let mut s = Self {
             // not PA10's register: `update` derives the step figures
             steps_per_rev_reg: cfg.pa.steps_per_rev().wrapping_add(1),
-            planner,
+            velocity_cap: planner.velocity_cap(),
+            accel_cap: planner.accel_cap(),
             ..Self::default()
         };
         s.update(cfg);
@@ -48,7 +51,8 @@ impl Settings {
     /// A new planner configuration (the board's limits): the derived
     /// maximum velocity follows at once.
     pub(super) fn set_planner_config(&mut self, planner: PlannerConfig) {
-        self.planner = planner;
+        self.velocity_cap = planner.velocity_cap();
+        self.accel_cap = planner.accel_cap();
         self.max_velocity = self.rpm_to_velocity(u64::from(self.max_speed_rpm_reg));
     }
 
@@ -81,7 +85,7 @@ impl Settings {
             accel: self.steps(u64::from(od.acceleration)),
             decel: self.steps(u64::from(od.deceleration)),
         }
-        .clamped(self.max_velocity, &self.planner)
+        .clamped(self.max_velocity, self.accel_cap)
     }
 
     /// Homing ramp at 0x6099 (fast) or 0x609B (slow) with 0x609A, capped
@@ -99,7 +103,7 @@ impl Settings {
             accel,
             decel: accel,
         }
-        .clamped(self.max_velocity.min(cap), &self.planner)
+        .clamped(self.max_velocity.min(cap), self.accel_cap)
     }
 
     pub(super) fn decel(&self, od: &OdValues) -> u64 {
@@ -123,7 +127,7 @@ impl Settings {
     /// r/min → 0.1 steps/s at PA10, capped at the board's maximum step
     /// rate.
     fn rpm_to_velocity(&self, rpm: u64) -> u64 {
-        div_u64(rpm * self.steps_per_rev, 6).min(self.planner.velocity_cap())
+        div_u64(rpm * self.steps_per_rev, 6).min(self.velocity_cap)
     }
 }
 

@@ -240,7 +240,9 @@ pub struct Period {
 }
 
 /// Splits the step schedule into 16-bit timer periods, stretching a period
-/// after a reversal so DIR is set up in time. Constant time per call.
+/// after a reversal so DIR is set up in time, and holding DIR for the same
+/// time after the last pulse of the old direction (an idle period before
+/// the reversal's, unless one runs already). Constant time per call.
 #[derive(Clone, Copy, Debug)]
 pub struct StepShaper {
     shape: StepShape,
@@ -288,15 +290,32 @@ impl StepShaper {
                 self.idle_ahead = self.shape.idle_ticks;
                 return Self::idle(self.shape.idle_ticks);
             };
-            let min = if step.forward != self.last_forward {
+            let reversal = step.forward != self.last_forward;
+            let min = if reversal {
                 self.shape.min_period_after_reversal()
             } else {
                 self.shape.min_period()
             };
             // the preloaded idle period runs first: count it in the interval
             let ahead = core::mem::take(&mut self.idle_ahead);
-            self.remaining = step.interval_ticks.saturating_sub(ahead).max(min);
+            // DIR is written at the start of the step's period; unless an
+            // idle period runs before it, that start is the last pulse's
+            // falling edge: a reversal then first holds DIR for the set-up
+            // time in an idle period of its own
+            let hold = if reversal && ahead < self.shape.dir_setup_ticks {
+                self.shape.dir_setup_ticks
+            } else {
+                0
+            };
+            self.remaining = step
+                .interval_ticks
+                .saturating_sub(ahead)
+                .saturating_sub(hold)
+                .max(min);
             self.pending_forward = step.forward;
+            if hold > 0 {
+                return Self::idle(hold);
+            }
         }
         if self.remaining > MAX_PERIOD_TICKS {
             // A slow step: idle half-periods until the rest fits in one

@@ -91,15 +91,14 @@ impl Ramp {
         self.velocity > 0 && self.accel > 0 && self.decel > 0
     }
 
-    /// Clamped to the board's limits in `cfg` and to `max_velocity` (0.1
-    /// steps/s).
-    pub fn clamped(self, max_velocity: u64, cfg: &PlannerConfig) -> Self {
-        let v_cap = max_velocity.min(cfg.velocity_cap());
-        let a_cap = cfg.accel_cap();
+    /// Clamped to `max_velocity` (0.1 steps/s: PA12 and the board's step
+    /// rate, [`PlannerConfig::velocity_cap`]) and `max_accel` (0.1
+    /// steps/s², [`PlannerConfig::accel_cap`]).
+    pub fn clamped(self, max_velocity: u64, max_accel: u64) -> Self {
         Self {
-            velocity: self.velocity.min(v_cap),
-            accel: self.accel.min(a_cap),
-            decel: self.decel.min(a_cap),
+            velocity: self.velocity.min(max_velocity),
+            accel: self.accel.min(max_accel),
+            decel: self.decel.min(max_accel),
         }
     }
 }
