@@ -6,7 +6,8 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
     .venv/e2e/bin/python fw-sim/measure.py
 
 - reply latency: from the end of a request's last stop bit to the start bit
-  of the reply's first character (`--trace-line`), at 115200 and 19200 baud;
+  of the reply's first character (`--trace-line`), at 115200 and 19200 baud,
+  and at 115200 while the motor runs at the board's step rate limit;
 - CPU load while stepping in velocity mode at 50k, 100k steps/s and the
   board's step rate limit (Board::max_step_rate in src/boards.rs):
   the share of core cycles not spent asleep in WFI/WFE (`--stats`), under the
@@ -22,7 +23,8 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
 
 `--only latency` runs the last section alone, taking each board's rate
 from the docs/generated/fw-sim.md of an earlier full run, and prints it
-without writing the file.
+without writing the file; `--only stepping-latency` likewise the reply
+latency while stepping at each board's limit.
 """
 
 from __future__ import annotations
@@ -333,6 +335,49 @@ def latency_section(work: Path, rates: dict[str, int]) -> list[str]:
     return lines
 
 
+def stepping_latency(board: str, rate: int, work: Path) -> list[float]:
+    """Reply latencies (µs, as `latencies`) of reads sent while the motor
+    runs at `rate` steps/s in velocity mode."""
+    trace = work / f"{board}-stepping.line.csv"
+    fw = c.Firmware(work, board, ["--trace-line", str(trace), "--quiet"])
+    try:
+        m = c.Master(fw.client())
+        m.enable()
+        m.write(c.MODE, 3)
+        m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
+        deadline = time.monotonic() + 30
+        # 0x606C is in r/min (SPEC §5)
+        while m.read32(c.ACTUAL_VELOCITY) * STEPS_PER_REV // 60 < rate:
+            assert time.monotonic() < deadline, f"{board}: never reached {rate} steps/s"
+            time.sleep(0.02)
+        m.c.close()
+        lat = latencies(fw, trace, REQUESTS)
+        m = c.Master(fw.client())
+        assert m.read32(c.ACTUAL_VELOCITY) * STEPS_PER_REV // 60 >= rate, "still at speed"
+        fw.alive()
+    finally:
+        fw.stop()
+    assert len(lat) == REQUESTS, (board, lat)
+    return lat
+
+
+def stepping_latency_section(work: Path) -> list[str]:
+    lines = ["", "## Reply latency while stepping at the board's limit", "",
+             f"{REQUESTS} reads of 0x6041 at 115200 baud, sent while the motor runs in",
+             "velocity mode at the board's step rate limit (Board::max_step_rate),",
+             "measured as the first section does; t3.5 is 1750 µs.", "",
+             "| board | steps/s | min µs | mean µs | max µs | max − t3.5 µs |",
+             "|---|---|---|---|---|---|"]
+    for board in c.BOARDS:
+        lat = stepping_latency(board, LIMITS[board], work)
+        lines.append(f"| {board} | {LIMITS[board]} | {min(lat):.1f} | {statistics.mean(lat):.1f} "
+                     f"| {max(lat):.1f} | {max(lat) - 1750:.1f} |")
+        print(lines[-1], flush=True)
+    return lines
+
+
 def rates_from_file() -> dict[str, int]:
     """Each board's highest on-time rate with the bus polled, from the last
     full run's output."""
@@ -343,12 +388,15 @@ def rates_from_file() -> dict[str, int]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--only", choices=["latency"],
+    ap.add_argument("--only", choices=["latency", "stepping-latency"],
                     help="run one section and print it; the file is not written")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="fw-sim-measure-"))
     if args.only == "latency":
         print("\n".join(latency_section(work, rates_from_file())))
+        return 0
+    if args.only == "stepping-latency":
+        print("\n".join(stepping_latency_section(work)))
         return 0
     lines = ["# fw-sim measurements (generated)", "",
              "Written by `fw-sim/measure.py` from emulated time; do not edit. Method and",
@@ -375,6 +423,7 @@ def main() -> int:
             lines.append(f"| {board} | {baud} | {min(lat):.1f} | {statistics.mean(lat):.1f} "
                          f"| {max(lat):.1f} |")
             print(lines[-1], flush=True)
+    lines += stepping_latency_section(work)
     lines += ["", "## CPU load while stepping (velocity mode, constant speed)", "",
               "Share of core cycles not asleep over 0.2 s of emulated time, once",
               "0x606C shows the set speed. Each board's step rate is clamped to",

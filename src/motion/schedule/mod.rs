@@ -75,8 +75,8 @@
 //! # Exact times
 //!
 //! Beside each step's delay the producer stores the fraction it carries
-//! on after that step (`fracs`, one `u32` per entry, written before the
-//! entry is published). A delay `d` with the fractions `f0` before and
+//! on after that step (the second word of each ring slot, written before
+//! the entry is published). A delay `d` with the fractions `f0` before and
 //! `f1` after it is the exact interval `d + (f1 − f0)·2^-32` ticks. The
 //! limit brake starts from that exact interval, so braking from a speed
 //! that is no whole number of ticks per step has no velocity jump; and

@@ -34,17 +34,16 @@ fn the_narrow_loop_expands_like_step_by_step() {
         x ^= x << 17;
         x
     };
-    let narrow_ring = [const { AtomicU32::new(0) }; SCHEDULE_STEPS];
-    let narrow_fracs = [const { AtomicU32::new(0) }; SCHEDULE_STEPS];
+    let narrow_ring = [const { [AtomicU32::new(0), AtomicU32::new(0)] }; SCHEDULE_STEPS];
     let (mut narrow, mut wide) = (0, 0);
     let check = |x: Expansion, steps: usize| {
         let mut a = x;
         let mut b = x;
         let took_narrow = a.narrow(steps);
-        a.run(&narrow_ring[..steps], &narrow_fracs[..steps]);
-        for (k, entry) in narrow_ring[..steps].iter().enumerate() {
+        a.run(&narrow_ring[..steps]);
+        for (k, [entry, frac]) in narrow_ring[..steps].iter().enumerate() {
             assert_eq!(entry.load(Ordering::Relaxed), b.step(), "step {k}");
-            assert_eq!(narrow_fracs[k].load(Ordering::Relaxed), b.frac, "step {k}");
+            assert_eq!(frac.load(Ordering::Relaxed), b.frac, "step {k}");
         }
         let terms = |e: &Expansion| (e.interval, e.add, e.add2, e.add3, e.add4, e.frac, e.sum);
         assert_eq!(terms(&a), terms(&b));
