@@ -40,8 +40,11 @@ impl Board {
         match self {
             // the planner's ceiling: the G431 keeps every pulse on time there
             Board::G431 => 200_000,
-            // the next step of the grid is late on the F103
-            Board::F103 => 150_000,
+            // on time one grid step above, but there the step interval is
+            // no whole number of ticks, and the limit brake starts from the
+            // whole-tick delay of the step it takes over (motion::schedule,
+            // "Limit brake"): here it is exact
+            Board::F103 => 125_000,
         }
     }
 

@@ -80,6 +80,13 @@ pub struct Device {
 
 impl Device {
     pub fn new(identity: Identity) -> Self {
+        Self::with_planner_config(identity, PlannerConfig::default())
+    }
+
+    /// [`Device::new`] with the planner's timing and the board's limits
+    /// from the start (what [`Device::set_planner_config`] sets later): no
+    /// second planner is built, which the firmware's boot stack notices.
+    pub fn with_planner_config(identity: Identity, cfg: PlannerConfig) -> Self {
         let pa = Params::defaults();
         Self {
             identity,
@@ -88,7 +95,7 @@ impl Device {
             line: pa.line(),
             driver_enable: pa.driver_enable(),
             pa,
-            drive: Drive::new(),
+            drive: Drive::with_config(cfg),
             slave: Slave::new(),
             storage_busy: false,
             ee_pending: None,

@@ -75,10 +75,12 @@ async fn main(spawner: Spawner) {
     // In a block: a `Device` local of `main` would stay in main's future
     // (a static) after it has been moved to the dispatcher: its RAM twice.
     let (line, address, de, dir_inverted) = {
-        let mut device = Device::new(Identity::new(board::NAME));
         // The planner times steps in the step timer's ticks
         // (calc::step_prescaler) and keeps to the board's limits.
-        device.set_planner_config(PlannerConfig::for_board(board::BOARD));
+        let mut device = Device::with_planner_config(
+            Identity::new(board::NAME),
+            PlannerConfig::for_board(board::BOARD),
+        );
         #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
         let mut boot = store.boot();
         // A page the G431 cannot read (flash ECC after a power cut, fault.rs)

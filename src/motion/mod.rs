@@ -12,7 +12,8 @@ pub mod homing;
 pub mod planner;
 pub mod profile;
 pub mod schedule;
-// a test double: out of the firmware's public API
+// it reports exact step times, which the schedule keeps only with the
+// feature (schedule.rs module docs)
 #[cfg(feature = "sim")]
 pub mod sim;
 

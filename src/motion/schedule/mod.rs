@@ -72,18 +72,12 @@
 //!   (`head_backward`, stored before `head`), so that the markers it
 //!   skipped cannot leave the interrupt in the wrong direction.
 //!
-//! # Exact times
-//!
-//! Beside each step's delay the producer stores the fraction it carries
-//! on after that step (the second word of each ring slot, written before
-//! the entry is published). A delay `d` with the fractions `f0` before and
-//! `f1` after it is the exact interval `d + (f1 − f0)·2^-32` ticks. The
-//! limit brake starts from that exact interval, so braking from a speed
-//! that is no whole number of ticks per step has no velocity jump; and
-//! [`StepSource::rounding_q32`] gives the exact time of every step, which
-//! the simulation (`motion::sim::SimAxis`) records. One layout on every
-//! target and with every feature: the firmware runs the type the tests
-//! run.
+//! With the `sim` feature (the simulated axis of the tests, the virtual
+//! drive, the fuzz targets) the schedule also keeps each step's carried
+//! fraction beside its delay (`exact_frac`), so that the simulation can
+//! report the exact time every step was scheduled for
+//! ([`StepSource::rounding_q32`]). The firmware and the benchmarks build
+//! without it: one layout on every target, the one the firmware runs.
 //!
 //! # Files
 //!
@@ -120,8 +114,7 @@
 //! change) ([`StepSchedule::set_brake_rate`], written by the drive: 0x6085
 //! outside homing, disarmed in homing where the sequencer decides at the
 //! limits), stops taking entries and decelerates on its own from the
-//! exact interval of the step it would have made ("Exact times"): each
-//! interval grows by
+//! interval of the step it would have made: each interval grows by
 //! the factor `(1 - 2q)^-1/2 ≈ 1 + q + 3/2 q² + 5/2 q³ + 35/8 q⁴` with `q = a·p²`
 //! (`p` the interval, `a` the deceleration in steps/tick²), which is
 //! `v² ← v² - 2a` per step, the constant deceleration, in a few multiplies.

@@ -11,12 +11,12 @@ use super::segment::{time_made, Expansion, Segment};
 use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, SCHEDULE_STEPS};
 
 /// The shared ring of per-step delays plus what the interrupt reports back
-/// (see the module docs for who may call what). `repr(C)`: `next` and
-/// `quiet` first and the ring right behind them, so that the interrupt's
-/// fast path addresses all three from the schedule's own address with
-/// short offsets.
+/// (see the module docs for who may call what). `repr(C)`: the ring at the
+/// start and `next`/`quiet` right behind it, so that the interrupt's
+/// fast path addresses all three from the schedule's own address.
 #[repr(C)]
 pub struct StepSchedule {
+    pub(super) ring: [AtomicU32; SCHEDULE_STEPS],
     /// Index (wrapping) of the entry after the pending one, or after the
     /// last one taken while idle (the consumer's one store per step).
     pub(super) next: AtomicU32,
@@ -25,13 +25,6 @@ pub struct StepSchedule {
     /// by the consumer when it has looked: its only per-step look at
     /// anything but the ring (module docs).
     pub(super) quiet: AtomicBool,
-    /// Per entry, its delay (or marker, or sentinel) and the fraction the
-    /// exact times carry on after it (module docs, "Exact times"): with
-    /// the delay and the fraction before it, the step's exact interval,
-    /// which the limit brake starts from. Side by side, so the producer
-    /// writes both through one pointer. The fraction is written before the
-    /// entry is published, never for the slot at `next − 1`.
-    pub(super) ring: [[AtomicU32; 2]; SCHEDULE_STEPS],
     /// Index (wrapping) of the sentinel, where the next push starts
     /// (producer only).
     pub(super) head: AtomicU32,
@@ -60,6 +53,10 @@ pub struct StepSchedule {
     pub(super) brake_rate: AtomicU32,
     /// The limit brake's state (`BRAKE_*`).
     pub(super) brake: AtomicU8,
+    /// Feature `sim`: each entry's carried fraction, as `frac` after that
+    /// step (module docs).
+    #[cfg(feature = "sim")]
+    pub(super) exact_frac: [AtomicU32; SCHEDULE_STEPS],
 }
 
 impl Default for StepSchedule {
@@ -72,9 +69,9 @@ impl StepSchedule {
     /// `static` of it is zero-initialised memory (.bss), no flash image.
     pub const fn new() -> Self {
         Self {
+            ring: [const { AtomicU32::new(END) }; SCHEDULE_STEPS],
             next: AtomicU32::new(0),
             quiet: AtomicBool::new(false),
-            ring: [const { [AtomicU32::new(END), AtomicU32::new(0)] }; SCHEDULE_STEPS],
             head: AtomicU32::new(0),
             head_backward: AtomicBool::new(false),
             frac: AtomicU32::new(0),
@@ -87,11 +84,13 @@ impl StepSchedule {
             limits: AtomicU8::new(0),
             brake_rate: AtomicU32::new(0),
             brake: AtomicU8::new(BRAKE_NONE),
+            #[cfg(feature = "sim")]
+            exact_frac: [const { AtomicU32::new(0) }; SCHEDULE_STEPS],
         }
     }
 
     pub(super) fn entry(&self, index: u32) -> &AtomicU32 {
-        &self.ring[index as usize % SCHEDULE_STEPS][0]
+        &self.ring[index as usize % SCHEDULE_STEPS]
     }
 
     // ---- producer side (thread mode) ----
@@ -218,27 +217,30 @@ impl StepSchedule {
     /// (excluded, at least one): writes all but the first, which it
     /// returns, so that the caller can write it last.
     fn expand(&self, seg: &mut Segment, carry: &mut (u32, u32), from: u32, to: u32) -> u32 {
-        // the first into a local (its fraction straight to its slot: the
-        // sentinel before it keeps the consumer away), the rest to the ring
-        // in at most two contiguous pieces (the `min`s never cut: fewer
-        // than SCHEDULE_STEPS entries)
+        #[cfg(feature = "sim")]
+        {
+            let mut shadow = Expansion::of(seg, *carry);
+            let mut i = from;
+            while i != to {
+                shadow.step();
+                let slot = i as usize % SCHEDULE_STEPS;
+                self.exact_frac[slot].store(shadow.frac, Ordering::Relaxed);
+                i = i.wrapping_add(1);
+            }
+        }
+        // the first into a local, the rest to the ring in at most two
+        // contiguous pieces (the `min`s never cut: fewer than
+        // SCHEDULE_STEPS entries)
         let mut first = END;
-        let first_frac = &self.ring[from as usize % SCHEDULE_STEPS][1];
         let start = from.wrapping_add(1) as usize % SCHEDULE_STEPS;
         let n = to.wrapping_sub(from).wrapping_sub(1) as usize;
         let (before, after) = self.ring.split_at(start);
         let k = n.min(after.len());
-        Expansion::fill(seg, carry, Some((&mut first, first_frac)), &after[..k]);
+        Expansion::fill(seg, carry, Some(&mut first), &after[..k]);
         if k < n {
             Expansion::fill(seg, carry, None, &before[..(n - k).min(before.len())]);
         }
         first
-    }
-
-    /// The carried fraction after the entry at `index` (module docs,
-    /// "Exact times").
-    pub(super) fn frac_after(&self, index: u32) -> u32 {
-        self.ring[index as usize % SCHEDULE_STEPS][1].load(Ordering::Relaxed)
     }
 
     /// Ring index (wrapping) of the last entry pushed: after a push, its

@@ -170,21 +170,19 @@ impl Expansion {
     /// (the common push: the higher terms are small): the same delays
     /// and terms from a loop whose state fits the Cortex-M's registers.
     #[inline(always)]
-    pub(super) fn run(&mut self, entries: &[[AtomicU32; 2]]) {
+    pub(super) fn run(&mut self, entries: &[AtomicU32]) {
         if !self.narrow(entries.len()) {
-            for [entry, f] in entries {
+            for entry in entries {
                 entry.store(self.step(), Ordering::Relaxed);
-                f.store(self.frac, Ordering::Relaxed);
             }
             return;
         }
         let (mut interval, mut add) = (self.interval, self.add);
         let (mut add2, mut add3, add4) = (self.add2 as i32, self.add3 as i32, self.add4 as i32);
         let (mut frac, mut sum) = (self.frac, self.sum);
-        for [entry, f] in entries {
+        for entry in entries {
             let delay = carried(&mut frac, interval);
             entry.store(delay, Ordering::Relaxed);
-            f.store(frac, Ordering::Relaxed);
             sum = sum.wrapping_add(delay);
             let next_add3 = add3.wrapping_add(add4);
             let next_add2 = add2.wrapping_add(add3);
@@ -198,21 +196,18 @@ impl Expansion {
     }
 
     /// Writes the next steps' delays of `seg` to `first` (if given) and
-    /// `entries`, in order, with their carried fractions (to `first`'s
-    /// slot, and beside each entry's delay), and moves `seg`'s terms and
-    /// `carry` (fraction, delay sum) on: one call per push, straight from
-    /// and to the segment.
+    /// `entries`, in order, and moves `seg`'s terms and `carry` (fraction,
+    /// delay sum) on: one call per push, straight from and to the segment.
     #[inline(never)]
     pub(super) fn fill(
         seg: &mut Segment,
         carry: &mut (u32, u32),
-        first: Option<(&mut u32, &AtomicU32)>,
-        entries: &[[AtomicU32; 2]],
+        first: Option<&mut u32>,
+        entries: &[AtomicU32],
     ) {
         let mut x = Self::of(seg, *carry);
-        if let Some((first, first_frac)) = first {
+        if let Some(first) = first {
             *first = x.step();
-            first_frac.store(x.frac, Ordering::Relaxed);
         }
         x.run(entries);
         x.store_terms(seg);

@@ -8,6 +8,8 @@ use super::brake::{
 };
 use super::ring::StepSchedule;
 use super::segment::carried;
+#[cfg(feature = "sim")]
+use super::SCHEDULE_STEPS;
 use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, TICK_FRAC_BITS};
 
 /// What the timer must do next: wait `delay_ticks` (≥ 1) after the step
@@ -143,21 +145,10 @@ impl StepSource {
                     .brake
                     .store(BRAKE_ACTIVE | self.brake_dir(), Ordering::Relaxed);
                 self.braking = rate;
-                // from the exact interval of the step it would have made,
-                // carrying on the fraction of the one just made (module
-                // docs, "Exact times"): no velocity jump, and the brake's
-                // steps keep the exact times' chain. A run from rest (or
-                // after a marker, which comes only at rest) starts from
-                // half a tick, as its push did.
-                let before = if self.pending && at == next {
-                    sched.frac_after(next.wrapping_sub(1))
-                } else {
-                    HALF_TICK
-                };
-                let after = sched.frac_after(at);
-                let dfrac = i64::from(after) - i64::from(before);
-                self.interval = (u64::from(delay) << TICK_FRAC_BITS).wrapping_add(dfrac as u64);
-                self.frac = before;
+                // from the interval of the step it would have made, timed
+                // from the tick of the one just made
+                self.interval = u64::from(delay) << TICK_FRAC_BITS;
+                self.frac = HALF_TICK;
                 sched.set_base(made, at, self.forward);
                 return self.brake_step(sched, made);
             }
@@ -226,14 +217,15 @@ impl StepSource {
     }
 
     /// Exact time of the pending step minus the tick it is announced at
-    /// (Q32.32, signed, within ±½ tick): the rounding its delay carries
-    /// (module docs, "Exact times"). The simulation records exact step
-    /// times with it.
+    /// (Q32.32, signed, within ±½ tick): the rounding its delay carries.
+    /// Feature `sim` only (module docs), for the simulation's step records.
+    #[cfg(feature = "sim")]
     pub fn rounding_q32(&self, sched: &StepSchedule) -> i64 {
         let frac = if self.braking != 0 {
             self.frac
         } else {
-            sched.frac_after(sched.next.load(Ordering::Relaxed).wrapping_sub(1))
+            let pending = sched.next.load(Ordering::Relaxed).wrapping_sub(1);
+            sched.exact_frac[pending as usize % SCHEDULE_STEPS].load(Ordering::Relaxed)
         };
         i64::from(frac) - i64::from(HALF_TICK)
     }
