@@ -821,3 +821,20 @@ fn a_step_found_after_the_queue_ran_dry_keeps_its_interval() {
         );
     }
 }
+
+#[test]
+fn the_reset_cause_names_the_internal_reset_not_the_pin_it_pulled() {
+    use calc::reset_cause::*;
+    const PIN_F: u32 = 1 << 26;
+    // reset values after a power-up: PORRSTF / BORRSTF with PINRSTF
+    assert_eq!(reset_cause_from_csr(0x0C00_0000), POWER_ON);
+    assert_eq!(reset_cause_from_csr(PIN_F), PIN);
+    assert_eq!(reset_cause_from_csr(1 << 29 | PIN_F), INDEPENDENT_WATCHDOG);
+    assert_eq!(reset_cause_from_csr(1 << 28 | PIN_F), SOFTWARE);
+    assert_eq!(reset_cause_from_csr(1 << 30 | PIN_F), WINDOW_WATCHDOG);
+    assert_eq!(reset_cause_from_csr(1 << 31 | PIN_F), LOW_POWER);
+    assert_eq!(reset_cause_from_csr(1 << 25 | PIN_F), OPTION_BYTES);
+    // LSION / LSIRDY and the rest of the register are not flags
+    assert_eq!(reset_cause_from_csr(0x0000_0003), NONE_FLAGGED);
+    assert_eq!(reset_cause_from_csr(1 << 29 | 3), INDEPENDENT_WATCHDOG);
+}

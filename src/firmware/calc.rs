@@ -505,3 +505,46 @@ pub fn ecc_error_is_parameter_read(
 ) -> bool {
     double_error && !system_flash && param_pages.contains(&addr)
 }
+
+// ---------------------------------------------------------------- reset cause
+
+/// DP-rES (0x0017) codes of the reset cause (docs/parameters.md).
+pub mod reset_cause {
+    pub const POWER_ON: u16 = 0;
+    pub const PIN: u16 = 1;
+    pub const INDEPENDENT_WATCHDOG: u16 = 2;
+    pub const SOFTWARE: u16 = 3;
+    pub const WINDOW_WATCHDOG: u16 = 4;
+    pub const LOW_POWER: u16 = 5;
+    pub const OPTION_BYTES: u16 = 6;
+    pub const NONE_FLAGGED: u16 = 7;
+}
+
+/// The reset cause from `RCC_CSR`'s flags, which the two chips place alike
+/// (RM0440 RCC_CSR, RM0008 RCC_CSR): bit 31 LPWRRSTF, 30 WWDGRSTF, 29
+/// IWDGRSTF, 28 SFTRSTF, 27 PORRSTF (F1) / BORRSTF (G4), 26 PINRSTF, 25
+/// OBLRSTF (G4 only). Every internal reset also pulls NRST, so PINRSTF comes
+/// with each of them and names the pin only when alone; a power-on sets the
+/// pin flag too. The flags add up until cleared (RMVF), so the glue clears
+/// them after reading.
+pub fn reset_cause_from_csr(csr: u32) -> u16 {
+    use reset_cause::*;
+    let flag = |bit: u32| csr & (1 << bit) != 0;
+    if flag(27) {
+        POWER_ON
+    } else if flag(31) {
+        LOW_POWER
+    } else if flag(30) {
+        WINDOW_WATCHDOG
+    } else if flag(29) {
+        INDEPENDENT_WATCHDOG
+    } else if flag(28) {
+        SOFTWARE
+    } else if flag(25) {
+        OPTION_BYTES
+    } else if flag(26) {
+        PIN
+    } else {
+        NONE_FLAGGED
+    }
+}
