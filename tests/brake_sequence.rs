@@ -48,7 +48,11 @@ fn pa22_pa23_are_range_checked_and_default_to_zero() {
 fn defaults_switch_both_outputs_with_the_state() {
     let mut rig = Rig::new(SimAxis::new(10_000_000));
     rig.controlword(0x0007);
-    assert_eq!(out(&rig), (false, true), "§8.1: switched on releases the brake");
+    assert_eq!(
+        out(&rig),
+        (false, true),
+        "§8.1: switched on releases the brake"
+    );
     rig.controlword(0x000F);
     assert_eq!(out(&rig), (true, true));
     rig.controlword(0x0000);
@@ -60,15 +64,26 @@ fn enable_releases_the_brake_pa22_after_the_power_stage() {
     let mut rig = sequenced(50, 30);
     rig.controlword(0x0006);
     rig.controlword(0x0007);
-    assert_eq!(out(&rig), (false, false), "no brake release without the power stage");
+    assert_eq!(
+        out(&rig),
+        (false, false),
+        "no brake release without the power stage"
+    );
     rig.bus.write_single(0x6040, 0x000F).unwrap();
     // read before the control step has timed it: power on, brake applied
     assert_eq!(out(&rig), (true, false));
     rig.control();
-    assert_eq!(out(&rig), (true, false), "power stage on, brake still applied");
+    assert_eq!(
+        out(&rig),
+        (true, false),
+        "power stage on, brake still applied"
+    );
     let (dt, now) = until_change(&mut rig, (true, false), 100_000);
     assert_eq!(now, (true, true));
-    assert!((50_000..=51_000).contains(&dt), "released {dt} µs after the power stage");
+    assert!(
+        (50_000..=51_000).contains(&dt),
+        "released {dt} µs after the power stage"
+    );
 }
 
 #[test]
@@ -96,10 +111,17 @@ fn disable_engages_the_brake_at_once_and_holds_pa23() {
         rig.run_us(20_000);
         assert_eq!(out(&rig), (true, true));
         rig.controlword(leave);
-        assert_eq!(out(&rig), (true, false), "{leave:#06x}: brake at once, power held");
+        assert_eq!(
+            out(&rig),
+            (true, false),
+            "{leave:#06x}: brake at once, power held"
+        );
         let (dt, now) = until_change(&mut rig, (true, false), 100_000);
         assert_eq!(now, (false, false), "{leave:#06x}");
-        assert!((29_000..=30_000).contains(&dt), "{leave:#06x}: power dropped after {dt} µs");
+        assert!(
+            (29_000..=30_000).contains(&dt),
+            "{leave:#06x}: power dropped after {dt} µs"
+        );
     }
 }
 
@@ -112,7 +134,11 @@ fn quick_stop_ramps_with_the_brake_released_then_disable_sequences() {
     rig.controlword(0x0002); // quick stop
     assert_eq!(out(&rig), (true, true), "the ramp needs the motor");
     rig.run_until(2_000_000, |r| r.at_rest());
-    assert_eq!(out(&rig), (true, true), "§8.1: quick stop active holds with power");
+    assert_eq!(
+        out(&rig),
+        (true, true),
+        "§8.1: quick stop active holds with power"
+    );
     rig.controlword(0x0000);
     assert_eq!(out(&rig), (true, false));
     let (dt, now) = until_change(&mut rig, (true, false), 100_000);
@@ -143,7 +169,11 @@ fn a_fault_engages_the_brake_when_the_reaction_ends_and_holds_pa23() {
         if rig.statusword() & 0x004F == 0x0008 {
             break;
         }
-        assert_eq!(out(&rig), (true, true), "fault reaction: the motor brakes the axis");
+        assert_eq!(
+            out(&rig),
+            (true, true),
+            "fault reaction: the motor brakes the axis"
+        );
         ramp_ms += 1;
         assert!(ramp_ms < 2000, "fault reaction never ended");
     }

@@ -571,6 +571,8 @@ fn de_lead_and_tail_on_the_g431_hardware_de() {
                     assert!((tail - want).abs() < 1e-9);
                 } else {
                     assert!(f64::from(d.tail_us) >= want);
+                    // the USART's DE is low before software hands the pin back
+                    assert_eq!(d.dedt, 0, "{baud} {bits} {spb}: {d:?}");
                 }
                 assert!(d.deat as u32 <= MAX_DE_SAMPLES && d.dedt as u32 <= MAX_DE_SAMPLES);
             }

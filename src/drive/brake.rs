@@ -117,7 +117,10 @@ mod tests {
     fn zero_times_are_the_spec_outputs() {
         let mut b = BrakeSequence::default();
         let t = BrakeTimes::default();
-        for (i, spec) in [OFF, SWITCHED_ON, ON, SWITCHED_ON, OFF].into_iter().enumerate() {
+        for (i, spec) in [OFF, SWITCHED_ON, ON, SWITCHED_ON, OFF]
+            .into_iter()
+            .enumerate()
+        {
             let now = i as u64 * 1000;
             b.update(spec.power_stage, now, t);
             assert_eq!(b.outputs(spec, now, t), spec);

@@ -70,11 +70,10 @@ impl DeDrive {
         } else {
             lead
         };
-        let dedt = if tail > MAX_DE_SAMPLES {
-            MAX_DE_SAMPLES
-        } else {
-            tail
-        };
+        // Software times the tail as a GPIO and hands the pin back to the
+        // USART at its end: the USART's own DE must be low by then, so it
+        // drops at the last stop bit (DEDT 0) whenever software drives.
+        let dedt = if !fits { 0 } else { tail };
         let (lead_us, tail_us) = if fits || samples_per_bit == 0 {
             (de.lead_us(line), de.tail_us(line))
         } else {
@@ -460,6 +459,13 @@ pub const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 /// chip plus a page move that rewrites a few records (RM0440 / RM0008 flash
 /// timings), rounded up.
 pub const LONGEST_STALL_US: u32 = 100_000;
+/// The longest a supervised task (fault.rs: the dispatcher, the F103's
+/// frame-gap task) may legitimately stay busy with one event: a frame's
+/// reply wait (PA56 up to 100 ms, plus t3.5), the longest reply at the
+/// slowest line (256 characters of 12 bits at 9600 baud: 320 ms), DE lead
+/// and tail, and an EE operation ([`LONGEST_STALL_US`]); with room for the
+/// control loop sharing the thread. `tests/firmware_calc.rs` checks the sum.
+pub const TASK_LIMIT_US: u32 = 1_000_000;
 /// The LSI the IWDG counts: nominal frequency (what the driver computes the
 /// reload from) and the top of its datasheet tolerance, per board.
 #[cfg_attr(feature = "board-f103", allow(dead_code))]

@@ -56,6 +56,11 @@ use modbus_drive::Device;
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
+    // Why the chip reset (DP-rES), before anything can add a flag; then the
+    // flags cleared, so that the next boot sees its own reset alone.
+    let rcc = embassy_stm32::pac::RCC;
+    let reset_cause = calc::reset_cause_from_csr(rcc.csr().read().0);
+    rcc.csr().modify(|w| w.set_rmvf(true));
     let p = embassy_stm32::init(board::config());
     priority::init();
     board::after_init();
@@ -76,6 +81,7 @@ async fn main(spawner: Spawner) {
     // (a static) after it has been moved to the dispatcher: its RAM twice.
     let (line, address, de, dir_inverted) = {
         let mut device = Device::new(Identity::new(board::NAME));
+        device.set_reset_cause(reset_cause);
         // The planner times steps in the step timer's ticks
         // (calc::step_prescaler).
         device.set_planner_config(PlannerConfig {
@@ -120,9 +126,10 @@ async fn main(spawner: Spawner) {
     unsafe { board::StepIrq::enable() };
 
     defmt::info!(
-        "modbus-drive {} on {}: address {}, line {} (t3.5 = {=u32} µs), parameter flash {:#x} ({} B)",
+        "modbus-drive {} on {} (reset cause {=u16}): address {}, line {} (t3.5 = {=u32} µs), parameter flash {:#x} ({} B)",
         env!("CARGO_PKG_VERSION"),
         board::NAME,
+        reset_cause,
         address,
         line,
         line.timing().t35_us,

@@ -5,7 +5,7 @@
 //! |---|---|---|
 //! | P0 | step timer (TIM3) | atomics only (`StepSchedule`, steps.rs) |
 //! | P1 | switches (EXTI15_10) | the critical section |
-//! | P2 | RS-485 USART | atomics, buffer hand-over by index (rs485.rs) |
+//! | P2 | RS-485 USART; SysTick (the software DE's lead / tail, rs485.rs) | atomics, buffer hand-over by index (rs485.rs) |
 //! | P3 | embassy-time driver (TIM2) | the critical section |
 //! | thread | executor: control loop, dispatcher | — |
 //!
@@ -25,6 +25,7 @@
 use core::sync::atomic::{compiler_fence, Ordering};
 
 use cortex_m::interrupt::InterruptNumber;
+use cortex_m::peripheral::scb::SystemHandler;
 use cortex_m::peripheral::{ICB, NVIC};
 use embassy_stm32::interrupt::typelevel::{Interrupt, TIM2};
 use embassy_stm32::interrupt::Priority;
@@ -47,6 +48,12 @@ pub fn init() {
     board::SwitchIrq::set_priority(PRIO_SWITCH);
     board::UartIrq::set_priority(PRIO_UART);
     TIM2::set_priority(PRIO_TIME);
+    // SAFETY: a byte write of SHPR3 at boot; SysTick is not running.
+    unsafe {
+        cortex_m::Peripherals::steal()
+            .SCB
+            .set_priority(SystemHandler::SysTick, PRIO_UART as u8);
+    }
     let step = board::StepIrq::IRQ.number();
     // SAFETY: reads of the ICB and byte writes of NVIC IPR registers; the
     // interrupts touched are not running (thread mode, boot).
