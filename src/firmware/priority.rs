@@ -4,9 +4,8 @@
 //! | priority | interrupt | shares state with lower levels through |
 //! |---|---|---|
 //! | P0 | step timer (TIM3) | atomics only (`StepSchedule`, steps.rs) |
-//! | P1 | switches (EXTI15_10) | the critical section |
+//! | P1 | switches (EXTI15_10); embassy-time driver (TIM2) | the critical section |
 //! | P2 | RS-485 USART; SysTick (the software DE's lead / tail, rs485.rs) | atomics, buffer hand-over by index (rs485.rs) |
-//! | P3 | embassy-time driver (TIM2) | the critical section |
 //! | thread | executor: control loop, dispatcher | — |
 //!
 //! The `critical-section` implementation of the whole image (embassy's
@@ -35,7 +34,12 @@ use super::board;
 pub const PRIO_STEP: Priority = Priority::P0;
 pub const PRIO_SWITCH: Priority = Priority::P1;
 pub const PRIO_UART: Priority = Priority::P2;
-pub const PRIO_TIME: Priority = Priority::P3;
+/// Above the USART: a flash erase stalls the core, TIM2's overflow and
+/// half-period events can both fall due meanwhile, and the USART interrupt
+/// that stamps the next byte must not run before the time driver has
+/// counted them (it would read the time one or two half-periods early).
+/// With TIM2 higher, the pending TIM2 interrupt always runs first.
+pub const PRIO_TIME: Priority = Priority::P1;
 
 /// BASEPRI inside a critical section: masks P1 and below.
 pub const MASK: u8 = PRIO_SWITCH as u8;
