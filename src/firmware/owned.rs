@@ -10,7 +10,7 @@
 //!   state names owns it, and only the owner moves the state on (with
 //!   Release, the other side reads it with Acquire): rx_slots.rs's slots
 //!   (free: the USART interrupt's; full: the dispatcher's), rs485.rs's
-//!   reply buffer (idle: `send`'s; requested or sending: the interrupt's).
+//!   reply buffer (idle: `send`'s; any other state: the interrupts').
 //!
 //! Either way nothing else touches the value meanwhile, so no critical
 //! section is needed, and none masks anything.

@@ -34,8 +34,11 @@
 //!   handed over with an atomic state; a frame that finds no
 //!   free slot is dropped and counted;
 //! - a reply goes the same way: [`send`] fills the transmit buffer while
-//!   no transmission runs, marks it requested and pends the interrupt,
-//!   which starts it (only the interrupt writes CR1 while the link runs);
+//!   no transmission runs ([`TX_STATE`] idle), marks it requested and pends
+//!   the interrupt, which starts it (only the interrupt writes CR1 while
+//!   the link runs); with a software DE it marks the lead instead, and the
+//!   SysTick interrupt marks it requested at the lead's end; at TC the
+//!   USART interrupt marks the tail, and SysTick idle at its end;
 //!   a software DE is raised by [`send`] before it arms the lead (no
 //!   interrupt touches the pin while no transmission runs) and dropped by
 //!   the SysTick interrupt at the end of the tail;
@@ -488,8 +491,12 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
 }
 
 fn on_byte(link: &mut Link, byte: u8, at_us: u32, flags: RxFlags) {
-    if TX_STATE.load(Ordering::Relaxed) != TX_IDLE {
-        return; // our own echo if /RE is not tied to DE
+    // Our own echo (if /RE is not tied to DE) comes only while the USART
+    // sends. A byte during a software DE's lead or tail is the master's
+    // (one that does not keep t3.5 after our reply): taken, as it was when
+    // the tail was a busy wait after TC.
+    if matches!(TX_STATE.load(Ordering::Relaxed), TX_REQUESTED | TX_SENDING) {
+        return;
     }
     let last = link.assembler.last_byte_at_us();
     if let Some(ev) = link.assembler.push(byte, at_us, flags) {
