@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Firmware stage (docs/firmware.md), run by .ci/run: both boards built in profile fw
+# Firmware stage (docs/firmware.md), run by .ci/run: the busy-wait check
+# (.ci/busy_waits.py), both boards built in profile fw
 # (release, opt-level z), clippy -D warnings on both, each ELF checked against
 # its chip's memories (.ci/memory_map.py), then flash / static-RAM budgets
 # checked and printed and the size breakdown generated (.ci/size_report.py).
@@ -25,6 +26,10 @@ check() {
   # every section and symbol inside the chip's memories (datasheet figures)
   python3 .ci/memory_map.py "$chip" "$elf" || return 1
 }
+
+# no busy wait over 10 µs (docs/firmware.md, "Busy waits"): every
+# asm::delay call site with its bound
+python3 .ci/busy_waits.py src
 
 # both boards are checked and printed before the stage fails (set -e does
 # not act inside a function called with ||: hence the explicit returns)

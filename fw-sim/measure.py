@@ -21,10 +21,17 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
   maximum of the firmware's own log line `step interrupt: worst latency N
   ns` and whether the runner warned of an update event with UIF still set.
 
-`--only latency` runs the last section alone, taking each board's rate
-from the docs/generated/fw-sim.md of an earlier full run, and prints it
-without writing the file; `--only stepping-latency` likewise the reply
-latency while stepping at each board's limit.
+- the window after reset in which the safety outputs are not yet driven:
+  core cycles from the reset vector until ENABLE, BRAKE, STEP and DE are
+  all outputs (`--trace-pins`).
+
+`--only latency` runs the step-interrupt section alone, taking each board's
+rate from the docs/generated/fw-sim.md of an earlier full run, and prints
+it without writing the file; `--only reset` runs the reset-window section
+alone and prints it.
+
+`--only stepping-latency` prints the reply latency while stepping at each
+board's limit, likewise without writing the file.
 """
 
 from __future__ import annotations
@@ -378,6 +385,32 @@ def stepping_latency_section(work: Path) -> list[str]:
     return lines
 
 
+def reset_window_section(work: Path) -> list[str]:
+    """Cycles from reset until every safety output is driven (`--trace-pins`)."""
+    from test_safety import boots, pin_rows, undriven_window
+    lines = ["", "## Outputs undriven after reset", "",
+             "Core cycles from the reset vector until ENABLE, BRAKE, STEP and DE are",
+             "all driven outputs (`--trace-pins`, first boot; the same after a",
+             "watchdog reset): the window in which only the board's pull resistors",
+             "hold them (docs/firmware.md, \"From reset\"). The core clock then is",
+             "the reset clock: HSI16 on the G431, HSI 8 MHz on the F103.", "",
+             "| board | cycles | µs at the reset clock | first driven states |",
+             "|---|---|---|---|"]
+    for board, hz in (("g431", 16_000_000), ("f103", 8_000_000)):
+        trace = work / f"{board}.pins.csv"
+        fw = c.Firmware(work, board, ["--trace-pins", str(trace), "--quiet"])
+        try:
+            c.Master(fw.client()).statusword()
+            fw.alive()
+        finally:
+            fw.stop()
+        window, first = undriven_window(boots(pin_rows(trace))[0])
+        states = ", ".join(f"{p} {s}" for p, s in sorted(first.items()))
+        lines.append(f"| {board} | {window} | {window * 1e6 / hz:.2f} | {states} |")
+        print(lines[-1], flush=True)
+    return lines
+
+
 def rates_from_file() -> dict[str, int]:
     """Each board's highest on-time rate with the bus polled, from the last
     full run's output."""
@@ -388,7 +421,7 @@ def rates_from_file() -> dict[str, int]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--only", choices=["latency", "stepping-latency"],
+    ap.add_argument("--only", choices=["latency", "stepping-latency", "reset"],
                     help="run one section and print it; the file is not written")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="fw-sim-measure-"))
@@ -397,6 +430,9 @@ def main() -> int:
         return 0
     if args.only == "stepping-latency":
         print("\n".join(stepping_latency_section(work)))
+        return 0
+    if args.only == "reset":
+        print("\n".join(reset_window_section(work)))
         return 0
     lines = ["# fw-sim measurements (generated)", "",
              "Written by `fw-sim/measure.py` from emulated time; do not edit. Method and",
@@ -476,6 +512,7 @@ def main() -> int:
                    else " (the board's limit)" if top == LIMITS[board] else "")
         lines.append(f"- {board}, bus {bus}: every pulse on time up to **{top} steps/s**{ceiling}.")
     lines += latency_section(work, {b: highest.get((b, "polled"), 25_000) for b in c.BOARDS})
+    lines += reset_window_section(work)
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
     return 0

@@ -635,6 +635,8 @@ fn de_lead_and_tail_on_the_g431_hardware_de() {
                     assert!((tail - want).abs() < 1e-9);
                 } else {
                     assert!(f64::from(d.tail_us) >= want);
+                    // the USART's DE is low before software hands the pin back
+                    assert_eq!(d.dedt, 0, "{baud} {bits} {spb}: {d:?}");
                 }
                 assert!(d.deat as u32 <= MAX_DE_SAMPLES && d.dedt as u32 <= MAX_DE_SAMPLES);
             }
@@ -884,4 +886,39 @@ fn a_step_found_after_the_queue_ran_dry_keeps_its_interval() {
             "{hz} Hz"
         );
     }
+}
+
+#[test]
+fn the_reset_cause_names_the_internal_reset_not_the_pin_it_pulled() {
+    use calc::reset_cause::*;
+    const PIN_F: u32 = 1 << 26;
+    // reset values after a power-up: PORRSTF / BORRSTF with PINRSTF
+    assert_eq!(reset_cause_from_csr(0x0C00_0000), POWER_ON);
+    assert_eq!(reset_cause_from_csr(PIN_F), PIN);
+    assert_eq!(reset_cause_from_csr(1 << 29 | PIN_F), INDEPENDENT_WATCHDOG);
+    assert_eq!(reset_cause_from_csr(1 << 28 | PIN_F), SOFTWARE);
+    assert_eq!(reset_cause_from_csr(1 << 30 | PIN_F), WINDOW_WATCHDOG);
+    assert_eq!(reset_cause_from_csr(1 << 31 | PIN_F), LOW_POWER);
+    assert_eq!(reset_cause_from_csr(1 << 25 | PIN_F), OPTION_BYTES);
+    // LSION / LSIRDY and the rest of the register are not flags
+    assert_eq!(reset_cause_from_csr(0x0000_0003), NONE_FLAGGED);
+    assert_eq!(reset_cause_from_csr(1 << 29 | 3), INDEPENDENT_WATCHDOG);
+}
+
+#[test]
+fn a_supervised_task_gets_the_longest_legitimate_frame_and_more() {
+    use modbus_drive::rtu::{MAX_DE_BITS, MAX_FRAME};
+    // at the slowest line with the longest character: 9600 baud, 8N2 (12 bits)
+    let bit_us = 1_000_000 / 9_600 + 1;
+    let t35_us = 35 * 12 * bit_us / 10 + 1;
+    let reply_us = MAX_FRAME as u32 * 12 * bit_us;
+    let de_us = 2 * u32::from(MAX_DE_BITS) * bit_us;
+    let delay_us = 100_000; // PA56's maximum, ms
+    let longest = t35_us + delay_us + LONGEST_STALL_US + de_us + reply_us;
+    assert!(
+        TASK_LIMIT_US >= longest + longest / 2,
+        "{TASK_LIMIT_US} µs for {longest} µs"
+    );
+    // and the watchdog still resets a stuck task within a few seconds
+    const { assert!(TASK_LIMIT_US + WATCHDOG_TIMEOUT_US <= 2_000_000) };
 }

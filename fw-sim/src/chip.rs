@@ -131,4 +131,8 @@ pub mod pins {
     /// G431: USART1_DE (AF7); F103: a GPIO.
     pub const DE_G431: Pin = (0, 12);
     pub const DE_F103: Pin = (0, 8);
+    /// ENABLE (both boards), BRAKE (G431 PB2, F103 PB10).
+    pub const ENABLE: Pin = (1, 1);
+    pub const BRAKE_G431: Pin = (1, 2);
+    pub const BRAKE_F103: Pin = (1, 10);
 }

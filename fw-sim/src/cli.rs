@@ -11,7 +11,7 @@ use crate::machine::Switches;
 pub const USAGE: &str = "\
 usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--modbus-tcp HOST:PORT]...
               [--pty-link PATH]
-              [--trace-steps FILE] [--trace-line FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
+              [--trace-steps FILE] [--trace-line FILE] [--trace-pins FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
               [--home-switch FROM:TO] [--write-protect] [--run-for SECONDS] [--quiet]
 
 Runs the unmodified firmware image of a board on an emulated STM32.
@@ -23,6 +23,7 @@ Runs the unmodified firmware image of a board on an emulated STM32.
   --pty-link    a pseudo-terminal, linked at PATH
   --trace-steps CSV of every step pulse: time_ns,dir,width_ns
   --trace-line  CSV of the line: time_ns,event (rx, tx, de),value
+  --trace-pins  CSV of ENABLE, BRAKE, STEP, DE: time_ns,cycles since reset,pin,state (0, 1, af, z)
   --noise       line faults on received characters, KIND@N[,KIND@N...]: KIND
                 parity, framing, noise or break on the N-th character from
                 the master (counted from 1 since the start)
@@ -55,6 +56,7 @@ pub struct Args {
     pub pty_link: Option<PathBuf>,
     pub trace_steps: Option<PathBuf>,
     pub trace_line: Option<PathBuf>,
+    pub trace_pins: Option<PathBuf>,
     pub stats: Option<PathBuf>,
     /// Line faults: (1-based index of the received character, kind).
     pub noise: Vec<(u64, LineFault)>,
@@ -80,6 +82,7 @@ impl Args {
             pty_link: None,
             trace_steps: None,
             trace_line: None,
+            trace_pins: None,
             stats: None,
             noise: Vec::new(),
             power_cut: None,
@@ -128,6 +131,7 @@ impl Args {
                 "--pty-link" => a.pty_link = Some(v.into()),
                 "--trace-steps" => a.trace_steps = Some(v.into()),
                 "--trace-line" => a.trace_line = Some(v.into()),
+                "--trace-pins" => a.trace_pins = Some(v.into()),
                 "--stats" => a.stats = Some(v.into()),
                 "--power-cut" => a.power_cut = Some(num(&flag, &v)?),
                 "--noise" => {

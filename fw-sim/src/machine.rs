@@ -16,6 +16,7 @@ use crate::periph::iwdg::Iwdg;
 use crate::periph::rcc::Rcc;
 use crate::periph::timer::{Access, Timer};
 use crate::periph::usart::Usart;
+use crate::pin_trace::PinTrace;
 use crate::scs::Scs;
 use crate::trace::StepTrace;
 
@@ -88,6 +89,10 @@ pub struct Machine {
     pub position: i64,
     pub steps_total: u64,
     pub trace: Option<StepTrace>,
+    /// `--trace-pins` (pin_trace.rs).
+    pub pin_trace: Option<PinTrace>,
+    /// Core cycles at the last reset.
+    reset_cycles: u64,
     /// The step timer's missed update interrupts already reported.
     missed_reported: u64,
     pending_rise: Option<(u64, bool)>,
@@ -134,6 +139,8 @@ impl Machine {
             position: 0,
             steps_total: 0,
             trace,
+            pin_trace: None,
+            reset_cycles: 0,
             missed_reported: 0,
             pending_rise: None,
             event: false,
@@ -145,8 +152,13 @@ impl Machine {
     }
 
     /// A system reset (watchdog, SYSRESETREQ): every peripheral to its reset
-    /// state; SRAM, the flash file and the axis keep theirs.
-    pub fn reset_peripherals(&mut self) {
+    /// state; SRAM, the flash file and the axis keep theirs. `flags`: the
+    /// RCC_CSR reset flags the reset adds to those already set (RCC_CSR
+    /// survives every reset but a power-on); `None` for a power-on.
+    pub fn reset_peripherals(&mut self, flags: Option<u32>) {
+        let kept = self.rcc.reset_flags();
+        let pin_trace = self.pin_trace.take();
+        let cycles = self.cycles();
         let fresh = Machine::new(
             self.chip,
             std::mem::replace(
@@ -163,8 +175,26 @@ impl Machine {
         self.position = position;
         self.steps_total = steps;
         self.flash.reset();
+        if let Some(f) = flags {
+            self.rcc.set_reset_flags(kept | f);
+        }
+        self.reset_cycles = cycles;
+        self.pin_trace = pin_trace;
+        let t = self.now();
+        if let Some(pt) = self.pin_trace.as_mut() {
+            pt.reset(t);
+        }
+        self.look_at_pins(t);
         self.apply_clocks();
         self.apply_switches();
+    }
+
+    /// `--trace-pins`: the traced outputs after a GPIO write or a reset.
+    pub fn look_at_pins(&mut self, t: u64) {
+        let cycles = self.cycles() - self.reset_cycles;
+        if let Some(pt) = self.pin_trace.as_mut() {
+            pt.look(t, cycles, &self.gpio);
+        }
     }
 
     /// Time now, inside a slice: the slice's start plus its instructions.
@@ -483,6 +513,7 @@ impl Machine {
                 let port = usize::from(x == gb);
                 let before = self.idr(port);
                 let r = self.gpio[port].write(off, v);
+                self.look_at_pins(t);
                 let after = self.idr(port);
                 for pin in 0..16u8 {
                     if (before ^ after) & (1 << pin) != 0 {

@@ -11,6 +11,7 @@ mod gateway;
 mod line;
 mod machine;
 mod periph;
+mod pin_trace;
 mod rtt;
 mod scs;
 mod trace;
@@ -21,7 +22,7 @@ use std::time::{Duration, Instant};
 
 use unicorn_engine::RegisterARM as R;
 
-use chip::{Chip, Kind};
+use chip::{pins, Chip, Kind};
 use cli::{Args, LineFault};
 use cpu::Uc;
 use elf::Image;
@@ -29,6 +30,7 @@ use line::Line;
 use machine::Machine;
 use periph::flash::Flash;
 use periph::usart::RxChar;
+use pin_trace::PinTrace;
 use rtt::Rtt;
 use trace::{LineTrace, StepTrace};
 
@@ -58,6 +60,11 @@ fn param_pages(kind: Kind) -> (u32, u32) {
         Kind::F103 => (0xF000, 0x1000),
     }
 }
+
+/// RCC_CSR reset flags (RM0440 / RM0008, the same bits on both chips).
+const RSTF_PIN: u32 = 1 << 26;
+const RSTF_SOFTWARE: u32 = 1 << 28;
+const RSTF_IWDG: u32 = 1 << 29;
 
 fn run() -> Result<i32, String> {
     let args = Args::parse(std::env::args().skip(1))?;
@@ -90,6 +97,27 @@ fn run() -> Result<i32, String> {
         None => None,
     };
     let mut machine = Machine::new(chip, flash, args.switches, trace);
+    if let Some(p) = &args.trace_pins {
+        let brake = if chip.is_g4() {
+            pins::BRAKE_G431
+        } else {
+            pins::BRAKE_F103
+        };
+        let de = if chip.is_g4() {
+            pins::DE_G431
+        } else {
+            pins::DE_F103
+        };
+        let traced = [
+            ("enable", pins::ENABLE),
+            ("brake", brake),
+            ("step", pins::STEP),
+            ("de", de),
+        ];
+        machine.pin_trace =
+            Some(PinTrace::create(p, traced).map_err(|e| format!("{}: {e}", p.display()))?);
+        machine.look_at_pins(0);
+    }
     machine.flash.cut_at = args.power_cut;
     machine.flash.write_protected = args.write_protect;
     let mut uc = cpu::create(&image, machine)?;
@@ -171,7 +199,14 @@ impl Runner {
             }
             if self.uc.get_data().scs.reset_request || self.uc.get_data().iwdg.expired(now) {
                 eprintln!("fw-sim: system reset at {} µs", now / 1_000_000);
-                self.m().reset_peripherals();
+                // RM0440 / RM0008 RCC_CSR: the cause's flag, and PINRSTF:
+                // an internal reset drives NRST low too
+                let cause = if self.uc.get_data().scs.reset_request {
+                    RSTF_SOFTWARE
+                } else {
+                    RSTF_IWDG
+                };
+                self.m().reset_peripherals(Some(cause | RSTF_PIN));
                 self.pc = cpu::reset(&mut self.uc)?;
                 self.sleeping = None;
                 continue;
@@ -229,7 +264,7 @@ impl Runner {
             "fw-sim: power cut as flash operation {n} started ({} µs): restarting",
             now / 1_000_000
         );
-        m.reset_peripherals();
+        m.reset_peripherals(None);
         let (base, len) = (m.chip.sram_base, m.chip.sram_len);
         self.uc
             .mem_write(base as u64, &vec![0; len as usize])

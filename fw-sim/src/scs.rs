@@ -349,8 +349,12 @@ impl Scs {
                 }
             }
             0xE000_E014 => self.st_rvr = v & 0xFF_FFFF,
+            // ARMv7-M ARM B3.3.1: a write clears the counter and COUNTFLAG
+            // and does not trigger the exception logic; the next clock
+            // reloads RVR, so the counter next reaches 0 RVR + 1 clocks on.
+            // (Read back before that clock it shows RVR here, not 0.)
             0xE000_E018 => {
-                self.st_cvr_at = 0;
+                self.st_cvr_at = self.st_rvr;
                 self.st_anchor = clk_at(t, self.st_hz(hclk));
                 self.st_csr &= !(1 << 16);
             }

@@ -221,9 +221,16 @@ impl Device {
             defaulted_blank: boot.outcome == BootOutcome::Blank,
             defaulted_unreadable: matches!(boot.outcome, BootOutcome::Unreadable(_)),
             flash_failed: false,
+            reset_cause: self.store_status.reset_cause,
         };
         self.push_event(Event::ParamsLoaded(boot.outcome));
         self.configuration_changed();
+    }
+
+    /// Why the chip last reset, as DP-rES (0x0017) shows it: the glue's
+    /// code (docs/parameters.md), read from the chip at boot.
+    pub fn set_reset_cause(&mut self, code: u16) {
+        self.store_status.reset_cause = code;
     }
 
     /// Runs the waiting EE operation (if any) on `store` and returns its

@@ -26,7 +26,7 @@
 //! | 0x14 | DP-tL | torque limit: 0 (none) |
 //! | 0x15 | DP-IA | phase A current: 0 (not measured) |
 //! | 0x16 | DP-IC | phase C current: 0 (not measured) |
-//! | 0x17 | DP-rES | reserved: 0 |
+//! | 0x17 | DP-rES | why the chip last reset, as the glue reports it (docs/parameters.md): 0 power-on or brown-out, 1 reset pin, 2 independent watchdog, 3 software, 4 window watchdog, 5 low-power, 6 option-byte load, 7 none flagged |
 //!
 //! Signed values are two's complement; 32-bit ones are split in address
 //! order low word, high word (seed 001 "DP-PoS / DP-PoS."), whatever 0x6000.
@@ -39,6 +39,8 @@ pub const DP_BASE: u16 = 0x0000;
 pub const DP_LAST: u16 = 0x0017;
 /// DP-Err's address.
 pub const DP_ERR: u16 = 0x0013;
+/// DP-rES's address: the reset cause.
+pub const DP_RES: u16 = 0x0017;
 
 /// What the DP monitor needs from the drive beyond the §5 entries (see
 /// [`DriveLayer::monitor`]); all zero for a drive that does not know.
@@ -70,6 +72,9 @@ pub struct StoreStatus {
     pub defaulted_unreadable: bool,
     /// The last EE operation failed in the flash.
     pub flash_failed: bool,
+    /// DP-rES: why the chip last reset (the glue's code; 0, power-on, for
+    /// a drive that does not say).
+    pub reset_cause: u16,
 }
 
 impl StoreStatus {
@@ -108,9 +113,10 @@ pub fn dp_value<D: DriveLayer>(address: u16, drive: &D, pa: &Params, store: Stor
         0x0F => m.inputs,
         0x10 => m.outputs,
         DP_ERR => (drive.error_register() & 0x00FF) | store.dp_err_bits(),
+        DP_RES => store.reset_cause,
         // 0x07 torque, 0x08 current, 0x09 linear
         // speed, 0x0D torque command, 0x11 encoder, 0x12 inertia, 0x14
-        // torque limit, 0x15/0x16 phase currents, 0x17 reserved: an
+        // torque limit, 0x15/0x16 phase currents: an
         // open-loop step drive measures none of them (SPEC §9).
         _ => 0,
     }
@@ -205,8 +211,10 @@ mod tests {
             defaulted_blank: true,
             defaulted_unreadable: false,
             flash_failed: true,
+            reset_cause: 2,
         };
         let v = all(&d, &Params::defaults(), s);
+        assert_eq!(v[0x17], 2, "DP-rES: the reset cause as given");
         assert_eq!(v[0x00], i16::MAX as u16);
         assert_eq!(v[0x0B], u16::MAX);
         assert_eq!(v[0x0C], i16::MIN as u16);

@@ -48,6 +48,8 @@ pub const PA: [PaDef; PA_COUNT] = {
     t[17] = rw(0, u16::MAX, 0);
     t[18] = rw(0, 1, 0); // encoder direction invert
     t[20] = rw(0, 60000, 0); // communication-loss timeout, ms
+    t[22] = rw(0, 2000, 0); // brake release delay after the power stage is on, ms
+    t[23] = rw(0, 2000, 0); // brake engage time: power stage held after the brake engages, ms
     t[51] = rw(1, 247, 1); // slave address
     t[52] = rw(0, 4, 4); // baud
     t[53] = rw(0, 3, 0); // character format
@@ -168,6 +170,15 @@ impl Params {
     }
     pub fn comm_loss_ms(&self) -> u16 {
         self.values[20]
+    }
+    /// PA22: brake release delay after the power stage is on, ms.
+    pub fn brake_release_delay_ms(&self) -> u16 {
+        self.values[22]
+    }
+    /// PA23: brake engage time, ms (the power stage holds the axis that
+    /// long after the brake is told to engage).
+    pub fn brake_engage_ms(&self) -> u16 {
+        self.values[23]
     }
     pub fn address(&self) -> u8 {
         self.values[51] as u8

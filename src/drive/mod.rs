@@ -9,6 +9,7 @@
 //! goals to the [`Planner`], fills the schedule, runs homing, the limit
 //! checks and the communication-loss timer.
 
+mod brake;
 mod feedback;
 mod homing;
 pub mod io;
@@ -26,6 +27,7 @@ use crate::motion::{
     Fill, Goal, HomingError, Planner, PlannerConfig, StepSchedule, SwitchEdges, Switches,
 };
 use crate::params::{DriveMonitor, Params};
+use brake::BrakeSequence;
 use feedback::Feedback;
 use homing::HomingState;
 use position::SetPoint;
@@ -202,6 +204,8 @@ pub struct Drive {
     last_frame_us: u64,
     /// Encoder, measured position and following-error check (SPEC §8.8).
     feedback: Feedback,
+    /// When ENABLE and BRAKE follow the state (PA22 / PA23).
+    brake: BrakeSequence,
     events: Deque<DriveEvent, 8>,
 }
 
@@ -252,6 +256,7 @@ impl Drive {
             frame_seen: true,
             last_frame_us: 0,
             feedback: Feedback::default(),
+            brake: BrakeSequence::default(),
             events: Deque::new(),
         }
     }
@@ -272,8 +277,27 @@ impl Drive {
         self.state
     }
 
-    /// ENABLE and BRAKE as SPEC §8.1 wants them now.
+    /// ENABLE and BRAKE now: SPEC §8.1's for the state, sequenced by
+    /// PA22 / PA23 when either is set (`brake.rs`, docs/drive.md).
     pub fn outputs(&self) -> Outputs {
+        self.brake
+            .outputs(self.state_outputs(), self.now_us, self.s.brake_times)
+    }
+
+    /// The power stage is on but the brake not yet released (PA22): motion
+    /// waits.
+    fn brake_holding(&self) -> bool {
+        self.brake
+            .holding(self.state_outputs(), self.now_us, self.s.brake_times)
+    }
+
+    fn update_brake(&mut self) {
+        let power = self.state_outputs().power_stage;
+        self.brake.update(power, self.now_us, self.s.brake_times);
+    }
+
+    /// ENABLE and BRAKE as SPEC §8.1 gives them for the state.
+    fn state_outputs(&self) -> Outputs {
         use PowerState::*;
         Outputs {
             brake_released: matches!(
@@ -340,6 +364,7 @@ impl Drive {
             self.last_frame_us = now_us;
         }
 
+        self.update_brake();
         self.limit_brake(sched, cfg.od);
         self.update_feedback(now_us, cfg);
 
@@ -370,7 +395,8 @@ impl Drive {
             self.flush = false;
             self.planner.stop_at_once(sched);
         }
-        if self.replan {
+        // a goal waits while the brake is still applied (PA22)
+        if self.replan && !self.brake_holding() {
             self.replan = false;
             self.apply_goal(sched, cfg.od);
         }
@@ -391,6 +417,7 @@ impl Drive {
         self.ramping = self.planner.ramping(sched);
         self.at_rest = self.planner.at_rest(sched);
         self.after_motion();
+        self.update_brake();
     }
 
     /// State changes that wait for the motor to be at rest.

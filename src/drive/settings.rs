@@ -1,12 +1,13 @@
 //! The configuration the drive works with, as step figures (PA10, PA12
-//! and the OD's ramps in steps).
+//! and the OD's ramps in steps), and the plain PA values it acts on.
 
+use super::brake::BrakeTimes;
 use crate::arith::div_u64;
 use crate::dictionary::{Config, OdValues};
 use crate::motion::{HomingMethod, PlannerConfig, Ramp};
 use crate::params::Params;
 
-/// What PA10..PA20 mean in steps, and the one OD value the drive shows
+/// What PA10..PA23 mean in steps, and the one OD value the drive shows
 /// between calls (0x6081 in the statusword and the monitor); the other OD
 /// values are read where they are used, from the dictionary's table
 /// ([`Config`]), never copied.
@@ -33,6 +34,8 @@ pub(super) struct Settings {
     accel_cap: u64,
     pub(super) limit_enable: u16,
     pub(super) comm_loss_ms: u16,
+    /// PA22 / PA23.
+    pub(super) brake_times: BrakeTimes,
 }
 
 impl Settings {
@@ -63,6 +66,10 @@ impl Settings {
         self.profile_velocity = cfg.od.profile_velocity;
         self.limit_enable = pa.limit_enable();
         self.comm_loss_ms = pa.comm_loss_ms();
+        self.brake_times = BrakeTimes {
+            release_delay_ms: pa.brake_release_delay_ms(),
+            engage_ms: pa.brake_engage_ms(),
+        };
         let (spr_reg, rpm_reg) = (pa.steps_per_rev(), pa.max_speed_rpm());
         if spr_reg != self.steps_per_rev_reg || rpm_reg != self.max_speed_rpm_reg {
             self.steps_per_rev_reg = spr_reg;

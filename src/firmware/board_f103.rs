@@ -107,11 +107,11 @@ pub fn after_init() {
 
 /// The fault path's pins (fault.rs, which stops the step timer first), by
 /// direct register writes only: STEP (PA6) a push-pull GPIO output driven
-/// low, DE (PA8) low = bus released, ENABLE (PB1) low = power
-/// stage off, BRAKE (PB10) low = brake applied. Before
-/// `embassy_stm32::init` the GPIO clocks are off, the writes do nothing and
-/// every pin is still a reset-state input.
-pub fn safe_outputs() {
+/// low, DE (PA8) low = bus released, BRAKE (PB10) low = brake applied, and
+/// unless `keep_enable` ENABLE (PB1) low = power stage off. The pins are
+/// outputs from `__pre_init` on (above), so these writes act from the
+/// first instruction of `main`.
+pub fn safe_outputs(keep_enable: bool) {
     use pac::gpio::vals::{CnfOut, Mode};
     pac::GPIOA.bsrr().write(|w| {
         w.set_br(6, true);
@@ -122,10 +122,59 @@ pub fn safe_outputs() {
         w.set_cnf_out(6, CnfOut::PUSH_PULL);
     });
     pac::GPIOB.bsrr().write(|w| {
-        w.set_br(1, true);
+        w.set_br(1, !keep_enable);
         w.set_br(10, true);
     });
 }
+
+// The safe levels from the first instructions after reset (cortex-m-rt's
+// `__pre_init`, called by its reset handler before RAM is initialised and
+// before `main`, the clocks and the executor): GPIOA / GPIOB clocked, then
+// STEP (PA6), DE (PA8), DIR (PB0), ENABLE (PB1) and BRAKE (PB10) push-pull
+// outputs (2 MHz, CNF 00, MODE 10) driven low (output data first, so no
+// pin ever drives high). Assembly: nothing before RAM initialisation may
+// touch memory, and Rust code cannot promise that (cortex-m-rt's
+// `pre_init` docs). `split` later takes the pins over at the same levels;
+// the window before this runs is docs/firmware.md's "From reset".
+core::arch::global_asm!(
+    ".section .text.__pre_init, \"ax\"",
+    ".global __pre_init",
+    ".type __pre_init, %function",
+    ".thumb_func",
+    "__pre_init:",
+    // RCC_APB2ENR |= IOPAEN | IOPBEN, read back: clocked before the writes
+    "ldr r0, =0x40021018",
+    "ldr r1, [r0]",
+    "orr r1, r1, #0xC",
+    "str r1, [r0]",
+    "ldr r1, [r0]",
+    // GPIOA: BSRR resets PA6 and PA8; CRL nibble 6 and CRH nibble 0 = 0b0010
+    "ldr r0, =0x40010800",
+    "ldr r1, =0x01400000",
+    "str r1, [r0, #0x10]",
+    "ldr r1, [r0]",
+    "bic r1, r1, #0x0F000000",
+    "orr r1, r1, #0x02000000",
+    "str r1, [r0]",
+    "ldr r1, [r0, #4]",
+    "bic r1, r1, #0xF",
+    "orr r1, r1, #0x2",
+    "str r1, [r0, #4]",
+    // GPIOB: BSRR resets PB0, PB1, PB10; CRL nibbles 0, 1 and CRH nibble 2
+    "ldr r0, =0x40010C00",
+    "ldr r1, =0x04030000",
+    "str r1, [r0, #0x10]",
+    "ldr r1, [r0]",
+    "bic r1, r1, #0xFF",
+    "orr r1, r1, #0x22",
+    "str r1, [r0]",
+    "ldr r1, [r0, #4]",
+    "bic r1, r1, #0xF00",
+    "orr r1, r1, #0x200",
+    "str r1, [r0, #4]",
+    "bx lr",
+    ".ltorg",
+);
 
 /// Everything the firmware drives, configured.
 /// The encoder's timer and pins, untouched until the encoder is wanted

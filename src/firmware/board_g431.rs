@@ -105,10 +105,11 @@ pub fn after_init() {
 
 /// The fault path's pins (fault.rs, which stops the step timer first), by
 /// direct register writes only: STEP (PA6) and DE (PA12) as GPIO outputs
-/// driven low, ENABLE (PB1) low = power stage off, BRAKE (PB2) low
-/// = brake applied. Before `embassy_stm32::init` the GPIO clocks are off,
-/// the writes do nothing and every pin is still a reset-state input.
-pub fn safe_outputs() {
+/// driven low, BRAKE (PB2) low = brake applied, and unless `keep_enable`
+/// ENABLE (PB1) low = power stage off. The pins are outputs from
+/// `__pre_init` on (above), so these writes act from the first instruction
+/// of `main`.
+pub fn safe_outputs(keep_enable: bool) {
     use pac::gpio::vals::Moder;
     pac::GPIOA.bsrr().write(|w| {
         w.set_br(6, true);
@@ -119,10 +120,54 @@ pub fn safe_outputs() {
         w.set_moder(12, Moder::OUTPUT);
     });
     pac::GPIOB.bsrr().write(|w| {
-        w.set_br(1, true);
+        w.set_br(1, !keep_enable);
         w.set_br(2, true);
     });
 }
+
+// The safe levels from the first instructions after reset (cortex-m-rt's
+// `__pre_init`, called by its reset handler before RAM is initialised and
+// before `main`, the clocks and the executor): GPIOA / GPIOB clocked, then
+// STEP (PA6), DE (PA12), DIR (PB0), ENABLE (PB1) and BRAKE (PB2) push-pull
+// outputs driven low (output data first, so no pin ever drives high).
+// Assembly: nothing before RAM initialisation may touch memory, and Rust
+// code cannot promise that (cortex-m-rt's `pre_init` docs). `split` later
+// takes the pins over at the same levels; the window before this runs is
+// docs/firmware.md's "From reset".
+core::arch::global_asm!(
+    ".section .text.__pre_init, \"ax\"",
+    ".global __pre_init",
+    ".type __pre_init, %function",
+    ".thumb_func",
+    "__pre_init:",
+    // RCC_AHB2ENR |= GPIOAEN | GPIOBEN, read back: the ports are clocked
+    // before their first write (RM0440 RCC: two AHB cycles)
+    "ldr r0, =0x4002104C",
+    "ldr r1, [r0]",
+    "orr r1, r1, #3",
+    "str r1, [r0]",
+    "ldr r1, [r0]",
+    // GPIOA: BSRR resets PA6 and PA12, MODER 01 (output) for both
+    "ldr r0, =0x48000000",
+    "ldr r1, =0x10400000",
+    "str r1, [r0, #0x18]",
+    "ldr r1, [r0]",
+    "ldr r2, =0x03003000",
+    "bic r1, r1, r2",
+    "ldr r2, =0x01001000",
+    "orr r1, r1, r2",
+    "str r1, [r0]",
+    // GPIOB: BSRR resets PB0..PB2, MODER 01 for each
+    "ldr r0, =0x48000400",
+    "mov r1, #0x70000",
+    "str r1, [r0, #0x18]",
+    "ldr r1, [r0]",
+    "bic r1, r1, #0x3F",
+    "orr r1, r1, #0x15",
+    "str r1, [r0]",
+    "bx lr",
+    ".ltorg",
+);
 
 /// For the NMI: a double ECC error in the parameter pages? If so its flag is
 /// cleared and its flash offset returned (the read that hit it fails

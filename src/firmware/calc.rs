@@ -70,11 +70,10 @@ impl DeDrive {
         } else {
             lead
         };
-        let dedt = if tail > MAX_DE_SAMPLES {
-            MAX_DE_SAMPLES
-        } else {
-            tail
-        };
+        // Software times the tail as a GPIO and hands the pin back to the
+        // USART at its end: the USART's own DE must be low by then, so it
+        // drops at the last stop bit (DEDT 0) whenever software drives.
+        let dedt = if !fits { 0 } else { tail };
         let (lead_us, tail_us) = if fits || samples_per_bit == 0 {
             (de.lead_us(line), de.tail_us(line))
         } else {
@@ -479,6 +478,13 @@ pub const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 /// chip plus a page move that rewrites a few records (RM0440 / RM0008 flash
 /// timings), rounded up.
 pub const LONGEST_STALL_US: u32 = 100_000;
+/// The longest a supervised task (fault.rs: the dispatcher, the F103's
+/// frame-gap task) may legitimately stay busy with one event: a frame's
+/// reply wait (PA56 up to 100 ms, plus t3.5), the longest reply at the
+/// slowest line (256 characters of 12 bits at 9600 baud: 320 ms), DE lead
+/// and tail, and an EE operation ([`LONGEST_STALL_US`]); with room for the
+/// control loop sharing the thread. `tests/firmware_calc.rs` checks the sum.
+pub const TASK_LIMIT_US: u32 = 1_000_000;
 /// The LSI the IWDG counts: nominal frequency (what the driver computes the
 /// reload from) and the top of its datasheet tolerance, per board.
 #[cfg_attr(feature = "board-f103", allow(dead_code))]
@@ -523,4 +529,47 @@ pub fn ecc_error_is_parameter_read(
     param_pages: core::ops::Range<u32>,
 ) -> bool {
     double_error && !system_flash && param_pages.contains(&addr)
+}
+
+// ---------------------------------------------------------------- reset cause
+
+/// DP-rES (0x0017) codes of the reset cause (docs/parameters.md).
+pub mod reset_cause {
+    pub const POWER_ON: u16 = 0;
+    pub const PIN: u16 = 1;
+    pub const INDEPENDENT_WATCHDOG: u16 = 2;
+    pub const SOFTWARE: u16 = 3;
+    pub const WINDOW_WATCHDOG: u16 = 4;
+    pub const LOW_POWER: u16 = 5;
+    pub const OPTION_BYTES: u16 = 6;
+    pub const NONE_FLAGGED: u16 = 7;
+}
+
+/// The reset cause from `RCC_CSR`'s flags, which the two chips place alike
+/// (RM0440 RCC_CSR, RM0008 RCC_CSR): bit 31 LPWRRSTF, 30 WWDGRSTF, 29
+/// IWDGRSTF, 28 SFTRSTF, 27 PORRSTF (F1) / BORRSTF (G4), 26 PINRSTF, 25
+/// OBLRSTF (G4 only). Every internal reset also pulls NRST, so PINRSTF comes
+/// with each of them and names the pin only when alone; a power-on sets the
+/// pin flag too. The flags add up until cleared (RMVF), so the glue clears
+/// them after reading.
+pub fn reset_cause_from_csr(csr: u32) -> u16 {
+    use reset_cause::*;
+    let flag = |bit: u32| csr & (1 << bit) != 0;
+    if flag(27) {
+        POWER_ON
+    } else if flag(31) {
+        LOW_POWER
+    } else if flag(30) {
+        WINDOW_WATCHDOG
+    } else if flag(29) {
+        INDEPENDENT_WATCHDOG
+    } else if flag(28) {
+        SOFTWARE
+    } else if flag(25) {
+        OPTION_BYTES
+    } else if flag(26) {
+        PIN
+    } else {
+        NONE_FLAGGED
+    }
 }

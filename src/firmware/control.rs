@@ -14,9 +14,11 @@
 //! homing origin (`Device::control_latched`, SPEC §8.6; docs/firmware.md).
 //! Limits do not wait for this loop (switches.rs).
 //!
-//! Each tick feeds the independent watchdog: the loop, not an interrupt,
-//! so that a thread that hangs (or an executor that no longer runs this
-//! task) resets the chip (fault.rs).
+//! Each tick feeds the independent watchdog if the other long-lived tasks
+//! have checked in: the loop, not an interrupt, so that a thread that hangs
+//! (or an executor that no longer runs this task) resets the chip
+//! (fault.rs). It passes PA23 to the fault path, which holds ENABLE that
+//! long while the brake engages.
 
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};
@@ -27,7 +29,7 @@ use super::board;
 use super::calc::StepShape;
 use super::dispatch::{with_device, EventLog};
 use super::encoder::EncoderInput;
-use super::fault::Watchdog;
+use super::fault::{self, Watchdog};
 use super::steps;
 use super::switches;
 
@@ -52,6 +54,10 @@ pub async fn run(
     let mut encoder_wanted = false;
     loop {
         ticker.next().await;
+        #[cfg(feature = "fault-test")]
+        if super::fault::control_stuck() {
+            core::future::pending::<()>().await; // stuck on purpose
+        }
         watchdog.feed();
         let now_us = Instant::now().as_micros();
         let (switch_states, edges, switches_changed) = switches::sample();
@@ -59,7 +65,7 @@ pub async fn run(
             defmt::info!("switches: {}", switch_states);
         }
         let count = encoder.read(encoder_wanted);
-        let Some((outputs, params, shape)) = with_device(|d| {
+        let Some((outputs, params, shape, engage_ms)) = with_device(|d| {
             if let Some(c) = count {
                 d.set_encoder_count(c);
             }
@@ -77,10 +83,12 @@ pub async fn run(
                     d.params().dir_setup(),
                     board::STEP_TICK_HZ,
                 ),
+                d.params().brake_engage_ms(),
             )
         }) else {
             continue;
         };
+        fault::set_brake_engage_ms(engage_ms);
         if pins.apply(outputs) != pins_ok {
             pins_ok = !pins_ok;
             if !pins_ok {

@@ -24,6 +24,7 @@ use modbus_drive::rtu::{DriverEnable, LineConfig, MAX_FRAME};
 use modbus_drive::Device;
 
 use super::calc::RateLimit;
+use super::fault;
 use super::flash::FlashRegion;
 use super::rs485;
 use super::rx_slots::{self, RxFrame, FRAMES_DROPPED};
@@ -189,9 +190,13 @@ impl Storage for FlashStorage<'_> {
 pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
     let mut log = EventLog::new();
     loop {
+        fault::DISPATCHER.idle();
         let rx = rx_slots::receive().await;
+        fault::DISPATCHER.busy();
         #[cfg(feature = "fault-test")]
-        super::fault::test_trigger(rx.event());
+        if fault::test_trigger(rx.event()) {
+            core::future::pending::<()>().await; // stuck on purpose
+        }
         let mut line = Rs485Line::new(&rx);
         let mut storage = FlashStorage(&mut store);
         // PA57 / PA58 as the request left them, for a reconfigured line

@@ -4,10 +4,15 @@
 //! parameter-page ECC error): interrupts off, then by direct register
 //! writes (`board::safe_outputs`, no driver, no lock, no stack beyond a
 //! few words) the step timer stopped (CEN and CC1E off), STEP driven low as
-//! a GPIO, ENABLE low (power stage off), BRAKE low (brake applied), the
-//! RS-485 driver released. Then one log line, and the chip waits for the
-//! watchdog to reset it — started here if the fault came before `main`
-//! started it. Reset rather than halt: after the reset the drive is back on
+//! a GPIO, BRAKE low (brake applied), the RS-485 driver released; ENABLE
+//! keeps its level for the brake's engage time PA23 (the power stage holds
+//! the axis while the brake closes, docs/drive.md "Brake sequencing"; none
+//! of these faults is in the power stage, which the drive has no signal
+//! of), timed by SysTick polled with the watchdog fed meanwhile — the one
+//! wait by polling in the firmware, in a path that never returns and with
+//! every interrupt off — then ENABLE low (power stage off). Then one log
+//! line, and the chip waits for the watchdog to reset it — started here if
+//! the fault came before `main` started it. Reset rather than halt: after the reset the drive is back on
 //! the bus in "switch on disabled" with the brake applied (SPEC §8.1), so
 //! the master sees what happened and nothing moves until it enables again;
 //! a halted drive would be silent until someone power-cycles it. The wait
@@ -19,7 +24,16 @@
 //! bottom of RAM, where an overflow faults) still reaches the fault path
 //! instead of locking the core up with the step timer still pulsing.
 //!
-//! Watchdog: the IWDG, fed by the control loop at each tick. Timeout
+//! Watchdog: the IWDG, fed by the control loop at each tick, and only
+//! while every other long-lived task has checked in ([`Supervised`]: the
+//! dispatcher, and on the F103 the frame-gap task). Such a task is busy
+//! from the event it handles until it waits again; a wait for its next
+//! event (a frame, a byte) is not a hang, an interrupt ends it. Busy for
+//! longer than `calc::TASK_LIMIT_US` (the longest legitimate frame, reply
+//! and EE operation) is a stuck task: the control loop stops feeding and
+//! the watchdog resets the chip, whose pins are safe from the first
+//! instructions (`__pre_init`, board files). A stuck control loop feeds
+//! nothing either. Timeout
 //! `calc::WATCHDOG_TIMEOUT_US`: the longest legitimate stall of the control
 //! loop is an EE operation on the dispatcher (same thread: a page erase of
 //! up to 40 ms on either chip, a sequential-storage page move erases once
@@ -45,7 +59,7 @@
 //! fails every read until its page is erased. Anywhere else (code,
 //! constants) it is the fault path.
 
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU16, AtomicU32, Ordering};
 
 use embassy_stm32::pac;
 
@@ -83,11 +97,66 @@ impl Watchdog {
         Self(())
     }
 
+    /// Feeds the IWDG if every supervised task has checked in (module
+    /// docs); the control loop's own tick is the check of itself.
     pub fn feed(&self) {
+        let now = now_ms();
+        #[cfg(feature = "board-f103")]
+        let overdue = DISPATCHER.overdue(now) || FRAME_GAP.overdue(now);
+        #[cfg(feature = "board-g431")]
+        let overdue = DISPATCHER.overdue(now);
+        if overdue {
+            if !STUCK_LOGGED.swap(true, Ordering::Relaxed) {
+                defmt::error!("a task is stuck: watchdog no longer fed, reset follows");
+            }
+            return;
+        }
         pac::IWDG
             .kr()
             .write(|w| w.set_key(pac::iwdg::vals::Key::RESET));
     }
+}
+
+static STUCK_LOGGED: AtomicBool = AtomicBool::new(false);
+
+/// ms since boot, wrapping (the time driver's).
+fn now_ms() -> u32 {
+    embassy_time::Instant::now().as_millis() as u32
+}
+
+/// A long-lived task the watchdog supervises besides the control loop:
+/// busy since when (ms + 1, 0 = waiting for its next event).
+pub struct Supervised(AtomicU32);
+
+impl Supervised {
+    const fn new() -> Self {
+        Self(AtomicU32::new(0))
+    }
+    /// The task took up an event (again): its time starts now.
+    pub fn busy(&self) {
+        self.0
+            .store(now_ms().wrapping_add(1).max(1), Ordering::Relaxed);
+    }
+    /// The task waits for its next event.
+    pub fn idle(&self) {
+        self.0.store(0, Ordering::Relaxed);
+    }
+    fn overdue(&self, now: u32) -> bool {
+        let since = self.0.load(Ordering::Relaxed);
+        since != 0 && now.wrapping_add(1).wrapping_sub(since) > calc::TASK_LIMIT_US / 1000
+    }
+}
+
+pub static DISPATCHER: Supervised = Supervised::new();
+#[cfg(feature = "board-f103")]
+pub static FRAME_GAP: Supervised = Supervised::new();
+
+/// PA23 as the control loop last saw it: the fault path's brake hold.
+static BRAKE_ENGAGE_MS: AtomicU16 = AtomicU16::new(0);
+
+/// The control loop passes PA23 on (see [`stop`]).
+pub fn set_brake_engage_ms(ms: u16) {
+    BRAKE_ENGAGE_MS.store(ms, Ordering::Relaxed);
 }
 
 /// No ECC error noted in [`FLASH_READ_FAULT`].
@@ -123,13 +192,18 @@ pub fn stop(fault: Fault) -> ! {
     let t = board::STEP_TIMER;
     t.cr1().modify(|w| w.set_cen(false));
     t.ccer().modify(|w| w.set_cce(0, false));
-    board::safe_outputs();
+    let first = !FAULTED.swap(true, Ordering::Relaxed);
+    board::safe_outputs(true);
     pac::IWDG
         .kr()
         .write(|w| w.set_key(pac::iwdg::vals::Key::START));
-    if !FAULTED.swap(true, Ordering::Relaxed) {
+    if first {
+        hold_for_the_brake(BRAKE_ENGAGE_MS.load(Ordering::Relaxed));
+    }
+    board::safe_outputs(false);
+    if first {
         defmt::error!(
-            "{}: step output stopped, ENABLE off, brake applied; watchdog reset follows",
+            "{}: step output stopped, brake applied, ENABLE off; watchdog reset follows",
             fault
         );
     }
@@ -137,6 +211,31 @@ pub fn stop(fault: Fault) -> ! {
         // NOP rather than `spin_loop`'s YIELD hint: the same wait, and an
         // instruction every Cortex-M model knows (fw-sim's does not YIELD)
         cortex_m::asm::nop();
+    }
+}
+
+/// The fault path's brake hold: `ms` milliseconds by SysTick's count flag
+/// (1 ms periods of the core clock; interrupts are off), the watchdog fed
+/// at each.
+fn hold_for_the_brake(ms: u16) {
+    if ms == 0 {
+        return;
+    }
+    // SAFETY: the fault path owns the core from here on (interrupts off,
+    // never returns); SysTick's DE timing is over with the USART.
+    unsafe {
+        let st = &*cortex_m::peripheral::SYST::PTR;
+        st.csr.write(0);
+        st.rvr.write(board::SYSCLK_HZ / 1000 - 1);
+        st.cvr.write(0);
+        st.csr.write(1 << 2 | 1); // core clock, enabled, no interrupt
+        for _ in 0..ms {
+            while st.csr.read() & (1 << 16) == 0 {} // COUNTFLAG, cleared by the read
+            pac::IWDG
+                .kr()
+                .write(|w| w.set_key(pac::iwdg::vals::Key::RESET));
+        }
+        st.csr.write(0);
     }
 }
 
@@ -177,14 +276,35 @@ unsafe fn NonMaskableInt() {
 }
 
 /// Test builds only (`--features fault-test`, for the firmware-in-the-loop
-/// tests): a write of 0xDEAD to register 0xFA17 (function 0x06) panics.
+/// tests): a write (function 0x06) to register 0xFA17 of 0xDEAD panics, of
+/// 0x5717 sticks the dispatcher (it never finishes that frame), of 0xC0DE
+/// sticks the control loop (it never ticks again). Returns true for the
+/// dispatcher's.
 #[cfg(feature = "fault-test")]
-pub fn test_trigger(ev: modbus_drive::rtu::RxEvent<'_>) {
-    if let modbus_drive::rtu::RxEvent::Frame {
-        bytes: [_, 0x06, 0xFA, 0x17, 0xDE, 0xAD, ..],
+pub fn test_trigger(ev: modbus_drive::rtu::RxEvent<'_>) -> bool {
+    let modbus_drive::rtu::RxEvent::Frame {
+        bytes: [_, 0x06, 0xFA, 0x17, hi, lo, ..],
         ..
     } = ev
-    {
-        panic!("fault-test trigger");
+    else {
+        return false;
+    };
+    match u16::from_be_bytes([*hi, *lo]) {
+        0xDEAD => panic!("fault-test trigger"),
+        0xC0DE => {
+            CONTROL_STUCK.store(true, Ordering::Relaxed);
+            false
+        }
+        0x5717 => true,
+        _ => false,
     }
+}
+
+#[cfg(feature = "fault-test")]
+static CONTROL_STUCK: AtomicBool = AtomicBool::new(false);
+
+/// Test builds only: the control loop is to stick ([`test_trigger`]).
+#[cfg(feature = "fault-test")]
+pub fn control_stuck() -> bool {
+    CONTROL_STUCK.load(Ordering::Relaxed)
 }

@@ -56,6 +56,11 @@ use modbus_drive::Device;
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
+    // Why the chip reset (DP-rES), before anything can add a flag; then the
+    // flags cleared, so that the next boot sees its own reset alone.
+    let rcc = embassy_stm32::pac::RCC;
+    let reset_cause = calc::reset_cause_from_csr(rcc.csr().read().0);
+    rcc.csr().modify(|w| w.set_rmvf(true));
     let p = embassy_stm32::init(board::config());
     priority::init();
     board::after_init();
@@ -81,6 +86,7 @@ async fn main(spawner: Spawner) {
             Identity::new(board::NAME),
             PlannerConfig::for_board(board::BOARD),
         );
+        device.set_reset_cause(reset_cause);
         #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
         let mut boot = store.boot();
         // A page the G431 cannot read (flash ECC after a power cut, fault.rs)
@@ -119,9 +125,10 @@ async fn main(spawner: Spawner) {
     unsafe { board::StepIrq::enable() };
 
     defmt::info!(
-        "modbus-drive {} on {}: address {}, line {} (t3.5 = {=u32} µs), parameter flash {:#x} ({} B)",
+        "modbus-drive {} on {} (reset cause {=u16}): address {}, line {} (t3.5 = {=u32} µs), parameter flash {:#x} ({} B)",
         env!("CARGO_PKG_VERSION"),
         board::NAME,
+        reset_cause,
         address,
         line,
         line.timing().t35_us,

@@ -1,15 +1,25 @@
 //! State with exactly one owner at a time, handed over without a lock.
 //!
-//! An [`IrqOwned`] belongs to one interrupt handler once that interrupt is
-//! enabled; before that (and while the interrupt is disabled in the NVIC)
-//! thread code may set it up. Nothing else can run the handler meanwhile,
-//! so no critical section is needed, and none masks anything.
+//! An [`IrqOwned`] has one owner at a time, one of two kinds, and each
+//! `static` of it says which in its `SAFETY` comments:
+//! - by the interrupt's enable: it belongs to one interrupt handler while
+//!   that interrupt is enabled, and to thread code while it is disabled in
+//!   the NVIC (before it is first enabled, or around a change: rs485.rs's
+//!   link);
+//! - by an atomic state that the two sides hand it over with: the side the
+//!   state names owns it, and only the owner moves the state on (with
+//!   Release, the other side reads it with Acquire): rx_slots.rs's slots
+//!   (free: the USART interrupt's; full: the dispatcher's), rs485.rs's
+//!   reply buffer (idle: `send`'s; any other state: the interrupts').
+//!
+//! Either way nothing else touches the value meanwhile, so no critical
+//! section is needed, and none masks anything.
 
 use core::cell::UnsafeCell;
 
 pub struct IrqOwned<T>(UnsafeCell<T>);
 
-// SAFETY: one context at a time uses the value (see `get`).
+// SAFETY: one owner at a time uses the value (see `get`).
 unsafe impl<T: Send> Sync for IrqOwned<T> {}
 
 impl<T> IrqOwned<T> {
@@ -18,9 +28,10 @@ impl<T> IrqOwned<T> {
     }
 
     /// # Safety
-    /// The caller is the value's owner: its interrupt handler, or thread
-    /// code while that interrupt cannot run (not yet enabled, or disabled
-    /// in the NVIC); and no other reference from this call is alive.
+    /// The caller is the value's owner as the module docs define it (its
+    /// interrupt handler, or thread code while that interrupt cannot run;
+    /// or the side the value's atomic state names), and no other reference
+    /// from this call is alive.
     #[allow(clippy::mut_from_ref)]
     pub unsafe fn get(&self) -> &mut T {
         // SAFETY: exclusive by the caller's contract.

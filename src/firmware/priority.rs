@@ -4,9 +4,8 @@
 //! | priority | interrupt | shares state with lower levels through |
 //! |---|---|---|
 //! | P0 | step timer (TIM3) | atomics only (`StepSchedule`, steps.rs) |
-//! | P1 | switches (EXTI15_10) | the critical section |
-//! | P2 | RS-485 USART | atomics, buffer hand-over by index (rs485.rs) |
-//! | P3 | embassy-time driver (TIM2) | the critical section |
+//! | P1 | switches (EXTI15_10); embassy-time driver (TIM2) | the critical section |
+//! | P2 | RS-485 USART; SysTick (the software DE's lead / tail, rs485.rs) | atomics, buffer hand-over by index (rs485.rs) |
 //! | thread | executor: control loop, dispatcher | — |
 //!
 //! The `critical-section` implementation of the whole image (embassy's
@@ -25,6 +24,7 @@
 use core::sync::atomic::{compiler_fence, Ordering};
 
 use cortex_m::interrupt::InterruptNumber;
+use cortex_m::peripheral::scb::SystemHandler;
 use cortex_m::peripheral::{ICB, NVIC};
 use embassy_stm32::interrupt::typelevel::{Interrupt, TIM2};
 use embassy_stm32::interrupt::Priority;
@@ -34,7 +34,12 @@ use super::board;
 pub const PRIO_STEP: Priority = Priority::P0;
 pub const PRIO_SWITCH: Priority = Priority::P1;
 pub const PRIO_UART: Priority = Priority::P2;
-pub const PRIO_TIME: Priority = Priority::P3;
+/// Above the USART: a flash erase stalls the core, TIM2's overflow and
+/// half-period events can both fall due meanwhile, and the USART interrupt
+/// that stamps the next byte must not run before the time driver has
+/// counted them (it would read the time one or two half-periods early).
+/// With TIM2 higher, the pending TIM2 interrupt always runs first.
+pub const PRIO_TIME: Priority = Priority::P1;
 
 /// BASEPRI inside a critical section: masks P1 and below.
 pub const MASK: u8 = PRIO_SWITCH as u8;
@@ -47,6 +52,12 @@ pub fn init() {
     board::SwitchIrq::set_priority(PRIO_SWITCH);
     board::UartIrq::set_priority(PRIO_UART);
     TIM2::set_priority(PRIO_TIME);
+    // SAFETY: a byte write of SHPR3 at boot; SysTick is not running.
+    unsafe {
+        cortex_m::Peripherals::steal()
+            .SCB
+            .set_priority(SystemHandler::SysTick, PRIO_UART as u8);
+    }
     let step = board::StepIrq::IRQ.number();
     // SAFETY: reads of the ICB and byte writes of NVIC IPR registers; the
     // interrupts touched are not running (thread mode, boot).

@@ -18,8 +18,12 @@
 //! first start bit and trails the last stop bit by PA57 / PA58
 //! ([`apply_line`], `calc::DeDrive`): on the G431 the USART's
 //! hardware driver-enable does it (DEAT / DEDT) while they fit; beyond
-//! that, and always on the F103, DE is a GPIO that [`send`] raises the
-//! lead before the first byte and the interrupt drops the tail after TC.
+//! that, and always on the F103, DE is a GPIO timed by SysTick as a
+//! one-shot compare (nothing else uses it; embassy-time runs on TIM2):
+//! [`send`] raises DE and arms SysTick for the lead, whose interrupt starts
+//! the transmission; at TC the USART interrupt arms it for the tail, whose
+//! interrupt drops DE and wakes [`send`]. No busy wait: the dispatcher
+//! awaits, and both interrupts return at once.
 //!
 //! Shared state, no lock held while bytes are copied (priority.rs):
 //! - the link (assembler, line timing, DE lead / tail) belongs to the USART
@@ -30,11 +34,17 @@
 //!   handed over with an atomic state; a frame that finds no
 //!   free slot is dropped and counted;
 //! - a reply goes the same way: [`send`] fills the transmit buffer while
-//!   no transmission runs, marks it requested and pends the interrupt,
-//!   which starts it (only the interrupt writes CR1 while the link runs);
-//!   a software DE is raised by [`send`] before the request (the interrupt
-//!   leaves the pin alone while no transmission runs) and dropped by the
-//!   interrupt after TC;
+//!   no transmission runs ([`TX_STATE`] idle), marks it requested and pends
+//!   the interrupt, which starts it (only the interrupt writes CR1 while
+//!   the link runs); with a software DE it marks the lead instead, and the
+//!   SysTick interrupt marks it requested at the lead's end; at TC the
+//!   USART interrupt marks the tail, and SysTick idle at its end;
+//!   a software DE is raised by [`send`] before it arms the lead (no
+//!   interrupt touches the pin while no transmission runs) and dropped by
+//!   the SysTick interrupt at the end of the tail;
+//! - SysTick runs at the USART's priority, so neither interrupts the other:
+//!   the lead's SysTick interrupt only moves [`TX_STATE`] on and pends the
+//!   USART interrupt, which alone touches the link;
 //! - F103: the frame-gap task asks the interrupt to poll the assembler
 //!   through an atomic flag and a pended interrupt.
 //!
@@ -61,6 +71,11 @@ use super::rx_slots;
 const TX_IDLE: u8 = 0;
 const TX_REQUESTED: u8 = 1;
 const TX_SENDING: u8 = 2;
+/// Software DE: raised, SysTick times the lead, then [`TX_REQUESTED`].
+const TX_LEAD: u8 = 3;
+/// Software DE: the last stop bit has left, SysTick times the tail, then
+/// [`TX_IDLE`].
+const TX_TAIL: u8 = 4;
 
 struct TxBuf {
     bytes: [u8; MAX_FRAME],
@@ -77,6 +92,7 @@ static TX_STATE: AtomicU8 = AtomicU8::new(TX_IDLE);
 /// (µs), as [`apply_line`] left them for [`send`].
 static DE_LEAD_US: AtomicU32 = AtomicU32::new(0);
 static DE_TAIL_US: AtomicU32 = AtomicU32::new(0);
+static DE_SOFTWARE: AtomicBool = AtomicBool::new(false);
 /// The interrupt has sent the last stop bit of the reply.
 static TX_DONE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
@@ -209,6 +225,7 @@ pub fn apply_line(
     };
     DE_LEAD_US.store(lead, Ordering::Relaxed);
     DE_TAIL_US.store(de_drive.tail_us, Ordering::Relaxed);
+    DE_SOFTWARE.store(de_drive.software, Ordering::Relaxed);
     with_link(|link| {
         link.assembler.set_timing(timing);
         link.de_drive = de_drive;
@@ -288,16 +305,55 @@ impl Handler<board::UartIrq> for UartHandler {
         let link = unsafe { LINK.get().assume_init_mut() };
         start_tx(link);
         if let Some(tail_us) = on_uart(link, at_us) {
-            // The software DE tail, here rather than in `send`: the
-            // dispatcher task may wake much later (thread mode shares the
-            // CPU with the control loop), and a master may send its next
-            // request soon after our last stop bit. Core cycles (at least
-            // that many, more if preempted) rather than reads of the time
-            // driver: the wait touches no peripheral, and the step
-            // interrupt outranks this one meanwhile.
-            cortex_m::asm::delay(tail_us.saturating_mul(board::SYSCLK_HZ / 1_000_000));
-            set_de(false);
+            // The software DE tail, timed from here rather than from
+            // `send`: the dispatcher task may wake much later (thread mode
+            // shares the CPU with the control loop), and a master may send
+            // its next request soon after our last stop bit.
+            TX_STATE.store(TX_TAIL, Ordering::Relaxed);
+            de_timer_start(tail_us);
         }
+    }
+}
+
+/// Arms SysTick to interrupt once, `us` from now (core clock; at most the
+/// longest DE lead or tail, well inside its 24 bits).
+fn de_timer_start(us: u32) {
+    let cycles = us
+        .saturating_mul(board::SYSCLK_HZ / 1_000_000)
+        .clamp(2, 1 << 24);
+    // SAFETY: SysTick is this module's alone (module docs); the register
+    // writes are atomic and the exception is not running (it stops the
+    // timer before it arms anything).
+    unsafe {
+        let st = &*cortex_m::peripheral::SYST::PTR;
+        st.csr.write(0);
+        st.rvr.write(cycles - 1);
+        st.cvr.write(0); // clears the counter and COUNTFLAG
+        st.csr.write(SYST_ENABLE | SYST_TICKINT | SYST_CORE_CLOCK);
+    }
+}
+
+const SYST_ENABLE: u32 = 1 << 0;
+const SYST_TICKINT: u32 = 1 << 1;
+const SYST_CORE_CLOCK: u32 = 1 << 2;
+
+/// SysTick at the USART's priority (`priority::init`): the end of a
+/// software DE lead or tail ([`de_timer_start`]).
+#[cortex_m_rt::exception]
+fn SysTick() {
+    // SAFETY: one-shot: stopped first; only `de_timer_start` rearms it.
+    unsafe { (*cortex_m::peripheral::SYST::PTR).csr.write(0) };
+    match TX_STATE.load(Ordering::Acquire) {
+        TX_LEAD => {
+            TX_STATE.store(TX_REQUESTED, Ordering::Release);
+            board::UartIrq::pend(); // which starts the transmission
+        }
+        TX_TAIL => {
+            set_de(false);
+            TX_STATE.store(TX_IDLE, Ordering::Release);
+            TX_DONE.signal(());
+        }
+        _ => {}
     }
 }
 
@@ -320,12 +376,16 @@ fn next_tx_byte(link: &mut Link) -> Option<u8> {
     b
 }
 
-/// The reply has left the wire. Returns the DE tail to hold (µs) when
-/// software drives DE for it.
+/// The reply has left the wire. Returns the DE tail to time (µs) when
+/// software drives DE for it (the caller arms it); otherwise the
+/// transmission is over.
 fn tx_done(link: &Link) -> Option<u32> {
+    if link.de_drive.software {
+        return Some(link.de_drive.tail_us);
+    }
     TX_STATE.store(TX_IDLE, Ordering::Release);
     TX_DONE.signal(());
-    link.de_drive.software.then_some(link.de_drive.tail_us)
+    None
 }
 
 /// Serves the USART; returns the DE tail to hold (µs) when a reply that
@@ -431,8 +491,12 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
 }
 
 fn on_byte(link: &mut Link, byte: u8, at_us: u32, flags: RxFlags) {
-    if TX_STATE.load(Ordering::Relaxed) != TX_IDLE {
-        return; // our own echo if /RE is not tied to DE
+    // Our own echo (if /RE is not tied to DE) comes only while the USART
+    // sends. A byte during a software DE's lead or tail is the master's
+    // (one that does not keep t3.5 after our reply): taken, as it was when
+    // the tail was a busy wait after TC.
+    if matches!(TX_STATE.load(Ordering::Relaxed), TX_REQUESTED | TX_SENDING) {
+        return;
     }
     let last = link.assembler.last_byte_at_us();
     if let Some(ev) = link.assembler.push(byte, at_us, flags) {
@@ -457,43 +521,45 @@ pub async fn send(bytes: &[u8], not_before_us: u32) {
         DE_TAIL_US.load(Ordering::Relaxed),
     );
     // DE rises the lead before the earliest start (or now, and the start
-    // waits for the lead); the tail follows transmission complete, and
-    // whatever follows the reply (`apply_line` disables the USART) waits
-    // for it. One await point for the timer waits: each await of a timer
-    // is a state of its own in the dispatcher's future, and flash is short
-    // on the F103.
-    let waits = [not_before_us.saturating_sub(lead), lead, tail];
-    for (phase, us) in waits.into_iter().enumerate() {
-        if phase == 1 && lead > 0 {
-            // no transmission runs: the interrupt leaves DE alone
-            set_de(true);
-            // The lead by the core clock, with no await between DE and the
-            // start: an await resumes only once the other task (the control
-            // loop) yields, which stretched the lead by its run time. At
-            // most PA57's ten bit times; the planner's horizon covers it.
-            cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000 * lead);
-            continue;
-        } else if phase == 2 {
-            TX_DONE.reset();
-            TX_STATE.store(TX_REQUESTED, Ordering::Release);
-            board::UartIrq::pend(); // the interrupt starts it
-            TX_DONE.wait().await;
-        }
-        // one time-driver tick more: a wait of n ticks may start late in
-        // a tick
-        if us > 0 {
-            embassy_time::Timer::after_micros(u64::from(us) + 1).await;
-        }
+    // waits for the lead). One time-driver tick more: a wait of n ticks may
+    // start late in a tick.
+    let wait = not_before_us.saturating_sub(lead);
+    if wait > 0 {
+        embassy_time::Timer::after_micros(u64::from(wait) + 1).await;
     }
+    TX_DONE.reset();
+    if lead > 0 {
+        // no transmission runs: no interrupt touches DE; SysTick's
+        // interrupt starts the reply at the end of the lead
+        set_de(true);
+        TX_STATE.store(TX_LEAD, Ordering::Release);
+        de_timer_start(lead);
+    } else {
+        TX_STATE.store(TX_REQUESTED, Ordering::Release);
+        board::UartIrq::pend(); // the interrupt starts it
+    }
+    TX_DONE.wait().await;
+    // A software DE is released by now (the SysTick interrupt signalled at
+    // the end of the tail). The USART's own DEDT tail still runs after TC:
+    // whatever follows the reply (`apply_line` disables the USART) waits
+    // for it.
+    if tail > 0 && !de_is_software() {
+        embassy_time::Timer::after_micros(u64::from(tail) + 1).await;
+    }
+}
+
+/// Software times DE for the line in force ([`apply_line`]).
+fn de_is_software() -> bool {
+    DE_SOFTWARE.load(Ordering::Relaxed)
 }
 
 /// Raises or drops DE where software drives it (on the G431 while PA57 /
 /// PA58 exceed DEAT / DEDT): the USART's DE pin taken over as a GPIO
 /// (output data set first, so the switch from the alternate function, low
 /// between frames, is glitch-free) and handed back to the USART low.
-/// Called by [`send`] to raise it and by the interrupt to drop it, never
-/// both at once (a transmission runs between them); GPIOA's mode register
-/// has no other writer while the drive runs.
+/// Called by [`send`] to raise it and by the SysTick interrupt to drop it,
+/// never both at once (a transmission runs between them); GPIOA's mode
+/// register has no other writer while the drive runs.
 #[cfg(feature = "board-g431")]
 fn set_de(high: bool) {
     use embassy_stm32::pac::gpio::vals::Moder;
@@ -531,8 +597,12 @@ fn set_de(high: bool) {
 #[embassy_executor::task]
 pub async fn frame_gap_task() {
     loop {
+        super::fault::FRAME_GAP.idle();
         RX_ACTIVITY.wait().await;
         while RECEIVING.load(Ordering::Relaxed) {
+            // checked in at each byte's gap: a bus that never falls silent
+            // keeps it busy, not stuck
+            super::fault::FRAME_GAP.busy();
             let last = LAST_BYTE_AT_US.load(Ordering::Relaxed);
             let t35 = T35_US.load(Ordering::Relaxed);
             let wait = super::calc::reply_wait_us(now_us(), last, t35);

@@ -207,3 +207,21 @@ def start_drive(start_fw, board):
     def start(*flags: str) -> AsDrive:
         return AsDrive(start_fw(board, *[f for f in flags if f != "--no-status"]))
     return start
+
+
+TARGETS = {"g431": "thumbv7em-none-eabihf", "f103": "thumbv7m-none-eabi"}
+
+
+@pytest.fixture(scope="session")
+def fault_test_elf():
+    """Each board's image built with the `fault-test` feature (never in a
+    release image), in its own target directory."""
+    target_dir = ROOT / "target" / "fault-test"
+    elfs = {}
+    for board, target in TARGETS.items():
+        subprocess.run(["cargo", "build", "--profile", "fw", "--bin", "modbus-drive",
+                        "--target", target, "--no-default-features",
+                        "--features", f"board-{board},fault-test",
+                        "--target-dir", str(target_dir)], cwd=ROOT, check=True)
+        elfs[board] = target_dir / target / "fw" / "modbus-drive"
+    return elfs

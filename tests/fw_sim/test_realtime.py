@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import re
-import subprocess
 import threading
 import time
 from pathlib import Path
@@ -17,7 +16,7 @@ from pathlib import Path
 import pytest
 from pymodbus.exceptions import ModbusIOException
 from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, ELF, MODE,
-                      MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY, ROOT, STATE_MASK,
+                      MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY, STATE_MASK,
                       SWITCH_ON_DISABLED, TARGET_POSITION, TARGET_REACHED, Master, with_crc)
 
 # step timer tick per board (modbus_drive::boards), ns
@@ -33,9 +32,6 @@ DISTANCE = 60_000
 # calc::ISR_LATENCY_NS: what the DIR set-up stretch assumes
 ISR_LATENCY_NS = 2_000
 LATENCY = re.compile(r"step interrupt: worst latency (\d+) ns")
-
-TARGETS = {"g431": "thumbv7em-none-eabihf", "f103": "thumbv7m-none-eabi"}
-
 
 def settled(sw):
     return sw & TARGET_REACHED and not sw & MOTOR_RUNNING
@@ -162,21 +158,6 @@ def test_an_ee_save_mid_move_is_refused_and_the_move_completes(start_fw, board, 
     # at rest the same request is carried out: the refusal was the motion's
     r = ee_set(m)
     assert not r.isError(), f"{board}: {r}"
-
-
-@pytest.fixture(scope="session")
-def fault_test_elf():
-    """Each board's image built with the `fault-test` feature (never in a
-    release image), in its own target directory."""
-    target_dir = ROOT / "target" / "fault-test"
-    elfs = {}
-    for board, target in TARGETS.items():
-        subprocess.run(["cargo", "build", "--profile", "fw", "--bin", "modbus-drive",
-                        "--target", target, "--no-default-features",
-                        "--features", f"board-{board},fault-test",
-                        "--target-dir", str(target_dir)], cwd=ROOT, check=True)
-        elfs[board] = target_dir / target / "fw" / "modbus-drive"
-    return elfs
 
 
 # the fault-test trigger: register 0xFA17 = 0xDEAD (function 0x06)

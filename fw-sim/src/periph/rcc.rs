@@ -126,6 +126,28 @@ impl Rcc {
         }
     }
 
+    /// RCC_CSR's reset flags (bits 24..31; both chips).
+    pub fn reset_flags(&self) -> u32 {
+        self.get(self.csr()) & 0xFF00_0000
+    }
+
+    /// Sets RCC_CSR's reset flags after a reset (the rest of the register
+    /// keeps its reset value).
+    pub fn set_reset_flags(&mut self, flags: u32) {
+        let off = self.csr();
+        if let Some(r) = self.regs.iter_mut().find(|r| r.0 == off) {
+            r.1 = (r.1 & 0x00FF_FFFF) | (flags & 0xFF00_0000);
+        }
+    }
+
+    fn csr(&self) -> u32 {
+        if self.g4 {
+            0x94
+        } else {
+            0x24
+        }
+    }
+
     pub fn clocks(&self) -> Clocks {
         let cr = self.derived(0, self.get(0));
         let (cfgr, hsi) = if self.g4 {

@@ -108,6 +108,8 @@ pub fn pa_meta(n: usize) -> (&'static str, &'static str) {
         17 => ("encoder counts per revolution (0 = none)", "counts"),
         18 => ("encoder direction invert", ""),
         20 => ("communication-loss timeout (0 = off)", "ms"),
+        22 => ("brake release delay after power stage on", "ms"),
+        23 => ("brake engage time (power stage held)", "ms"),
         51 => ("slave address", ""),
         52 => ("baud (0 9600 … 4 115200)", ""),
         53 => ("format (0 8N1, 1 8E1, 2 8O1, 3 8N2)", ""),
