@@ -1,0 +1,114 @@
+//! `scan`: every drive on a serial line. At each baud and format tried,
+//! each address 1..=247 is asked for PA2 (the firmware version) with a
+//! short wait; a drive that answers is then read for its state, address
+//! and line PAs. A drive found is not asked again at later line settings.
+//!
+//! A pseudo-terminal or a USB adapter talking to a converter carries no
+//! baud: a drive behind one answers at every setting. So the line printed
+//! is the one the drive itself holds (PA52/PA53), and the one it answered
+//! at is added when they differ.
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use super::cli::Scan;
+use super::status::power_state;
+use super::{Endpoint, LineSpec, Master};
+use crate::virtual_drive::registers::{PA_ADDRESS, PA_BASE, PA_BAUD, PA_FIRMWARE};
+
+/// Reply wait beyond the frames' own time on the wire (the drive's
+/// response delay PA56 defaults to 0).
+const MARGIN: Duration = Duration::from_millis(30);
+const STATUSWORD: u16 = 0x6041;
+/// PA2's request and reply (8 and 7 bytes).
+const PROBE_BYTES: usize = 8 + 7;
+
+pub struct Found {
+    pub address: u8,
+    pub answered_at: LineSpec,
+    pub line: Option<LineSpec>,
+    pub firmware: u16,
+    pub state: String,
+}
+
+pub fn run(o: &Scan) -> Result<(), String> {
+    let started = Instant::now();
+    let mut found: Vec<Found> = Vec::new();
+    let mut m = Master::new(
+        Endpoint::Serial {
+            path: o.path.clone(),
+            line: o.lines[0],
+        },
+        1,
+        MARGIN,
+    );
+    let stderr = std::io::stderr();
+    for &line in &o.lines {
+        m.set_line(line)
+            .map_err(|e| format!("{}: {e}", o.path.display()))?;
+        m.timeout = o
+            .timeout
+            .unwrap_or(line.time_of(PROBE_BYTES) + line.t35() * 2 + MARGIN);
+        for address in 1..=247u8 {
+            if address % 16 == 1 {
+                let mut e = stderr.lock();
+                let _ = write!(
+                    e,
+                    "\rscanning {line}: address {address:>3}/247, {} found ",
+                    found.len()
+                );
+                let _ = e.flush();
+            }
+            if found.iter().any(|f| f.address == address) {
+                continue;
+            }
+            m.unit = address;
+            let Ok(fw) = m.read(PA_BASE + PA_FIRMWARE as u16, 1) else {
+                continue;
+            };
+            let pas = m.read(PA_BASE + PA_ADDRESS as u16, 3).ok();
+            let state = m
+                .read(STATUSWORD, 1)
+                .ok()
+                .and_then(|sw| power_state(sw[0]))
+                .map_or("?".into(), |s| format!("{s:?}"));
+            let own_line = pas.as_ref().and_then(|p| {
+                LineSpec::from_pa(p[PA_BAUD - PA_ADDRESS], p[PA_BAUD - PA_ADDRESS + 1])
+            });
+            let f = Found {
+                address,
+                answered_at: line,
+                line: own_line,
+                firmware: fw[0],
+                state,
+            };
+            let mut e = stderr.lock();
+            let _ = writeln!(e);
+            drop(e);
+            println!("{}", describe(&f));
+            found.push(f);
+        }
+    }
+    eprintln!(
+        "\rscan done: {} drive(s), {} line setting(s), {:.1} s",
+        found.len(),
+        o.lines.len(),
+        started.elapsed().as_secs_f64()
+    );
+    if found.is_empty() {
+        return Err("no drive answered".into());
+    }
+    Ok(())
+}
+
+pub fn describe(f: &Found) -> String {
+    let line = match f.line {
+        Some(l) if l == f.answered_at => l.to_string(),
+        Some(l) => format!("{l} (answered at {})", f.answered_at),
+        None => format!("{} (its PA52/PA53 unreadable)", f.answered_at),
+    };
+    format!(
+        "address {:>3}  line {line}  firmware {}  state {}",
+        f.address, f.firmware, f.state
+    )
+}

@@ -1,0 +1,205 @@
+//! RTU over a serial port (a USB–RS485 adapter, or a pseudo-terminal):
+//! the port set raw at the chosen baud and character format, one request
+//! written, the reply read until its length is complete (from its function
+//! code and byte count) or the line stays silent.
+
+use std::fs::{File, OpenOptions};
+use std::io::{self, ErrorKind, Read, Write};
+use std::os::fd::AsFd;
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+use nix::sys::termios::{
+    cfmakeraw, cfsetspeed, tcflush, tcgetattr, tcsetattr, BaudRate, ControlFlags, FlushArg, SetArg,
+};
+
+use super::{LineSpec, Link};
+use crate::virtual_drive::web::Pdu;
+
+/// Silence after the last byte that ends a reply whose length the master
+/// cannot tell in advance (a USB adapter delivers bytes in bursts, so the
+/// line's own t3.5 is too short to judge from the host).
+const END_SILENCE: Duration = Duration::from_millis(20);
+
+pub struct Serial {
+    port: File,
+    line: LineSpec,
+    /// When the last reply ended: the next request waits t3.5 after it.
+    last_rx: Option<Instant>,
+}
+
+/// A port refused a character format (said once a run: a scan reopens
+/// the port often).
+static WARNED: AtomicBool = AtomicBool::new(false);
+
+fn baud_rate(baud: u32) -> io::Result<BaudRate> {
+    Ok(match baud {
+        9600 => BaudRate::B9600,
+        19200 => BaudRate::B19200,
+        38400 => BaudRate::B38400,
+        57600 => BaudRate::B57600,
+        115200 => BaudRate::B115200,
+        _ => return Err(io::Error::other(format!("unsupported baud {baud}"))),
+    })
+}
+
+impl Serial {
+    pub fn open(path: &Path, line: LineSpec) -> io::Result<Self> {
+        let port = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .custom_flags(nix::libc::O_NOCTTY | nix::libc::O_NONBLOCK)
+            .open(path)?;
+        let mut s = Self {
+            port,
+            line,
+            last_rx: None,
+        };
+        s.configure(line)?;
+        Ok(s)
+    }
+
+    fn configure(&mut self, line: LineSpec) -> io::Result<()> {
+        let fd = self.port.as_fd();
+        let mut t = tcgetattr(fd).map_err(io::Error::from)?;
+        cfmakeraw(&mut t);
+        cfsetspeed(&mut t, baud_rate(line.baud)?).map_err(io::Error::from)?;
+        let c = &mut t.control_flags;
+        c.remove(ControlFlags::PARENB | ControlFlags::PARODD | ControlFlags::CSTOPB);
+        c.insert(ControlFlags::CS8 | ControlFlags::CLOCAL | ControlFlags::CREAD);
+        match line.format {
+            1 => c.insert(ControlFlags::PARENB),
+            2 => c.insert(ControlFlags::PARENB | ControlFlags::PARODD),
+            3 => c.insert(ControlFlags::CSTOPB),
+            _ => {}
+        }
+        if let Err(e) = tcsetattr(fd, SetArg::TCSANOW, &t) {
+            if e != nix::errno::Errno::EINVAL || line.format == 0 {
+                return Err(e.into());
+            }
+            // Some pseudo-terminals refuse parity and stop-bit settings;
+            // their bytes carry no character format, so the request gets
+            // through as the drive expects it either way.
+            let c = &mut t.control_flags;
+            c.remove(ControlFlags::PARENB | ControlFlags::PARODD | ControlFlags::CSTOPB);
+            tcsetattr(fd, SetArg::TCSANOW, &t).map_err(io::Error::from)?;
+            if !WARNED.swap(true, Ordering::Relaxed) {
+                eprintln!(
+                    "serial: the port refuses {line}'s character format; it is sent as 8N1 \
+                     on this side"
+                );
+            }
+        }
+        self.line = line;
+        Ok(())
+    }
+
+    /// Waits up to `timeout` for input; false on timeout.
+    fn wait(&self, timeout: Duration) -> io::Result<bool> {
+        let ms = u16::try_from(timeout.as_millis().max(1)).unwrap_or(u16::MAX);
+        let mut fds = [PollFd::new(self.port.as_fd(), PollFlags::POLLIN)];
+        let n = poll(&mut fds, PollTimeout::from(ms)).map_err(io::Error::from)?;
+        if n == 0 {
+            return Ok(false);
+        }
+        let ev = fds[0].revents().unwrap_or(PollFlags::empty());
+        if ev.intersects(PollFlags::POLLHUP | PollFlags::POLLERR | PollFlags::POLLNVAL)
+            && !ev.contains(PollFlags::POLLIN)
+        {
+            return Err(io::Error::new(ErrorKind::BrokenPipe, "the line hung up"));
+        }
+        Ok(true)
+    }
+}
+
+/// The length of the reply frame that starts with `buf`, once it can be
+/// told (Modbus Application Protocol §6: each function's reply layout).
+fn reply_len(buf: &[u8]) -> Option<usize> {
+    let f = *buf.get(1)?;
+    if f & 0x80 != 0 {
+        return Some(5);
+    }
+    match f {
+        0x03 | 0x04 => buf.get(2).map(|&n| 5 + usize::from(n)),
+        0x05 | 0x06 | 0x08 | 0x0F | 0x10 => Some(8),
+        _ => None,
+    }
+}
+
+impl Link for Serial {
+    fn set_line(&mut self, line: LineSpec) -> io::Result<()> {
+        self.configure(line)
+    }
+
+    fn exchange(
+        &mut self,
+        unit: u8,
+        pdu: &Pdu,
+        timeout: Duration,
+    ) -> io::Result<(Vec<u8>, Vec<u8>)> {
+        let frame = pdu.frame(unit);
+        // The line's t3.5 between the last reply and this request.
+        if let Some(t) = self.last_rx {
+            let gap = self.line.t35();
+            let since = t.elapsed();
+            if since < gap {
+                std::thread::sleep(gap - since);
+            }
+        }
+        // Stale bytes (a late reply to a request that timed out) would be
+        // read as this request's reply.
+        let _ = tcflush(self.port.as_fd(), FlushArg::TCIFLUSH);
+        self.port.write_all(&frame)?;
+        // The reply cannot start before the request has left the wire.
+        let mut deadline = Instant::now() + self.line.time_of(frame.len()) + timeout;
+        let mut reply = Vec::new();
+        let mut chunk = [0u8; 256];
+        loop {
+            let known = reply_len(&reply);
+            if known.is_some_and(|len| reply.len() >= len) {
+                break;
+            }
+            let now = Instant::now();
+            let wait = if known.is_none() && reply.len() >= 5 {
+                END_SILENCE
+            } else if now >= deadline {
+                break;
+            } else {
+                deadline - now
+            };
+            if !self.wait(wait)? {
+                break;
+            }
+            match self.port.read(&mut chunk) {
+                Ok(0) => return Err(io::Error::new(ErrorKind::BrokenPipe, "the line closed")),
+                Ok(k) => {
+                    reply.extend_from_slice(&chunk[..k]);
+                    deadline = deadline.max(Instant::now() + END_SILENCE);
+                }
+                Err(e) if e.kind() == ErrorKind::WouldBlock => {}
+                Err(e) => return Err(e),
+            }
+        }
+        self.last_rx = Some(Instant::now());
+        Ok((frame, reply))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reply_lengths_follow_the_function_code() {
+        assert_eq!(reply_len(&[1]), None);
+        assert_eq!(reply_len(&[1, 0x83]), Some(5));
+        assert_eq!(reply_len(&[1, 0x03]), None);
+        assert_eq!(reply_len(&[1, 0x03, 4]), Some(9));
+        assert_eq!(reply_len(&[1, 0x06]), Some(8));
+        assert_eq!(reply_len(&[1, 0x10]), Some(8));
+        assert_eq!(reply_len(&[1, 0x2B]), None);
+    }
+}
