@@ -129,21 +129,21 @@ impl fmt::Display for Failure {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Self::Exception { code, request } => {
-                write!(f, "exception {code} to {}", hex(request))
+                write!(f, "exception {code}; request {}", hex(request))
             }
             Self::NoAnswer {
                 why,
                 request,
                 reply,
             } if reply.is_empty() => {
-                write!(f, "{why} to {}", hex(request))
+                write!(f, "{why}; request {}", hex(request))
             }
             Self::NoAnswer {
                 why,
                 request,
                 reply,
             } => {
-                write!(f, "{why} to {}: {}", hex(request), hex(reply))
+                write!(f, "{why}; request {}, reply {}", hex(request), hex(reply))
             }
         }
     }

@@ -163,6 +163,15 @@ impl RemoteDrive {
         true
     }
 
+    /// Samples taken in the last second.
+    fn rate(&self) -> usize {
+        let now = Instant::now();
+        self.sample_times
+            .iter()
+            .filter(|t| now.duration_since(**t) <= Duration::from_secs(1))
+            .count()
+    }
+
     fn word32(&self, low: usize) -> i64 {
         i64::from((u32::from(self.monitor[low + 1]) << 16 | u32::from(self.monitor[low])) as i32)
     }
@@ -231,7 +240,7 @@ impl RemoteDrive {
             self.gone.is_none(),
             quote(&self.master.describe()),
             self.master.unit,
-            self.sample_times.len(),
+            self.rate(),
             self.gone.as_deref().map_or("null".into(), quote),
             self.last_failure.as_deref().map_or("null".into(), quote),
         )
@@ -282,7 +291,10 @@ impl RemoteDrive {
 }
 
 impl Remote for RemoteDrive {
-    fn ctx(&self) -> Ctx {
+    fn ctx(&mut self) -> Ctx {
+        if let Ok(sw) = self.read(STATUSWORD, 1) {
+            self.statusword = sw[0];
+        }
         Ctx {
             state: power_state(self.statusword)
                 .unwrap_or(modbus_drive::drive::PowerState::NotReadyToSwitchOn),
@@ -330,7 +342,7 @@ pub fn run(o: Commission) -> Result<(), String> {
             was_gone = gone;
         }
         if Instant::now() >= next_state || gone {
-            let period = drive.sample_times.len().max(1) as u64;
+            let period = drive.rate().max(1) as u64;
             port.publish_remote_state(&drive.snapshot(), 1000 / period);
             next_state = Instant::now() + STATE_PERIOD;
         }

@@ -69,6 +69,8 @@ pub enum Command {
     Home,
     /// EE-Set: save the working parameters (SPEC §9).
     Save,
+    /// EE-dEF: restore the defaults and save them (SPEC §9).
+    Defaults,
     /// Any request PDU typed on the page (function code and data).
     Raw(Vec<u8>),
     /// Force a switch of the simulated axis (`None` releases it).
@@ -206,6 +208,10 @@ pub fn requests(cmd: &Command, ctx: Ctx) -> Result<Vec<Step>, String> {
         Command::Save => vec![step(
             "EE-Set (save parameters)",
             Pdu::write_multiple(EE_REGISTER, &[1]),
+        )],
+        Command::Defaults => vec![step(
+            "EE-dEF (restore defaults, and save them)",
+            Pdu::write_multiple(EE_REGISTER, &[5]),
         )],
         Command::Raw(ref pdu) => {
             if pdu.is_empty() || pdu.len() > 253 {

@@ -57,8 +57,9 @@ pub trait Target: Dispatch {
 /// A drive the page reaches by Modbus requests over a line it does not
 /// own (the commissioning master).
 pub trait Remote {
-    /// The drive's state and word order as last read.
-    fn ctx(&self) -> Ctx;
+    /// The drive's state and word order, read afresh when the line
+    /// allows (a command is judged on the state it will meet).
+    fn ctx(&mut self) -> Ctx;
     /// Sends one request: the frame as sent, the reply as received (whole
     /// frame), and the answer, or why there was none (timeout, line gone).
     fn exchange(&mut self, pdu: &Pdu) -> (Vec<u8>, Vec<u8>, Result<Answer, String>);
@@ -330,12 +331,16 @@ fn run_steps(
                     Ok(Answer::Exception(c)) => format!("exception {c}"),
                     Ok(_) => format!("answer {kind}"),
                 };
-                stopped = Some(format!(
-                    "stopped at step {} of {} ({}): {why}; the later steps were not sent",
-                    i + 1,
-                    steps.len(),
-                    step.label
-                ));
+                stopped = Some(if steps.len() == 1 {
+                    why
+                } else {
+                    format!(
+                        "stopped at step {} of {} ({}): {why}; the later steps were not sent",
+                        i + 1,
+                        steps.len(),
+                        step.label
+                    )
+                });
                 break;
             }
         }
