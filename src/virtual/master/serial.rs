@@ -149,9 +149,13 @@ impl Link for Serial {
                 std::thread::sleep(gap - since);
             }
         }
-        // Stale bytes (a late reply to a request that timed out) would be
-        // read as this request's reply.
+        // Stale bytes would be read as this request's reply: a late reply to
+        // a request that timed out, or another master's traffic (an RS-485
+        // master hears the whole bus). Read them away too: some ports
+        // (pseudo-terminals of some kernels) ignore the flush.
         let _ = tcflush(self.port.as_fd(), FlushArg::TCIFLUSH);
+        let mut junk = [0u8; 256];
+        while matches!(self.port.read(&mut junk), Ok(n) if n > 0) {}
         self.port.write_all(&frame)?;
         // The reply cannot start before the request has left the wire.
         let mut deadline = Instant::now() + self.line.time_of(frame.len()) + timeout;
@@ -177,6 +181,10 @@ impl Link for Serial {
                 Ok(0) => return Err(io::Error::new(ErrorKind::BrokenPipe, "the line closed")),
                 Ok(k) => {
                     reply.extend_from_slice(&chunk[..k]);
+                    // A reply starts with the address asked; bytes before
+                    // it are the tail of other traffic on the bus.
+                    let start = reply.iter().position(|&b| b == unit).unwrap_or(reply.len());
+                    reply.drain(..start);
                     deadline = deadline.max(Instant::now() + END_SILENCE);
                 }
                 Err(e) if e.kind() == ErrorKind::WouldBlock => {}

@@ -1,0 +1,68 @@
+"""The master tools against both firmware images under fw-sim, over its
+pseudo-terminal: the real serial path of a field engineer's adapter
+(bodies in tests/e2e/commission.py, shared with the virtual drive's and
+the browser's tests)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from conftest import Firmware, Master, e2e_module
+
+commission = e2e_module("commission")
+ROOT = Path(__file__).resolve().parents[2]
+BIN = Path(os.environ.get("MODBUS_DRIVE_BIN") or ROOT / "target" / "release" / "modbus-drive")
+
+
+class Runner:
+    """fw-sim running `board`'s image with a pty and a flash file."""
+
+    def __init__(self, tmp: Path, board: str):
+        self.tmp, self.board = tmp, board
+        self.link = tmp / f"tty-{board}"
+        self.fw: Firmware | None = None
+        self.start()
+
+    def start(self):
+        self.fw = Firmware(self.tmp, self.board, ["--pty-link", str(self.link),
+                                                  "--state", str(self.tmp / "flash.bin")])
+
+    def stop(self):
+        rc = self.fw.stop()
+        assert rc is None, f"fw-sim {self.board} exited with {rc}:\n{self.fw.stderr()}"
+
+    def master(self, address: int = 1) -> Master:
+        self.fw.alive()
+        return Master(self.fw.client(), address)
+
+
+@pytest.fixture
+def runner(tmp_path, board):
+    r = Runner(tmp_path, board)
+    try:
+        yield r
+    finally:
+        r.stop()
+
+
+def test_scan_finds_the_firmware_at_address_17_19200_8e1(runner):
+    commission.scan_finds_the_drive_at_its_address_and_line(runner, BIN)
+
+
+def test_params_save_change_restore_survives_a_restart(runner, tmp_path):
+    commission.params_round_trip_survives_a_restart(runner, BIN, tmp_path, "toml")
+
+
+def test_an_out_of_range_restore_writes_nothing_and_names_the_pa(runner, tmp_path):
+    commission.an_out_of_range_restore_writes_nothing(runner, BIN, tmp_path)
+
+
+def test_the_page_says_the_firmware_is_gone_and_finds_it_again(runner, tmp_path):
+    commission.the_page_follows_the_line_away_and_back(runner, BIN, tmp_path)
+
+
+def test_the_page_enables_and_moves_the_firmware(runner, tmp_path):
+    commission.the_page_moves_the_drive(runner, BIN, tmp_path)
