@@ -258,7 +258,10 @@ mod tests {
             ("commission --serial /dev/x", "--web"),
             ("params save --serial /dev/x", "FILE"),
             ("params restore f.toml", "--serial"),
-            ("commission --serial x --web 1:2 --baud 1234", "--baud 1234"),
+            (
+                "commission --serial x --web 127.0.0.1:2 --baud 1234",
+                "--baud 1234",
+            ),
             ("scan --serial x --format 7N1", "--format 7N1"),
             ("params save --serial x --address 0 f", "--address 0"),
             ("params load", "save or restore"),

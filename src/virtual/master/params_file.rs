@@ -177,8 +177,7 @@ fn toml_pairs(text: &str) -> Result<Vec<(String, String, Value)>, String> {
         let (key, rest) = line.split_once('=').ok_or_else(|| at("not key = value"))?;
         let rest = rest.trim();
         let value = if let Some(s) = rest.strip_prefix('"') {
-            let end = s.find('"').ok_or_else(|| at("a string ends with \""))?;
-            Value::Str(s[..end].to_string())
+            Value::Str(toml_string(s).ok_or_else(|| at("a string ends with \""))?)
         } else {
             let v = rest.split('#').next().unwrap_or("");
             Value::Int(parse_int(v).ok_or_else(|| at("not an integer"))?)
@@ -186,6 +185,29 @@ fn toml_pairs(text: &str) -> Result<Vec<(String, String, Value)>, String> {
         out.push((table.clone(), key.trim().to_string(), value));
     }
     Ok(out)
+}
+
+/// A basic string after its opening quote, escapes resolved; `None` when
+/// it does not end on this line.
+fn toml_string(s: &str) -> Option<String> {
+    let mut out = String::new();
+    let mut chars = s.chars();
+    while let Some(c) = chars.next() {
+        match c {
+            '"' => return Some(out),
+            '\\' => match chars.next()? {
+                'n' => out.push('\n'),
+                't' => out.push('\t'),
+                'u' => {
+                    let h: String = chars.by_ref().take(4).collect();
+                    out.push(char::from_u32(u32::from_str_radix(&h, 16).ok()?)?);
+                }
+                other => out.push(other),
+            },
+            c => out.push(c),
+        }
+    }
+    None
 }
 
 /// The same pairs from the JSON layout [`ParamFile::to_json`] writes: an

@@ -373,3 +373,56 @@ fn hex(bytes: &[u8]) -> String {
     }
     s
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use modbus_drive::drive::PowerState;
+
+    fn enable() -> Vec<Step> {
+        let ctx = Ctx {
+            state: PowerState::SwitchOnDisabled,
+            low_first: false,
+        };
+        requests(&Command::Enable, ctx).unwrap()
+    }
+
+    #[test]
+    fn a_sequence_stops_at_the_step_that_got_no_answer_and_says_which() {
+        let mut sent = Vec::new();
+        let json = run_steps(&enable(), |pdu| {
+            sent.push(pdu.clone());
+            let frame = pdu.frame(1);
+            if sent.len() == 2 {
+                (frame, Vec::new(), Err("no reply within 300 ms".into()))
+            } else {
+                (frame.clone(), frame, Ok(Answer::Ok(pdu.0.clone())))
+            }
+        });
+        assert_eq!(sent.len(), 2, "nothing sent past the failing step");
+        assert!(json.starts_with("{\"ok\":false,"), "{json}");
+        assert!(
+            json.contains(
+                "stopped at step 2 of 3 (0x6040 = 0x0007): no reply within 300 ms; \
+                 the later steps were not sent"
+            ),
+            "{json}"
+        );
+        assert_eq!(json.matches("\"label\"").count(), 2, "{json}");
+        assert!(json.contains("\"answer\":\"no reply\""), "{json}");
+    }
+
+    #[test]
+    fn a_refused_step_stops_the_sequence_with_its_exception() {
+        let json = run_steps(&enable(), |pdu| {
+            (pdu.frame(1), Vec::new(), Ok(Answer::Exception(6)))
+        });
+        assert!(json.contains("stopped at step 1 of 3"), "{json}");
+        assert!(json.contains("\"code\":6"), "{json}");
+        let all = run_steps(&enable(), |pdu| {
+            (pdu.frame(1), pdu.frame(1), Ok(Answer::Ok(pdu.0.clone())))
+        });
+        assert!(all.starts_with("{\"ok\":true,"), "{all}");
+        assert_eq!(all.matches("\"label\"").count(), 3, "{all}");
+    }
+}

@@ -146,7 +146,7 @@ pub fn drive_json(v: &View<'_>) -> String {
         address: d.address(),
         state: format!("{:?}", d.drive().state()),
         statusword: d.drive().statusword(),
-        error_register: u16::from(d.drive().error_register()),
+        error_register: d.drive().error_register(),
         mode: i64::from(d.drive().mode_display()),
         position: i64::from(d.drive().actual_position()),
         velocity: i64::from(d.drive().actual_velocity_rpm()),
