@@ -237,6 +237,7 @@ function renderTables(d) {
       if (!cell) return;
       let v = e.value;
       if (v !== null && typeof v === "object") v = `${v.written} (last written; reads give exception 7)`;
+      if (v === null) v = "…"; // not read yet (the page over a Modbus master)
       cell.textContent = v;
     });
   };
