@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import Firmware, Master, e2e_module
+from conftest import Firmware, Master, e2e_module, free_port
 
 commission = e2e_module("commission")
 ROOT = Path(__file__).resolve().parents[2]
@@ -66,3 +66,30 @@ def test_the_page_says_the_firmware_is_gone_and_finds_it_again(runner, tmp_path)
 
 def test_the_page_enables_and_moves_the_firmware(runner, tmp_path):
     commission.the_page_moves_the_drive(runner, BIN, tmp_path)
+
+
+def test_the_page_through_the_runners_modbus_tcp_gateway(start_fw, board, tmp_path):
+    """`--modbus-tcp-master` to fw-sim's gateway: the page reads the
+    firmware and writes a PA; a unit that is not on the line gets the
+    gateway's exception 0x0B, which the page shows as the drive gone."""
+    port = free_port()
+    fw = start_fw(board, "--modbus-tcp", f"127.0.0.1:{port}")
+    page = commission.Commission(BIN, tmp_path, "--modbus-tcp-master", f"127.0.0.1:{port}")
+    try:
+        s = page.wait(lambda s: s["link"]["ok"] and s["pa"][2]["value"] is not None,
+                      "the page reads the firmware through the gateway")
+        assert s["state"] == "SwitchOnDisabled"
+        r = page.cmd(c="write", index=0x0064 + 12, value=1234)
+        assert r["ok"], r
+        page.wait(lambda s: s["pa"][12]["value"] == 1234, "PA12 read back")
+    finally:
+        page.stop()
+    fw.alive()
+    page = commission.Commission(BIN, tmp_path, "--modbus-tcp-master", f"127.0.0.1:{port}",
+                                 "--address", "9")
+    try:
+        s = page.wait(lambda s: not s["link"]["ok"] and s["link"]["error"], "unit 9 is absent",
+                      timeout=30)
+        assert "exception 11" in s["link"]["error"], s["link"]
+    finally:
+        page.stop()

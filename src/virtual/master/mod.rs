@@ -98,6 +98,18 @@ pub enum Endpoint {
     Tcp(String),
 }
 
+impl Endpoint {
+    /// The reply wait unless `--timeout` says otherwise: on TCP longer
+    /// than a gateway's own wait for its serial line (commonly 1 s), so
+    /// that its "target failed to respond" arrives as the answer.
+    pub fn default_timeout(&self) -> Duration {
+        match self {
+            Self::Serial { .. } => Duration::from_millis(300),
+            Self::Tcp(_) => Duration::from_millis(1500),
+        }
+    }
+}
+
 /// A byte link that carries one request and its reply.
 pub trait Link {
     /// Puts a new baud / format in force (after a drive changed its own).

@@ -25,8 +25,6 @@ use crate::virtual_drive::web::{
     quote, Answer, Ctx, ExceptionLog, OdValue, Pdu, Remote, Snapshot, WebPort, FOLLOWING_ERROR,
 };
 
-/// Default reply wait.
-const TIMEOUT: Duration = Duration::from_millis(300);
 /// The page's view is rebuilt this often.
 const STATE_PERIOD: Duration = Duration::from_millis(200);
 /// Wait between two tries of a drive that is gone.
@@ -143,11 +141,19 @@ impl RemoteDrive {
     }
 
     fn sample(&mut self) -> bool {
-        let Ok(m) = self.read(0x0000, MONITOR_WORDS) else {
-            return false;
-        };
-        let Ok(sw) = self.read(STATUSWORD, 1) else {
-            return false;
+        let read = self
+            .read(0x0000, MONITOR_WORDS)
+            .and_then(|m| Ok((m, self.read(STATUSWORD, 1)?)));
+        let (m, sw) = match read {
+            Ok(r) => r,
+            // The drive has both registers: a refusal comes from a gateway
+            // whose drive does not answer (0x0A / 0x0B), or another device.
+            Err(f @ Failure::Exception { .. }) => {
+                self.gone = Some(f.to_string());
+                self.last_failure = Some(f.to_string());
+                return false;
+            }
+            Err(_) => return false,
         };
         self.monitor = m;
         self.statusword = sw[0];
@@ -316,7 +322,8 @@ pub fn run(o: Commission) -> Result<(), String> {
             .map_err(|e| format!("cannot handle signal {sig}: {e}"))?;
     }
     let c = o.common;
-    let master = Master::new(c.endpoint, c.address, c.timeout.unwrap_or(TIMEOUT));
+    let timeout = c.timeout.unwrap_or(c.endpoint.default_timeout());
+    let master = Master::new(c.endpoint, c.address, timeout);
     let mut port = WebPort::start(o.web, 1).map_err(|e| format!("--web {}: {e}", o.web))?;
     eprintln!("master: {} , address {}", master.describe(), master.unit);
     eprintln!("web: page on http://{}/", port.addr);

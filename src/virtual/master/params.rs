@@ -22,12 +22,12 @@ use crate::virtual_drive::registers::{
 /// The EE command register and EE-Set (SPEC §9).
 const EE_REGISTER: u16 = 0x003A;
 const EE_SET: u16 = 1;
-/// Default reply wait: an EE-Set answers once the flash is written.
-const TIMEOUT: Duration = Duration::from_millis(300);
+/// An EE-Set answers once the flash is written.
 const EE_TIMEOUT: Duration = Duration::from_secs(3);
 
 fn master(c: &Common) -> Master {
-    Master::new(c.endpoint.clone(), c.address, c.timeout.unwrap_or(TIMEOUT))
+    let timeout = c.timeout.unwrap_or(c.endpoint.default_timeout());
+    Master::new(c.endpoint.clone(), c.address, timeout)
 }
 
 pub fn save(o: Params) -> Result<(), String> {
