@@ -34,7 +34,7 @@ OPTIONS:
     --address N              The drive's address, 1..=247 [default: 1].
     --timeout MS             Longest wait for a reply [default: 300 on a
                              serial port, 1500 on TCP; scan: the line's
-                             frame times and 30 ms].
+                             frame times and 25 ms].
     --web ADDR:PORT          commission: serve the page there (127.0.0.1:8080;
                              port 0 picks one, printed on stderr).
     --quick                  scan: the default line only (115200 8N1).

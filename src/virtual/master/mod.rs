@@ -177,6 +177,9 @@ pub struct Master {
     link: Option<Box<dyn Link + Send>>,
     pub unit: u8,
     pub timeout: Duration,
+    /// Reopen the port after [`REOPEN_AFTER_SILENT`] silent requests (not
+    /// in a scan, where silence is the rule).
+    pub reopen_on_silence: bool,
     /// Requests in a row that got no reply.
     silent: u32,
 }
@@ -192,6 +195,7 @@ impl Master {
             link: None,
             unit,
             timeout,
+            reopen_on_silence: true,
             silent: 0,
         }
     }
@@ -244,7 +248,7 @@ impl Master {
             }
             Ok((request, reply)) if reply.is_empty() => {
                 self.silent += 1;
-                if self.silent >= REOPEN_AFTER_SILENT {
+                if self.reopen_on_silence && self.silent >= REOPEN_AFTER_SILENT {
                     self.link = None;
                     self.silent = 0;
                 }

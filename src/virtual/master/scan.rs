@@ -18,10 +18,12 @@ use crate::virtual_drive::registers::{PA_ADDRESS, PA_BASE, PA_BAUD, PA_FIRMWARE}
 
 /// Reply wait beyond the frames' own time on the wire (the drive's
 /// response delay PA56 defaults to 0).
-const MARGIN: Duration = Duration::from_millis(30);
+/// Covers a USB adapter's latency timer too (an FTDI chip holds a short
+/// reply up to 16 ms by default).
+const MARGIN: Duration = Duration::from_millis(25);
 const STATUSWORD: u16 = 0x6041;
-/// PA2's request and reply (8 and 7 bytes).
-const PROBE_BYTES: usize = 8 + 7;
+/// PA2's reply (the link's wait starts once the request has left).
+const REPLY_BYTES: usize = 7;
 
 pub struct Found {
     pub address: u8,
@@ -42,13 +44,14 @@ pub fn run(o: &Scan) -> Result<(), String> {
         1,
         MARGIN,
     );
+    m.reopen_on_silence = false;
     let stderr = std::io::stderr();
     for &line in &o.lines {
         m.set_line(line)
             .map_err(|e| format!("{}: {e}", o.path.display()))?;
         m.timeout = o
             .timeout
-            .unwrap_or(line.time_of(PROBE_BYTES) + line.t35() * 2 + MARGIN);
+            .unwrap_or(line.time_of(REPLY_BYTES) + line.t35() * 2 + MARGIN);
         for address in 1..=247u8 {
             if address % 16 == 1 {
                 let mut e = stderr.lock();

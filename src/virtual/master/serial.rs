@@ -27,7 +27,8 @@ const END_SILENCE: Duration = Duration::from_millis(20);
 pub struct Serial {
     port: File,
     line: LineSpec,
-    /// When the last reply ended: the next request waits t3.5 after it.
+    /// When the last reply ended (if it was not silence): the next request
+    /// waits t3.5 after it.
     last_rx: Option<Instant>,
 }
 
@@ -191,7 +192,8 @@ impl Link for Serial {
                 Err(e) => return Err(e),
             }
         }
-        self.last_rx = Some(Instant::now());
+        // After silence the line has been quiet long enough already.
+        self.last_rx = (!reply.is_empty()).then(Instant::now);
         Ok((frame, reply))
     }
 }
