@@ -207,6 +207,8 @@ def the_page_moves_the_drive(runner, bin_path: Path, tmp: Path):
         assert s["link"]["rate"] > 0
     finally:
         page.stop()
-    # after the page: one master at a time on a shared line (fw-sim's is
-    # one bus, as RS-485 is)
-    assert runner.master().read32(ACTUAL_POSITION) == 10000
+    # after the page, once its last reply has left the wire: one master at
+    # a time on a shared line (fw-sim's is one bus, as RS-485 is)
+    time.sleep(0.3)
+    pos = runner.master().read32(ACTUAL_POSITION)
+    assert pos == 10000, pos

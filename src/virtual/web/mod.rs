@@ -10,6 +10,11 @@
 //!   dispatcher (`modbus.rs`), never by writing drive state — and publishes
 //!   samples and the page's view of each drive.
 //!
+//! The same page and HTTP side also run over a drive reached by Modbus
+//! requests (`master/`, `modbus-drive commission`): [`WebPort::serve_remote`]
+//! runs the jobs through a [`Remote`], and the master publishes what it
+//! read as a [`Snapshot`] — the seam between the page and its back end.
+//!
 //! The page's requests never touch a bus line: they do not pass any line's
 //! frame assembler, so they cannot break a frame a master is sending, and
 //! they run between the loop's frame handling steps, so a master's frame
