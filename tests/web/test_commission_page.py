@@ -2,7 +2,7 @@
 Modbus master) in headless Chromium, against a drive on a pseudo-terminal:
 the virtual drive, and both firmware images under fw-sim (the real serial
 path). The page enables the drive, moves it 10 000 steps and shows target
-reached; the runner stops mid-session and the page says the drive is gone,
+reached; Restore defaults runs only once confirmed; the runner stops mid-session and the page says the drive is gone,
 then finds it again when the runner is back. Run by .ci/web.sh, which
 builds fw-sim and the images (FW_SIM_BIN, FW_SIM_ELF_G431/F103)."""
 
@@ -140,6 +140,16 @@ def test_the_page_moves_a_drive_and_follows_its_line_away_and_back(browser, kind
         wait(b, lambda: bit_set(b, "sw-bits", SW_TARGET_REACHED) and text(b, "pos-readout") == "10000",
              "target reached at 10000")
         assert "done" in text(b, "cmd-log"), text(b, "cmd-log")
+        # EE-dEF asks first: dismissed, nothing is sent; accepted, it runs
+        before = text(b, "cmd-log")
+        b.find_element(By.ID, "defaults").click()
+        b.switch_to.alert.dismiss()
+        time.sleep(0.5)
+        assert text(b, "cmd-log") == before
+        b.find_element(By.ID, "defaults").click()
+        b.switch_to.alert.accept()
+        wait(b, lambda: "EE-dEF (restore defaults, and save them): ok" in text(b, "cmd-log"),
+             "EE-dEF answered")
         # the line pulled away: the runner stops
         runner.stop()
         wait(b, lambda: text(b, "link") == "drive not answering", "the page says the drive is gone")

@@ -25,6 +25,10 @@ use crate::virtual_drive::web::{
     quote, Answer, Ctx, ExceptionLog, OdValue, Pdu, Remote, Snapshot, WebPort, FOLLOWING_ERROR,
 };
 
+/// The wait for an EE operation's reply.
+const EE_TIMEOUT: Duration = Duration::from_secs(3);
+/// The EE command register (SPEC §9).
+const EE_REGISTER: u16 = 0x003A;
 /// The page's view is rebuilt this often.
 const STATE_PERIOD: Duration = Duration::from_millis(200);
 /// Wait between two tries of a drive that is gone.
@@ -309,10 +313,26 @@ impl Remote for RemoteDrive {
     }
 
     fn exchange(&mut self, pdu: &Pdu) -> (Vec<u8>, Vec<u8>, Result<Answer, String>) {
+        // An EE operation answers once the flash is written (SPEC §9).
+        let normal = self.master.timeout;
+        if is_ee_operation(pdu) {
+            self.master.timeout = normal.max(EE_TIMEOUT);
+        }
         let (request, reply, answer) = self.master.exchange(pdu);
+        self.master.timeout = normal;
         self.note(pdu, &request, &reply, &answer);
         (request, reply, answer)
     }
+}
+
+/// A write to the EE command register: 0x10 to 0x003A, or the old
+/// format's 0x06 to 0x0000 (SPEC §9).
+fn is_ee_operation(pdu: &Pdu) -> bool {
+    let register = pdu.0.get(1..3).map(|b| u16::from_be_bytes([b[0], b[1]]));
+    matches!(
+        (pdu.function(), register),
+        (0x10, Some(EE_REGISTER)) | (0x06, Some(0x0000))
+    )
 }
 
 pub fn run(o: Commission) -> Result<(), String> {
@@ -363,4 +383,18 @@ pub fn run(o: Commission) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ee_operations_are_told_from_other_writes() {
+        assert!(is_ee_operation(&Pdu::write_multiple(0x003A, &[5])));
+        assert!(is_ee_operation(&Pdu::write_single(0x0000, 1)));
+        assert!(!is_ee_operation(&Pdu::write_single(0x003A, 1)));
+        assert!(!is_ee_operation(&Pdu::write_multiple(0x6040, &[1])));
+        assert!(!is_ee_operation(&Pdu(vec![0x10])));
+    }
 }
