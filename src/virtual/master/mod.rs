@@ -299,10 +299,7 @@ impl Master {
 
     /// 0x03 of `quantity` words at `start`.
     pub fn read(&mut self, start: u16, quantity: u16) -> Result<Vec<u16>, Failure> {
-        let mut v = vec![0x03];
-        v.extend_from_slice(&start.to_be_bytes());
-        v.extend_from_slice(&quantity.to_be_bytes());
-        let pdu = Pdu(v);
+        let pdu = Pdu::read(start, quantity);
         let reply = self.request(&pdu)?;
         let words: Vec<u16> = reply
             .get(2..)

@@ -202,6 +202,61 @@ impl Link for Serial {
 mod tests {
     use super::*;
 
+    use std::os::fd::OwnedFd;
+
+    /// A pty: the master's port at its slave end, the "drive" at its
+    /// master end.
+    fn line() -> (Serial, File, OwnedFd) {
+        let p = nix::pty::openpty(None, None).unwrap();
+        let path = nix::unistd::ttyname(&p.slave).unwrap();
+        let port = Serial::open(&path, LineSpec::DEFAULT).unwrap();
+        (port, File::from(p.master), p.slave)
+    }
+
+    /// Answers the next request with `reply` (after reading the request);
+    /// gives back the request and the pty end (closing it would hang the
+    /// line up before the reply is read).
+    fn drive_answers(mut drive: File, reply: Vec<u8>) -> std::thread::JoinHandle<(Vec<u8>, File)> {
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 64];
+            let n = drive.read(&mut buf).unwrap();
+            drive.write_all(&reply).unwrap();
+            (buf[..n].to_vec(), drive)
+        })
+    }
+
+    #[test]
+    fn a_reply_is_read_whole_after_other_traffic_on_the_bus() {
+        let (mut port, drive, _slave) = line();
+        let request = Pdu::read(0x6041, 1);
+        let mut reply = vec![0xE5, 0x07];
+        reply.extend(Pdu(vec![0x03, 0x02, 0x00, 0x60]).frame(1));
+        let t = drive_answers(drive, reply);
+        let (sent, got) = port
+            .exchange(1, &request, Duration::from_millis(500))
+            .unwrap();
+        assert_eq!(t.join().unwrap().0, sent);
+        assert_eq!(sent, request.frame(1));
+        assert_eq!(got, Pdu(vec![0x03, 0x02, 0x00, 0x60]).frame(1));
+    }
+
+    #[test]
+    fn silence_is_an_empty_reply_and_a_short_one_is_kept_as_it_came() {
+        let (mut port, drive, _slave) = line();
+        let request = Pdu::write_single(0x6040, 6);
+        let (_, got) = port
+            .exchange(1, &request, Duration::from_millis(50))
+            .unwrap();
+        assert!(got.is_empty());
+        // a reply cut short: what came, after the silence that ended it
+        let t = drive_answers(drive, vec![0x01, 0x06, 0x60]);
+        let (_, got) = port
+            .exchange(1, &request, Duration::from_millis(100))
+            .unwrap();
+        t.join().unwrap();
+        assert_eq!(got, [0x01, 0x06, 0x60]);
+    }
+
     #[test]
     fn reply_lengths_follow_the_function_code() {
         assert_eq!(reply_len(&[1]), None);
