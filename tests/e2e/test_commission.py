@@ -46,6 +46,16 @@ def test_scan_finds_the_drive_at_address_17_19200_8e1(runner):
     commission.scan_finds_the_drive_at_its_address_and_line(runner, BIN)
 
 
+def test_scan_asks_again_a_drive_whose_reply_came_after_the_wait(runner):
+    """PA56 = 60 ms response delay, longer than the scan's wait at 115200
+    (the frames' time, two t3.5 and 25 ms): the late reply is noticed
+    before the next address and the drive asked again, patiently."""
+    runner.master().write(commission.PA + 56, 60)
+    out = commission.tool(BIN, "scan", "--serial", runner.link, "--quick")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "address   1  line 115200 8N1" in out.stdout, out.stdout
+
+
 @pytest.mark.parametrize("suffix", ["toml", "json"])
 def test_params_save_change_restore_survives_a_restart(runner, tmp_path, suffix):
     commission.params_round_trip_survives_a_restart(runner, BIN, tmp_path, suffix)

@@ -112,6 +112,12 @@ impl Endpoint {
 
 /// A byte link that carries one request and its reply.
 pub trait Link {
+    /// The bytes found waiting before the last request, or before its
+    /// reply, and discarded (a late reply to the request before, or other
+    /// traffic).
+    fn stale(&self) -> &[u8] {
+        &[]
+    }
     /// Puts a new baud / format in force (after a drive changed its own).
     fn set_line(&mut self, line: LineSpec) -> io::Result<()>;
     /// Sends `pdu` to `unit`; returns the request as sent and the reply as
@@ -227,6 +233,11 @@ impl Master {
             self.link = Some(l);
         }
         Ok(self.link.as_mut().expect("opened above"))
+    }
+
+    /// See [`Link::stale`].
+    pub fn stale(&self) -> &[u8] {
+        self.link.as_ref().map_or(&[], |l| l.stale())
     }
 
     /// One request: the frame as sent, the reply frame as received, and

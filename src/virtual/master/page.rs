@@ -96,7 +96,7 @@ impl RemoteDrive {
                 .collect(),
             counters: [0; 7],
             counters_read: false,
-            gone: Some("not asked yet".into()),
+            gone: Some("connecting".into()),
             last_failure: None,
             refresh,
             next_refresh: 0,

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use super::cli::Scan;
 use super::status::power_state;
 use super::{Endpoint, LineSpec, Master};
-use crate::virtual_drive::registers::{PA_ADDRESS, PA_BASE, PA_BAUD, PA_FIRMWARE};
+use crate::virtual_drive::registers::{PA_ADDRESS, PA_BASE, PA_BAUD, PA_FIRMWARE, PA_FORMAT};
 
 /// Reply wait beyond the frames' own time on the wire (the drive's
 /// response delay PA56 defaults to 0).
@@ -66,30 +66,26 @@ pub fn run(o: &Scan) -> Result<(), String> {
                 continue;
             }
             m.unit = address;
-            let Ok(fw) = m.read(PA_BASE + PA_FIRMWARE as u16, 1) else {
-                continue;
-            };
-            let pas = m.read(PA_BASE + PA_ADDRESS as u16, 3).ok();
-            let state = m
-                .read(STATUSWORD, 1)
-                .ok()
-                .and_then(|sw| power_state(sw[0]))
-                .map_or("?".into(), |s| format!("{s:?}"));
-            let own_line = pas.as_ref().and_then(|p| {
-                LineSpec::from_pa(p[PA_BAUD - PA_ADDRESS], p[PA_BAUD - PA_ADDRESS + 1])
-            });
-            let f = Found {
-                address,
-                answered_at: line,
-                line: own_line,
-                firmware: fw[0],
-                state,
-            };
-            let mut e = stderr.lock();
-            let _ = writeln!(e);
-            drop(e);
-            println!("{}", describe(&f));
-            found.push(f);
+            let probe = m.read(PA_BASE + PA_FIRMWARE as u16, 1);
+            // An address asked before was silent but its reply came after
+            // the wait, before or during this probe (a slow drive, a busy
+            // host): ask it again, patiently.
+            for late in repliers(m.stale()) {
+                if late >= address || found.iter().any(|f| f.address == late) {
+                    continue;
+                }
+                m.unit = late;
+                let wait = m.timeout;
+                m.timeout = wait * 4;
+                if let Ok(fw) = m.read(PA_BASE + PA_FIRMWARE as u16, 1) {
+                    found.push(report(details(&mut m, line, fw[0])));
+                }
+                m.timeout = wait;
+                m.unit = address;
+            }
+            if let Ok(fw) = probe {
+                found.push(report(details(&mut m, line, fw[0])));
+            }
         }
     }
     eprintln!(
@@ -104,6 +100,44 @@ pub fn run(o: &Scan) -> Result<(), String> {
     Ok(())
 }
 
+/// The rest of what the scan prints of the drive at `m.unit`, which
+/// answered PA2 = `firmware` at `line`.
+fn details(m: &mut Master, line: LineSpec, firmware: u16) -> Found {
+    let pas = m.read(PA_BASE + PA_ADDRESS as u16, 3).ok();
+    let state = m
+        .read(STATUSWORD, 1)
+        .ok()
+        .and_then(|sw| power_state(sw[0]))
+        .map_or("?".into(), |s| format!("{s:?}"));
+    Found {
+        address: m.unit,
+        answered_at: line,
+        line: pas
+            .and_then(|p| LineSpec::from_pa(p[PA_BAUD - PA_ADDRESS], p[PA_FORMAT - PA_ADDRESS])),
+        firmware,
+        state,
+    }
+}
+
+fn report(f: Found) -> Found {
+    eprintln!();
+    println!("{}", describe(&f));
+    f
+}
+
+/// The addresses of the reply frames (right CRC) inside `bytes`.
+fn repliers(bytes: &[u8]) -> Vec<u8> {
+    let mut out: Vec<u8> = Vec::new();
+    for i in 0..bytes.len() {
+        let b = &bytes[i..];
+        let whole = (5..=b.len()).any(|n| modbus_drive::rtu::crc16(&b[..n]) == 0);
+        if (1..=247).contains(&b[0]) && whole && !out.contains(&b[0]) {
+            out.push(b[0]);
+        }
+    }
+    out
+}
+
 pub fn describe(f: &Found) -> String {
     let line = match f.line {
         Some(l) if l == f.answered_at => l.to_string(),
@@ -114,4 +148,24 @@ pub fn describe(f: &Found) -> String {
         "address {:>3}  line {line}  firmware {}  state {}",
         f.address, f.firmware, f.state
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::virtual_drive::web::Pdu;
+
+    #[test]
+    fn late_replies_are_told_among_other_bytes() {
+        let reply = Pdu(vec![0x03, 0x02, 0x1B, 0x94]).frame(16);
+        let mut bytes = vec![0x00, 0x10, 0xFF];
+        bytes.extend(&reply);
+        assert_eq!(repliers(&bytes), [16]);
+        // a frame cut short, or with a bad CRC, is no reply
+        assert!(repliers(&reply[..reply.len() - 1]).is_empty());
+        let mut bad = reply.clone();
+        bad[3] ^= 1;
+        assert!(repliers(&bad).is_empty());
+        assert!(repliers(&[]).is_empty());
+    }
 }

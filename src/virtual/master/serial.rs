@@ -30,6 +30,9 @@ pub struct Serial {
     /// When the last reply ended (if it was not silence): the next request
     /// waits t3.5 after it.
     last_rx: Option<Instant>,
+    /// What was read away before the last request, and skipped before
+    /// its reply.
+    stale: Vec<u8>,
 }
 
 /// A port refused a character format (said once a run: a scan reopens
@@ -58,6 +61,7 @@ impl Serial {
             port,
             line,
             last_rx: None,
+            stale: Vec::new(),
         };
         s.configure(line)?;
         Ok(s)
@@ -116,6 +120,19 @@ impl Serial {
     }
 }
 
+/// Where in `buf` a reply from `unit` to `function` can start (its end
+/// if nowhere yet).
+fn reply_start(buf: &[u8], unit: u8, function: u8) -> usize {
+    (0..buf.len())
+        .find(|&i| {
+            buf[i] == unit
+                && buf
+                    .get(i + 1)
+                    .is_none_or(|&f| f == function || f == function | 0x80)
+        })
+        .unwrap_or(buf.len())
+}
+
 /// The length of the reply frame that starts with `buf`, once it can be
 /// told (Modbus Application Protocol §6: each function's reply layout).
 fn reply_len(buf: &[u8]) -> Option<usize> {
@@ -131,6 +148,10 @@ fn reply_len(buf: &[u8]) -> Option<usize> {
 }
 
 impl Link for Serial {
+    fn stale(&self) -> &[u8] {
+        &self.stale
+    }
+
     fn set_line(&mut self, line: LineSpec) -> io::Result<()> {
         self.configure(line)
     }
@@ -156,7 +177,10 @@ impl Link for Serial {
         // (pseudo-terminals of some kernels) ignore the flush.
         let _ = tcflush(self.port.as_fd(), FlushArg::TCIFLUSH);
         let mut junk = [0u8; 256];
-        while matches!(self.port.read(&mut junk), Ok(n) if n > 0) {}
+        self.stale.clear();
+        while let Ok(n @ 1..) = self.port.read(&mut junk) {
+            self.stale.extend_from_slice(&junk[..n]);
+        }
         self.port.write_all(&frame)?;
         // The reply cannot start before the request has left the wire.
         let mut deadline = Instant::now() + self.line.time_of(frame.len()) + timeout;
@@ -182,10 +206,11 @@ impl Link for Serial {
                 Ok(0) => return Err(io::Error::new(ErrorKind::BrokenPipe, "the line closed")),
                 Ok(k) => {
                     reply.extend_from_slice(&chunk[..k]);
-                    // A reply starts with the address asked; bytes before
-                    // it are the tail of other traffic on the bus.
-                    let start = reply.iter().position(|&b| b == unit).unwrap_or(reply.len());
-                    reply.drain(..start);
+                    // A reply starts with the address asked and the
+                    // function (or its exception); bytes before it are
+                    // other traffic on the bus, e.g. a late reply.
+                    let start = reply_start(&reply, unit, pdu.function());
+                    self.stale.extend(reply.drain(..start));
                     deadline = deadline.max(Instant::now() + END_SILENCE);
                 }
                 Err(e) if e.kind() == ErrorKind::WouldBlock => {}
@@ -255,6 +280,17 @@ mod tests {
             .unwrap();
         t.join().unwrap();
         assert_eq!(got, [0x01, 0x06, 0x60]);
+    }
+
+    #[test]
+    fn a_reply_starts_at_its_address_and_function() {
+        // a late reply from drive 1 whose data holds 0x02
+        let late = [0x01, 0x03, 0x02, 0x1B, 0x94, 0xB3, 0x1B];
+        assert_eq!(reply_start(&late, 2, 0x03), late.len());
+        assert_eq!(reply_start(&[0x01, 0x03, 0x02, 0x03, 0x02], 2, 0x03), 2);
+        assert_eq!(reply_start(&[0xE5, 0x02, 0x83, 0x02], 2, 0x03), 1);
+        // the address alone may start one: the next byte decides
+        assert_eq!(reply_start(&[0xE5, 0x02], 2, 0x03), 1);
     }
 
     #[test]

@@ -2,20 +2,17 @@
 //! command is the sequence of requests a master would send (SPEC §8); the
 //! page runs them in order and stops at the first refusal.
 
-use modbus_drive::dictionary::{position, DataType, TABLE};
 use modbus_drive::drive::PowerState;
-use modbus_drive::params::PA_COUNT;
 use modbus_drive::Device;
 
 use super::force::Switch;
 use super::modbus::{Pdu, EE_REGISTER};
+use crate::virtual_drive::registers::{position, DataType, PA_BASE, PA_COUNT, TABLE};
 
 const CONTROLWORD: u16 = 0x6040;
 const MODE: u16 = 0x6060;
 const PROFILE_VELOCITY: u16 = 0x6081;
 const TARGET_POSITION: u16 = 0x607A;
-/// PA0's legacy address (SPEC §9).
-pub const PA_BASE: u16 = 0x0064;
 
 /// Controlword values (SPEC §8.1, §8.4).
 mod cw {

@@ -4,15 +4,14 @@
 
 use std::fmt::Write;
 
-use modbus_drive::dictionary::{position, Access, DataType, DriveLayer, Object, TABLE};
+use modbus_drive::dictionary::{Access, DriveLayer, Object};
 use modbus_drive::motion::Switches;
-use modbus_drive::params::PA;
 use modbus_drive::slave::{Counters, Slave};
 use modbus_drive::Device;
 
 use super::exceptions::ExceptionLog;
 use super::force::{Forced, Switch};
-use crate::virtual_drive::registers::{od_meta, pa_meta};
+use crate::virtual_drive::registers::{od_meta, pa_meta, position, DataType, PA, TABLE};
 
 /// Following error actual value (SPEC §8.8), shown once the table has it.
 pub const FOLLOWING_ERROR: u16 = 0x60F4;
