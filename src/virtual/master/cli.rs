@@ -93,6 +93,7 @@ pub fn parse(args: &[String]) -> Result<Option<Tool>, String> {
         "params" => match it.next().map(String::as_str) {
             Some("save") => "save",
             Some("restore") => "restore",
+            Some("--help" | "-h") => return Ok(None),
             _ => return Err("params: save or restore (see --help)".into()),
         },
         t => t,
