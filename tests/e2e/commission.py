@@ -212,3 +212,24 @@ def the_page_moves_the_drive(runner, bin_path: Path, tmp: Path):
     time.sleep(0.3)
     pos = runner.master().read32(ACTUAL_POSITION)
     assert pos == 10000, pos
+
+
+def a_restore_follows_the_drive_to_its_new_address_and_line(runner, bin_path: Path, tmp: Path):
+    """A file with another address, baud and format: those are written
+    last, the master follows the drive for the read-backs and the EE-Set."""
+    f = tmp / "moved.toml"
+    out = tool(bin_path, "params", "save", "--serial", runner.link, f)
+    assert out.returncode == 0, out.stderr
+    text = f.read_text()
+    for n, v in ((51, 17), (52, 1), (53, 1), (12, 1500)):
+        text = re.sub(rf"^PA{n} = \d+", f"PA{n} = {v}", text, flags=re.M)
+    f.write_text(text)
+    out = tool(bin_path, "params", "restore", "--serial", runner.link, f, "--yes")
+    assert out.returncode == 0, out.stdout + out.stderr
+    order = re.findall(r"^PA(\d+) ", out.stdout, re.M)
+    assert order == ["12", "52", "53", "51"], out.stdout
+    assert "wrote 4 change(s)" in out.stdout, out.stdout
+    runner.stop()
+    runner.start()
+    m = runner.master(17)
+    assert [m.read(PA + n) for n in (51, 52, 53, 12)] == [17, 1, 1, 1500]

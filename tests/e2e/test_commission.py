@@ -61,6 +61,10 @@ def test_params_save_change_restore_survives_a_restart(runner, tmp_path, suffix)
     commission.params_round_trip_survives_a_restart(runner, BIN, tmp_path, suffix)
 
 
+def test_a_restore_follows_the_drive_to_its_new_address_and_line(runner, tmp_path):
+    commission.a_restore_follows_the_drive_to_its_new_address_and_line(runner, BIN, tmp_path)
+
+
 def test_an_out_of_range_restore_writes_nothing_and_names_the_pa(runner, tmp_path):
     commission.an_out_of_range_restore_writes_nothing(runner, BIN, tmp_path)
 

@@ -56,6 +56,10 @@ def test_params_save_change_restore_survives_a_restart(runner, tmp_path):
     commission.params_round_trip_survives_a_restart(runner, BIN, tmp_path, "toml")
 
 
+def test_a_restore_follows_the_firmware_to_its_new_address_and_line(runner, tmp_path):
+    commission.a_restore_follows_the_drive_to_its_new_address_and_line(runner, BIN, tmp_path)
+
+
 def test_an_out_of_range_restore_writes_nothing_and_names_the_pa(runner, tmp_path):
     commission.an_out_of_range_restore_writes_nothing(runner, BIN, tmp_path)
 
