@@ -27,20 +27,12 @@ source .ci/lib.sh
 venv=.venv/e2e
 pytest_venv "$venv" tests/e2e/requirements.txt
 
-target_of() {
-  cargo metadata --format-version 1 --no-deps "$@" |
-    python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])'
-}
-
-cargo fw
-cargo fw-f103
+( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings )
+fw_sim_images
 # the core's step schedule for the same moves, to compare the pulses with
 cargo build --example step_schedule
-( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings && cargo build --release )
-fw_target=$(target_of)
-export FW_SIM_ELF_G431="$fw_target/thumbv7em-none-eabihf/fw/modbus-drive"
-export FW_SIM_ELF_F103="$fw_target/thumbv7m-none-eabi/fw/modbus-drive"
-export FW_SIM_SCHEDULE_BIN="$fw_target/debug/examples/step_schedule"
-export FW_SIM_BIN="$(target_of --manifest-path fw-sim/Cargo.toml)/release/fw-sim"
+export FW_SIM_SCHEDULE_BIN="$(target_of)/debug/examples/step_schedule"
+# the master tools (commission, scan, params) drive the images over the pty
+release_binary fw-sim
 
 run_pytest fw-sim "$venv" tests/fw_sim "$@"

@@ -1,4 +1,4 @@
-# Shared by the pytest stages (e2e, web): sourced, not run.
+# Shared by the pytest stages (e2e, fw-sim, web): sourced, not run.
 
 # A venv at $1 with the requirements file $2 installed.
 pytest_venv() {
@@ -35,4 +35,23 @@ run_pytest() {
     exit 1
   fi
   exit "$rc"
+}
+
+# The target directory of the workspace (or of --manifest-path "$1").
+target_of() {
+  cargo metadata --format-version 1 --no-deps "$@" |
+    python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])'
+}
+
+# Builds both boards' release images and fw-sim, and exports FW_SIM_BIN,
+# FW_SIM_ELF_G431 and FW_SIM_ELF_F103 where cargo put them.
+fw_sim_images() {
+  cargo fw
+  cargo fw-f103
+  ( cd fw-sim && cargo build --release )
+  local fw_target
+  fw_target=$(target_of)
+  export FW_SIM_ELF_G431="$fw_target/thumbv7em-none-eabihf/fw/modbus-drive"
+  export FW_SIM_ELF_F103="$fw_target/thumbv7m-none-eabi/fw/modbus-drive"
+  export FW_SIM_BIN="$(target_of --manifest-path fw-sim/Cargo.toml)/release/fw-sim"
 }

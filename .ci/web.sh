@@ -2,7 +2,9 @@
 # web stage: the commissioning page of the release binary (`--web`) in
 # headless Chromium driven by Selenium, while pymodbus masters work the same
 # drive over its RTU-over-TCP line and its Modbus TCP port. Writes
-# docs/web.png, a screenshot of the page taken during a move.
+# docs/web.png, a screenshot of the page taken during a move. The page of
+# `modbus-drive commission` (a Modbus master) against the virtual drive and
+# both firmware images under fw-sim, each on a pseudo-terminal.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -18,6 +20,20 @@ source .ci/lib.sh
 venv=.venv/web
 pytest_venv "$venv" tests/web/requirements.txt
 release_binary web
+# the page over a Modbus master (`commission`) is tested against both
+# firmware images under fw-sim too; fw-sim's build needs cmake and libclang
+missing=()
+command -v cmake >/dev/null || missing+=(cmake)
+ldconfig -p 2>/dev/null | grep -q libclang || missing+=(libclang-dev)
+command -v flip-link >/dev/null || cargo install flip-link --locked
+if [ ${#missing[@]} -gt 0 ]; then
+  sudo=""
+  [ "$(id -u)" -ne 0 ] && sudo="sudo"
+  $sudo apt-get update
+  $sudo apt-get install -y "${missing[@]}"
+fi
+rustup target add thumbv7em-none-eabihf thumbv7m-none-eabi
+fw_sim_images
 CHROMIUM=/usr/bin/chromium CHROMEDRIVER=/usr/bin/chromedriver \
   WEB_SCREENSHOT="${WEB_SCREENSHOT:-docs/web.png}" \
   run_pytest web "$venv" tests/web "$@"

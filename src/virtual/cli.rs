@@ -14,6 +14,8 @@ machine, with a simulated axis per drive, reachable by any Modbus-RTU master.
 
 USAGE:
     modbus-drive [OPTIONS]
+    modbus-drive commission|scan|params ...   (a Modbus master of a real
+                             drive: `modbus-drive commission --help`)
 
 TRANSPORTS (both may be used at once):
     (default)                A pseudo-terminal: its path is printed on stderr;

@@ -7,11 +7,14 @@
 //! (pty / TCP byte streams) → `run.rs` (event loop: framing, replies,
 //! control loop) → `console.rs` (status line, logs), `trace.rs` (CSV, SVG),
 //! `flash.rs` (`--state` file as NOR flash), `web/` (`--web`, the
-//! commissioning page).
+//! commissioning page). `master/`: the same program as a Modbus master of
+//! a real drive (`commission`, `scan`, `params`).
 
 mod cli;
 mod console;
 mod flash;
+mod master;
+mod registers;
 mod run;
 mod trace;
 mod transport;
@@ -25,7 +28,21 @@ use std::sync::Arc;
 use cli::Command;
 
 pub fn main() -> ExitCode {
-    let opts = match cli::parse(std::env::args().skip(1)) {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().is_some_and(|a| master::is_tool(a)) {
+        return match master::parse(&args) {
+            Ok(Some(tool)) => master::main(tool),
+            Ok(None) => {
+                print!("{}", master::HELP);
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("modbus-drive: {e}");
+                ExitCode::from(2)
+            }
+        };
+    }
+    let opts = match cli::parse(args) {
         Ok(Command::Run(o)) => *o,
         Ok(Command::Help) => {
             print!("{}", cli::HELP);

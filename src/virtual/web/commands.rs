@@ -2,20 +2,17 @@
 //! command is the sequence of requests a master would send (SPEC §8); the
 //! page runs them in order and stops at the first refusal.
 
-use modbus_drive::dictionary::{position, DataType, TABLE};
 use modbus_drive::drive::PowerState;
-use modbus_drive::params::PA_COUNT;
 use modbus_drive::Device;
 
 use super::force::Switch;
 use super::modbus::{Pdu, EE_REGISTER};
+use crate::virtual_drive::registers::{position, DataType, PA_BASE, PA_COUNT, TABLE};
 
 const CONTROLWORD: u16 = 0x6040;
 const MODE: u16 = 0x6060;
 const PROFILE_VELOCITY: u16 = 0x6081;
 const TARGET_POSITION: u16 = 0x607A;
-/// PA0's legacy address (SPEC §9).
-const PA_BASE: u16 = 0x0064;
 
 /// Controlword values (SPEC §8.1, §8.4).
 mod cw {
@@ -69,6 +66,8 @@ pub enum Command {
     Home,
     /// EE-Set: save the working parameters (SPEC §9).
     Save,
+    /// EE-dEF: restore the defaults and save them (SPEC §9).
+    Defaults,
     /// Any request PDU typed on the page (function code and data).
     Raw(Vec<u8>),
     /// Force a switch of the simulated axis (`None` releases it).
@@ -112,11 +111,27 @@ fn profile(p: Profile, signed_speed: i32, low_word_first: bool) -> Step {
     )
 }
 
-/// The requests of `cmd` on `device` as it is now, or why the page does
-/// not send it (nothing sent then). `Force` has no requests.
-pub fn requests(cmd: &Command, device: &Device) -> Result<Vec<Step>, String> {
-    let state = device.drive().state();
-    let low_first = device.od().word_order == 1;
+/// What the requests of a command depend on: the drive's power state and
+/// its word order (0x6000), as last known.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Ctx {
+    pub state: PowerState,
+    pub low_first: bool,
+}
+
+impl Ctx {
+    pub fn of(device: &Device) -> Self {
+        Self {
+            state: device.drive().state(),
+            low_first: device.od().word_order == 1,
+        }
+    }
+}
+
+/// The requests of `cmd` on a drive in `ctx`, or why the page does not
+/// send it (nothing sent then). `Force` has no requests.
+pub fn requests(cmd: &Command, ctx: Ctx) -> Result<Vec<Step>, String> {
+    let Ctx { state, low_first } = ctx;
     let enabled = state == PowerState::OperationEnabled;
     let need_enabled = || {
         if enabled {
@@ -191,6 +206,10 @@ pub fn requests(cmd: &Command, device: &Device) -> Result<Vec<Step>, String> {
             "EE-Set (save parameters)",
             Pdu::write_multiple(EE_REGISTER, &[1]),
         )],
+        Command::Defaults => vec![step(
+            "EE-dEF (restore defaults, and save them)",
+            Pdu::write_multiple(EE_REGISTER, &[5]),
+        )],
         Command::Raw(ref pdu) => {
             if pdu.is_empty() || pdu.len() > 253 {
                 return Err("a PDU has 1..=253 bytes".into());
@@ -256,7 +275,7 @@ mod tests {
     use modbus_drive::device::Identity;
 
     fn pdus(cmd: Command, device: &Device) -> Vec<Vec<u8>> {
-        requests(&cmd, device)
+        requests(&cmd, Ctx::of(device))
             .unwrap()
             .into_iter()
             .map(|s| s.pdu.0)
@@ -290,14 +309,14 @@ mod tests {
         assert_eq!(w(&d, 0x6090, 3), [vec![0x06, 0x60, 0x90, 0x00, 0x03]]);
         // What no frame can carry is refused here.
         for (index, value) in [(0x6083, 70_000), (0x6060, 40_000), (0x607A, 1 << 40)] {
-            assert!(requests(&Command::Write { index, value }, &d).is_err());
+            assert!(requests(&Command::Write { index, value }, Ctx::of(&d)).is_err());
         }
         assert!(requests(
             &Command::Write {
                 index: 0x1008,
                 value: 0
             },
-            &d
+            Ctx::of(&d)
         )
         .is_err());
     }
@@ -314,8 +333,8 @@ mod tests {
             relative: false,
             profile: p,
         };
-        assert!(requests(&mv, &d).unwrap_err().contains("enable"));
-        assert!(requests(&Command::Home, &d).is_err());
+        assert!(requests(&mv, Ctx::of(&d)).unwrap_err().contains("enable"));
+        assert!(requests(&Command::Home, Ctx::of(&d)).is_err());
         assert_eq!(
             pdus(Command::Enable, &d),
             [0x06, 0x07, 0x0F].map(|c| vec![0x06, 0x60, 0x40, 0x00, c])

@@ -182,6 +182,7 @@ pub fn parse_command(query: &str) -> Result<(usize, Command), String> {
             profile: profile()?,
         },
         "jogstop" => Command::JogStop,
+        "defaults" => Command::Defaults,
         "move" => Command::Move {
             target: ranged("target", i64::from(i32::MIN), i64::from(i32::MAX))? as i32,
             relative: get("relative") == Some("1"),

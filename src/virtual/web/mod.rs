@@ -10,6 +10,11 @@
 //!   dispatcher (`modbus.rs`), never by writing drive state — and publishes
 //!   samples and the page's view of each drive.
 //!
+//! The same page and HTTP side also run over a drive reached by Modbus
+//! requests (`master/`, `modbus-drive commission`): [`WebPort::serve_remote`]
+//! runs the jobs through a [`Remote`], and the master publishes what it
+//! read as a [`Snapshot`] — the seam between the page and its back end.
+//!
 //! The page's requests never touch a bus line: they do not pass any line's
 //! frame assembler, so they cannot break a frame a master is sending, and
 //! they run between the loop's frame handling steps, so a master's frame
@@ -32,13 +37,14 @@ use std::sync::{Arc, Condvar, Mutex};
 use modbus_drive::rtu::LineConfig;
 use modbus_drive::slave::Slave;
 
+pub use commands::Ctx;
 pub use exceptions::ExceptionLog;
 pub use force::{Forced, Switch};
-pub use modbus::Dispatch;
-pub use state::View;
+pub use modbus::{parse_reply, Answer, Dispatch, Pdu};
+pub use state::{quote, OdValue, Snapshot, View, FOLLOWING_ERROR};
 
-use commands::{requests, Command};
-use modbus::{transact, Answer};
+use commands::{requests, Command, Step};
+use modbus::transact;
 
 /// Scope sample period: 100 samples per second.
 const SAMPLE_PERIOD_US: u64 = 10_000;
@@ -51,6 +57,17 @@ const STATE_PERIOD_US: u64 = 100_000;
 pub trait Target: Dispatch {
     fn view<'a>(&'a self, port: &'a Slave) -> View<'a>;
     fn force(&mut self, switch: Switch, state: Option<bool>);
+}
+
+/// A drive the page reaches by Modbus requests over a line it does not
+/// own (the commissioning master).
+pub trait Remote {
+    /// The drive's state and word order, read afresh when the line
+    /// allows (a command is judged on the state it will meet).
+    fn ctx(&mut self) -> Ctx;
+    /// Sends one request: the frame as sent, the reply as received (whole
+    /// frame), and the answer, or why there was none (timeout, line gone).
+    fn exchange(&mut self, pdu: &Pdu) -> (Vec<u8>, Vec<u8>, Result<Answer, String>);
 }
 
 /// A command from the page for drive `drive`, and where its answer goes.
@@ -162,38 +179,66 @@ impl WebPort {
             drive.force(switch, state);
             return "{\"ok\":true,\"steps\":[]}".into();
         }
-        let steps = match requests(command, drive.device()) {
+        let steps = match requests(command, Ctx::of(drive.device())) {
             Ok(s) => s,
             Err(why) => return error_json(&why),
         };
-        let mut ok = true;
-        let mut out = String::from("[");
-        for (i, step) in steps.iter().enumerate() {
+        run_steps(&steps, |pdu| {
             // the request as it went out: from the address it was sent to
-            let address = drive.device().address();
-            let (answer, changed) = transact(drive, port, &step.pdu, now_us);
+            let frame = pdu.frame(drive.device().address());
+            let (answer, changed) = transact(drive, port, pdu, now_us);
             *line = changed.or(*line);
-            let (kind, code, reply) = match &answer {
-                Answer::Ok(pdu) => ("ok", 0, hex(pdu)),
-                Answer::Exception(c) => ("exception", *c, String::new()),
-                Answer::Silent => ("silent", 0, String::new()),
-                Answer::Malformed(r) => ("malformed", 0, hex(r)),
+            let reply = match &answer {
+                Answer::Ok(p) => p.clone(),
+                Answer::Malformed(r) => r.clone(),
+                _ => Vec::new(),
             };
-            let _ = write!(
-                out,
-                "{}{{\"label\":{},\"request\":{},\"answer\":\"{kind}\",\"code\":{code},\"reply\":{}}}",
-                if i > 0 { "," } else { "" },
-                state::quote(&step.label),
-                state::quote(&hex(&step.pdu.frame(address))),
-                state::quote(&reply),
-            );
-            if !matches!(answer, Answer::Ok(_)) {
-                ok = false;
-                break;
-            }
+            (frame, reply, Ok(answer))
+        })
+    }
+
+    /// The page over a drive reached by Modbus requests (the commissioning
+    /// master, `--serial` / `--modbus-tcp-master`): runs the page's waiting
+    /// commands through `remote`. Returns whether any ran.
+    pub fn serve_remote<R: Remote>(&mut self, remote: &mut R) -> bool {
+        let mut any = false;
+        while let Ok(job) = self.jobs.try_recv() {
+            any = true;
+            let answer = if job.drive != 0 {
+                error_json(&format!("there is no drive number {}", job.drive))
+            } else if let Command::Force { .. } = job.command {
+                error_json("a real drive's switches are wired, not forced from the page")
+            } else {
+                match requests(&job.command, remote.ctx()) {
+                    Ok(steps) => run_steps(&steps, |pdu| remote.exchange(pdu)),
+                    Err(why) => error_json(&why),
+                }
+            };
+            let _ = job.answer.send(answer);
         }
-        out.push(']');
-        format!("{{\"ok\":{ok},\"steps\":{out}}}")
+        any
+    }
+
+    /// Publishes one scope sample of a remote drive taken at `t_us`.
+    pub fn publish_remote_sample(&mut self, t_us: u64, sample: [Option<i64>; 4]) {
+        let f = |v: Option<i64>| v.map_or("null".into(), |v| v.to_string());
+        self.push_sample(format!(
+            "[{:.3},[{},{},{},{}]]",
+            t_us as f64 / 1e6,
+            f(sample[0]),
+            f(sample[1]),
+            f(sample[2]),
+            f(sample[3])
+        ));
+    }
+
+    /// Publishes the page's view of a remote drive.
+    pub fn publish_remote_state(&mut self, snapshot: &Snapshot<'_>, sample_period_ms: u64) {
+        let s = format!(
+            "{{\"sample_period_ms\":{sample_period_ms},\"drives\":[{}]}}",
+            state::snapshot_json(snapshot)
+        );
+        lock(&self.shared).state = s;
     }
 
     fn publish_sample<T: Target>(&mut self, now_us: u64, drives: &[T]) {
@@ -213,6 +258,10 @@ impl WebPort {
             );
         }
         line.push(']');
+        self.push_sample(line);
+    }
+
+    fn push_sample(&mut self, line: String) {
         let mut p = lock(&self.shared);
         p.seq += 1;
         let seq = p.seq;
@@ -249,6 +298,69 @@ fn lock(shared: &Shared) -> std::sync::MutexGuard<'_, Published> {
         .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
+/// Sends `steps` in order through `send` until one is not answered
+/// normally: a command is never sent past a refusal or a lost reply, and
+/// the answer says at which step it stopped.
+fn run_steps(
+    steps: &[Step],
+    mut send: impl FnMut(&Pdu) -> (Vec<u8>, Vec<u8>, Result<Answer, String>),
+) -> String {
+    let mut stopped = None;
+    let mut out = String::from("[");
+    for (i, step) in steps.iter().enumerate() {
+        let (frame, reply, answer) = send(&step.pdu);
+        let (kind, code) = match &answer {
+            Ok(Answer::Ok(_)) => ("ok", 0),
+            Ok(Answer::Exception(c)) => ("exception", *c),
+            Ok(Answer::Silent) => ("silent", 0),
+            Ok(Answer::Malformed(_)) => ("malformed", 0),
+            Err(_) => ("no reply", 0),
+        };
+        let _ = write!(
+            out,
+            "{}{{\"label\":{},\"request\":{},\"answer\":\"{kind}\",\"code\":{code},\"reply\":{}}}",
+            if i > 0 { "," } else { "" },
+            state::quote(&step.label),
+            state::quote(&hex(&frame)),
+            state::quote(&hex(&reply)),
+        );
+        match answer {
+            Ok(Answer::Ok(_)) => {}
+            Ok(_) if steps.len() == 1 => {
+                stopped = Some(String::new());
+                break;
+            }
+            other => {
+                let why = match other {
+                    Err(why) => why,
+                    Ok(Answer::Exception(c)) => format!("exception {c}"),
+                    Ok(_) => format!("answer {kind}"),
+                };
+                stopped = Some(if steps.len() == 1 {
+                    why
+                } else {
+                    format!(
+                        "stopped at step {} of {} ({}): {why}; the later steps were not sent",
+                        i + 1,
+                        steps.len(),
+                        step.label
+                    )
+                });
+                break;
+            }
+        }
+    }
+    out.push(']');
+    match stopped {
+        None => format!("{{\"ok\":true,\"steps\":{out}}}"),
+        Some(e) if e.is_empty() => format!("{{\"ok\":false,\"steps\":{out}}}"),
+        Some(e) => format!(
+            "{{\"ok\":false,\"error\":{},\"steps\":{out}}}",
+            state::quote(&e)
+        ),
+    }
+}
+
 fn error_json(why: &str) -> String {
     format!(
         "{{\"ok\":false,\"error\":{},\"steps\":[]}}",
@@ -265,4 +377,57 @@ fn hex(bytes: &[u8]) -> String {
         let _ = write!(s, "{b:02X}");
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use modbus_drive::drive::PowerState;
+
+    fn enable() -> Vec<Step> {
+        let ctx = Ctx {
+            state: PowerState::SwitchOnDisabled,
+            low_first: false,
+        };
+        requests(&Command::Enable, ctx).unwrap()
+    }
+
+    #[test]
+    fn a_sequence_stops_at_the_step_that_got_no_answer_and_says_which() {
+        let mut sent = Vec::new();
+        let json = run_steps(&enable(), |pdu| {
+            sent.push(pdu.clone());
+            let frame = pdu.frame(1);
+            if sent.len() == 2 {
+                (frame, Vec::new(), Err("no reply within 300 ms".into()))
+            } else {
+                (frame.clone(), frame, Ok(Answer::Ok(pdu.0.clone())))
+            }
+        });
+        assert_eq!(sent.len(), 2, "nothing sent past the failing step");
+        assert!(json.starts_with("{\"ok\":false,"), "{json}");
+        assert!(
+            json.contains(
+                "stopped at step 2 of 3 (0x6040 = 0x0007): no reply within 300 ms; \
+                 the later steps were not sent"
+            ),
+            "{json}"
+        );
+        assert_eq!(json.matches("\"label\"").count(), 2, "{json}");
+        assert!(json.contains("\"answer\":\"no reply\""), "{json}");
+    }
+
+    #[test]
+    fn a_refused_step_stops_the_sequence_with_its_exception() {
+        let json = run_steps(&enable(), |pdu| {
+            (pdu.frame(1), Vec::new(), Ok(Answer::Exception(6)))
+        });
+        assert!(json.contains("stopped at step 1 of 3"), "{json}");
+        assert!(json.contains("\"code\":6"), "{json}");
+        let all = run_steps(&enable(), |pdu| {
+            (pdu.frame(1), pdu.frame(1), Ok(Answer::Ok(pdu.0.clone())))
+        });
+        assert!(all.starts_with("{\"ok\":true,"), "{all}");
+        assert_eq!(all.matches("\"label\"").count(), 3, "{all}");
+    }
 }

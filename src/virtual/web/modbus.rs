@@ -17,7 +17,6 @@ use modbus_drive::slave::Slave;
 use modbus_drive::Device;
 
 /// Function codes the page uses (SPEC §4).
-#[cfg(test)]
 pub const READ_HOLDING: u8 = 0x03;
 pub const WRITE_SINGLE: u8 = 0x06;
 pub const WRITE_MULTIPLE: u8 = 0x10;
@@ -44,7 +43,6 @@ pub struct Pdu(pub Vec<u8>);
 
 impl Pdu {
     /// 0x03 of `quantity` words at `start`.
-    #[cfg(test)]
     pub fn read(start: u16, quantity: u16) -> Self {
         let mut v = vec![READ_HOLDING];
         v.extend_from_slice(&start.to_be_bytes());

@@ -4,14 +4,14 @@
 
 use std::fmt::Write;
 
-use modbus_drive::dictionary::{position, Access, DataType, DriveLayer, Object, TABLE};
+use modbus_drive::dictionary::{Access, DriveLayer, Object};
 use modbus_drive::motion::Switches;
-use modbus_drive::params::PA;
 use modbus_drive::slave::{Counters, Slave};
 use modbus_drive::Device;
 
 use super::exceptions::ExceptionLog;
 use super::force::{Forced, Switch};
+use crate::virtual_drive::registers::{od_meta, pa_meta, position, DataType, PA, TABLE};
 
 /// Following error actual value (SPEC §8.8), shown once the table has it.
 pub const FOLLOWING_ERROR: u16 = 0x60F4;
@@ -71,57 +71,6 @@ fn counters(c: &Counters) -> String {
     )
 }
 
-/// Unit and range in words of a §5 entry (SPEC §5, §8).
-fn od_meta(index: u16) -> (&'static str, &'static str) {
-    match index {
-        0x1001 => ("bits", "bit 0 generic, 4 communication, 5 following error"),
-        0x6000 => ("", "0 high word first, 1 low word first"),
-        0x605A => ("", "0..=32767 (1: 0x6084, 2: 0x6085, else at once)"),
-        0x6040 => ("", "0..=0xFFFF"),
-        0x6060 => ("", "1 position, 3 velocity, 6 homing"),
-        0x6081 => ("0.1 rev/s", "i32 (signed in velocity mode)"),
-        0x6083 | 0x6084 | 0x6085 | 0x609A => ("0.1 rev/s²", "0..=65535"),
-        0x607A | 0x607C | 0x6064 => ("steps", "i32"),
-        0x6098 => ("", "1..=8"),
-        0x6099 | 0x609B => ("0.1 rev/s", "0..=100000"),
-        0x6041 => ("bits", "§8.2"),
-        0x6061 => ("", "1, 3, 6"),
-        0x606C => ("r/min", "i32"),
-        0x6065 => ("steps", "0xFFFFFFFF = off"),
-        0x6066 => ("ms", "0..=65535"),
-        0x60F4 => ("steps", "i32"),
-        _ => ("", ""),
-    }
-}
-
-/// Name and unit of an assigned PA (SPEC §7).
-pub fn pa_meta(n: usize) -> (&'static str, &'static str) {
-    match n {
-        2 => ("firmware version", ""),
-        10 => ("steps per revolution", "steps"),
-        11 => ("direction invert", ""),
-        12 => ("maximum speed", "r/min"),
-        13 => ("switch polarity (bit 0 CW, 1 CCW, 2 home; 1 = NC)", "bits"),
-        14 => ("limit switch enable (bit 0 CW, 1 CCW)", "bits"),
-        15 => ("STEP pulse width (firmware)", "0.1 µs"),
-        16 => ("DIR set-up time (firmware)", "0.1 µs"),
-        17 => ("encoder counts per revolution (0 = none)", "counts"),
-        18 => ("encoder direction invert", ""),
-        20 => ("communication-loss timeout (0 = off)", "ms"),
-        22 => ("brake release delay after power stage on", "ms"),
-        23 => ("brake engage time (power stage held)", "ms"),
-        51 => ("slave address", ""),
-        52 => ("baud (0 9600 … 4 115200)", ""),
-        53 => ("format (0 8N1, 1 8E1, 2 8O1, 3 8N2)", ""),
-        54 => ("answer frame errors with 9/10", ""),
-        55 => ("exception profile (0 vendor, 1 standard)", ""),
-        56 => ("minimum response delay", "ms"),
-        57 => ("RS-485 DE lead (firmware)", "bit times"),
-        58 => ("RS-485 DE tail (firmware)", "bit times"),
-        _ => ("reserved", ""),
-    }
-}
-
 fn access(a: Access) -> &'static str {
     match a {
         Access::Ro => "RO",
@@ -138,46 +87,129 @@ fn opt_bool(v: Option<bool>) -> &'static str {
     }
 }
 
-/// The page's JSON for one drive.
+/// What a table cell of the dictionary shows.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum OdValue {
+    Number(i64),
+    Text(String),
+    /// A write-only entry: the last value written (a master reads
+    /// exception 7 there).
+    Written(i64),
+}
+
+/// The values of one drive the page shows, however they were obtained: read
+/// from the drive in-process ([`drive_json`]) or by Modbus requests (the
+/// commissioning master). `None` where that back end has no such value.
+pub struct Snapshot<'a> {
+    pub address: u8,
+    /// Power state (SPEC §8.1) as its variant's name.
+    pub state: String,
+    pub statusword: u16,
+    pub error_register: u16,
+    pub mode: i64,
+    pub position: i64,
+    pub velocity: i64,
+    pub following_error: Option<i64>,
+    pub listen_only: bool,
+    pub busy: bool,
+    pub switches: Switches,
+    /// The simulated axis's own switches and the page's forcing.
+    pub axis: Option<(Switches, Forced)>,
+    pub bus_counters: Option<Counters>,
+    pub page_counters: Option<Counters>,
+    pub exceptions: &'a ExceptionLog,
+    /// Per [`TABLE`] entry, `None` where unknown.
+    pub od: Vec<Option<OdValue>>,
+    /// Per PA, `None` where unknown.
+    pub pa: Vec<Option<u16>>,
+    /// The link to a remote drive, as a JSON object.
+    pub link: Option<String>,
+}
+
+/// The page's JSON for one drive run in-process.
 pub fn drive_json(v: &View<'_>) -> String {
     let d = v.device;
-    let seen = v.forced.apply(v.axis_switches);
+    let od = TABLE
+        .iter()
+        .map(|e| {
+            Some(match e.object.string(d.identity()) {
+                Some(text) => OdValue::Text(text.into()),
+                None if e.access.readable() => {
+                    OdValue::Number(entry_value(d, e.index).unwrap_or(0))
+                }
+                None => OdValue::Written(written(e.object, d)),
+            })
+        })
+        .collect();
+    snapshot_json(&Snapshot {
+        address: d.address(),
+        state: format!("{:?}", d.drive().state()),
+        statusword: d.drive().statusword(),
+        error_register: d.drive().error_register(),
+        mode: i64::from(d.drive().mode_display()),
+        position: i64::from(d.drive().actual_position()),
+        velocity: i64::from(d.drive().actual_velocity_rpm()),
+        following_error: entry_value(d, FOLLOWING_ERROR),
+        listen_only: d.slave().listen_only(),
+        busy: d.busy(),
+        switches: v.forced.apply(v.axis_switches),
+        axis: Some((v.axis_switches, v.forced)),
+        bus_counters: Some(d.slave().counters().clone()),
+        page_counters: Some(v.port.counters().clone()),
+        exceptions: v.exceptions,
+        od,
+        pa: (0..PA.len()).map(|n| Some(d.params().get(n))).collect(),
+        link: None,
+    })
+}
+
+fn opt<T>(v: Option<T>, f: impl Fn(T) -> String) -> String {
+    v.map_or_else(|| "null".into(), f)
+}
+
+fn switches_json(s: Switches) -> String {
+    format!(
+        "{{\"cw\":{},\"ccw\":{},\"home\":{}}}",
+        s.cw_limit, s.ccw_limit, s.home
+    )
+}
+
+/// The page's JSON for one drive.
+pub fn snapshot_json(v: &Snapshot<'_>) -> String {
     let mut s = String::with_capacity(8 * 1024);
     let _ = write!(
         s,
         "{{\"address\":{},\"state\":{},\"statusword\":{},\"error_register\":{},\"mode\":{},\
          \"position\":{},\"velocity\":{},\"following_error\":{},\"listen_only\":{},\"busy\":{},",
-        d.address(),
-        quote(&format!("{:?}", d.drive().state())),
-        d.drive().statusword(),
-        d.drive().error_register(),
-        d.drive().mode_display(),
-        d.drive().actual_position(),
-        d.drive().actual_velocity_rpm(),
-        entry_value(d, FOLLOWING_ERROR).map_or("null".into(), |v| v.to_string()),
-        d.slave().listen_only(),
-        d.busy(),
+        v.address,
+        quote(&v.state),
+        v.statusword,
+        v.error_register,
+        v.mode,
+        v.position,
+        v.velocity,
+        opt(v.following_error, |f| f.to_string()),
+        v.listen_only,
+        v.busy,
     );
     let _ = write!(
         s,
-        "\"switches\":{{\"cw\":{},\"ccw\":{},\"home\":{}}},\
-         \"axis_switches\":{{\"cw\":{},\"ccw\":{},\"home\":{}}},\
-         \"forced\":{{\"cw\":{},\"ccw\":{},\"home\":{}}},",
-        seen.cw_limit,
-        seen.ccw_limit,
-        seen.home,
-        v.axis_switches.cw_limit,
-        v.axis_switches.ccw_limit,
-        v.axis_switches.home,
-        opt_bool(v.forced.get(Switch::CwLimit)),
-        opt_bool(v.forced.get(Switch::CcwLimit)),
-        opt_bool(v.forced.get(Switch::Home)),
+        "\"switches\":{},\"axis_switches\":{},\"forced\":{},",
+        switches_json(v.switches),
+        opt(v.axis, |(a, _)| switches_json(a)),
+        opt(v.axis, |(_, f)| format!(
+            "{{\"cw\":{},\"ccw\":{},\"home\":{}}}",
+            opt_bool(f.get(Switch::CwLimit)),
+            opt_bool(f.get(Switch::CcwLimit)),
+            opt_bool(f.get(Switch::Home)),
+        )),
     );
     let _ = write!(
         s,
-        "\"bus_counters\":{},\"page_counters\":{},\"exceptions\":[",
-        counters(d.slave().counters()),
-        counters(v.port.counters())
+        "\"link\":{},\"bus_counters\":{},\"page_counters\":{},\"exceptions\":[",
+        v.link.as_deref().unwrap_or("null"),
+        opt(v.bus_counters.as_ref(), counters),
+        opt(v.page_counters.as_ref(), counters),
     );
     for (i, r) in v.exceptions.iter().enumerate() {
         let _ = write!(
@@ -195,11 +227,11 @@ pub fn drive_json(v: &View<'_>) -> String {
     s.push_str("],\"od\":[");
     for (i, e) in TABLE.iter().enumerate() {
         let (unit, range) = od_meta(e.index);
-        let value = match e.object.string(d.identity()) {
-            Some(text) => quote(text),
-            None if e.access.readable() => entry_value(d, e.index).unwrap_or(0).to_string(),
-            // A master reads exception 7; the page shows the last write.
-            None => format!("{{\"written\":{}}}", written(e.object, d)),
+        let value = match v.od.get(i).and_then(Option::as_ref) {
+            Some(OdValue::Number(n)) => n.to_string(),
+            Some(OdValue::Text(t)) => quote(t),
+            Some(OdValue::Written(w)) => format!("{{\"written\":{w}}}"),
+            None => "null".into(),
         };
         let _ = write!(
             s,
@@ -229,7 +261,7 @@ pub fn drive_json(v: &View<'_>) -> String {
             def.max,
             def.default,
             if def.read_only { "RO" } else { "RW" },
-            d.params().get(n)
+            opt(v.pa.get(n).copied().flatten(), |x| x.to_string())
         );
     }
     s.push_str("]}");

@@ -94,8 +94,15 @@ const profile = () => ({ speed: $("speed").value || 0, accel: $("accel").value |
 
 function wireControls() {
   const simple = { enable: "enable", disable: "disable", reset: "reset", halt: "halt",
-    quickstop: "quickstop", home: "home", save: "save" };
+    quickstop: "quickstop", home: "home" };
   for (const [id, c] of Object.entries(simple)) $(id).onclick = () => cmd({ c });
+  // On a real drive the saved set is what it boots with: ask first.
+  $("save").onclick = () => {
+    if (!remote() || confirm("Save the working parameters to the drive's flash (EE-Set)?")) cmd({ c: "save" });
+  };
+  $("defaults").onclick = () => {
+    if (confirm("Restore the factory defaults and save them (EE-dEF)? Every parameter is replaced.")) cmd({ c: "defaults" });
+  };
   $("move-go").onclick = () => cmd({
     c: "move", target: $("move-target").value || 0,
     relative: $("move-relative").checked ? 1 : 0, ...profile(),
@@ -162,13 +169,25 @@ function renderStatus(d) {
   for (const tr of document.querySelectorAll("#switches tr")) {
     const s = tr.dataset.switch;
     tr.querySelector(".lamp").classList.toggle("set", d.switches[s]);
+    const f = tr.querySelector(".force");
+    f.hidden = !d.forced;
+    if (!d.forced) continue;
     const forced = d.forced[s] === null ? "auto" : d.forced[s] ? "on" : "off";
     for (const b of tr.querySelectorAll(".force button")) b.classList.toggle("sel", b.dataset.state === forced);
   }
   const tb = $("counters").tBodies[0];
   tb.innerHTML = COUNTERS.map(([k, n]) =>
-    `<tr><td>${n}</td><td data-counter="bus-${k}">${d.bus_counters[k]}</td><td data-counter="page-${k}">${d.page_counters[k]}</td></tr>`).join("");
+    `<tr><td>${n}</td><td data-counter="bus-${k}">${d.bus_counters[k]}</td><td data-counter="page-${k}">${d.page_counters ? d.page_counters[k] : "—"}</td></tr>`).join("");
   $("listen-only").hidden = !d.listen_only;
+  $("switches-title").textContent = d.forced ? "Switches of the simulated axis" : "Switch inputs (DP-In)";
+  const rm = $("remote");
+  rm.hidden = !d.link;
+  if (d.link) {
+    rm.textContent = `${d.link.describe}, address ${d.link.address}: ${d.link.rate} samples/s` +
+      (d.link.error ? ` — not answering: ${d.link.error}` : "");
+    rm.className = d.link.ok ? "" : "exc";
+  }
+  setLink(scope.connected);
   const eb = $("exceptions").tBodies[0];
   eb.innerHTML = d.exceptions.slice().reverse().map((e) =>
     `<tr><td>${e.t.toFixed(2)}</td><td>${e.port}</td><td>0x${e.function.toString(16).toUpperCase().padStart(2, "0")}</td>` +
@@ -218,6 +237,7 @@ function renderTables(d) {
       if (!cell) return;
       let v = e.value;
       if (v !== null && typeof v === "object") v = `${v.written} (last written; reads give exception 7)`;
+      if (v === null) v = "…"; // not read yet (the page over a Modbus master)
       cell.textContent = v;
     });
   };
@@ -285,10 +305,15 @@ function connectEvents() {
   };
 }
 
+// A page over a Modbus master (`commission`) knows the drive behind it.
+const remote = () => !!(lastState && lastState.drives[drive] && lastState.drives[drive].link);
+
 function setLink(on) {
   const l = $("link");
-  l.textContent = on ? "live" : "disconnected";
-  l.className = "pill " + (on ? "ok" : "off");
+  const d = lastState && lastState.drives[drive];
+  const gone = on && d && d.link && !d.link.ok;
+  l.textContent = !on ? "disconnected" : gone ? "drive not answering" : "live";
+  l.className = "pill " + (on && !gone ? "ok" : "off");
 }
 
 setInterval(() => {
