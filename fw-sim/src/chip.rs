@@ -128,6 +128,8 @@ pub mod pins {
     pub const CW_LIMIT: Pin = (1, 12);
     pub const CCW_LIMIT: Pin = (1, 13);
     pub const HOME: Pin = (1, 14);
+    /// The encoder's A and B: TIM4_CH1 on PB6, TIM4_CH2 on PB7.
+    pub const ENCODER: (Pin, Pin) = ((1, 6), (1, 7));
     /// G431: USART1_DE (AF7); F103: a GPIO.
     pub const DE_G431: Pin = (0, 12);
     pub const DE_F103: Pin = (0, 8);

@@ -26,17 +26,6 @@ pub const RETURN_CYCLES: u64 = 10;
 /// Fetches at or above this address are EXC_RETURN values.
 const EXC_RETURN_BASE: u64 = 0xFFFF_FF00;
 
-/// What the hooks saw during a slice.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct SliceEvents {
-    /// A WFI (false) or WFE (true) was reached; PC is past it.
-    pub sleep: Option<bool>,
-    /// The firmware branched to EXC_RETURN (PC holds it).
-    pub exc_return: bool,
-    /// An access outside the memories: (kind, address, size).
-    pub bad_access: Option<(MemType, u64, usize)>,
-}
-
 /// Where the parameter pages start (the rest of flash is code).
 pub fn param_base(m: &Machine) -> u32 {
     m.flash.region_base

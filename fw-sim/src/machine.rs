@@ -6,16 +6,20 @@
 
 use std::hash::{BuildHasherDefault, Hasher};
 
+use unicorn_engine::unicorn_const::MemType;
+
 use crate::chip::{self, pins, Chip};
 use crate::clock::Clock;
+use crate::motor::Motor;
 use crate::periph::bank::Bank;
 use crate::periph::exti::Exti;
 use crate::periph::flash::{Flash, FlashWrite};
 use crate::periph::gpio::{Mode, Port};
 use crate::periph::iwdg::Iwdg;
 use crate::periph::rcc::Rcc;
-use crate::periph::timer::{Access, Timer};
+use crate::periph::timer::Timer;
 use crate::periph::usart::Usart;
+use crate::periph::Access;
 use crate::scs::Scs;
 use crate::trace::StepTrace;
 
@@ -36,6 +40,19 @@ impl Hasher for AddrHasher {
     fn write_u64(&mut self, v: u64) {
         self.0 = v;
     }
+}
+
+/// What the CPU's hooks (cpu.rs) saw during a slice: kept here, with the
+/// rest of the state the hooks write, so that the CPU depends on the
+/// machine and not the other way round.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct SliceEvents {
+    /// A WFI (false) or WFE (true) was reached; PC is past it.
+    pub sleep: Option<bool>,
+    /// The firmware branched to EXC_RETURN (PC holds it).
+    pub exc_return: bool,
+    /// An access outside the memories: (kind, address, size).
+    pub bad_access: Option<(MemType, u64, usize)>,
 }
 
 /// Switch windows in steps (same meaning as the virtual drive's options).
@@ -88,13 +105,16 @@ pub struct Machine {
     pub position: i64,
     pub steps_total: u64,
     pub trace: Option<StepTrace>,
+    /// The motor and its encoder (`--encoder`), part of the world outside
+    /// the chip: a reset keeps it.
+    pub motor: Option<Motor>,
     /// The step timer's missed update interrupts already reported.
     missed_reported: u64,
     pending_rise: Option<(u64, bool)>,
     /// Event register (WFE/SEV).
     pub event: bool,
     /// What the CPU hooks saw in the current slice.
-    pub events: crate::cpu::SliceEvents,
+    pub events: SliceEvents,
 }
 
 impl Machine {
@@ -134,6 +154,7 @@ impl Machine {
             position: 0,
             steps_total: 0,
             trace,
+            motor: None,
             missed_reported: 0,
             pending_rise: None,
             event: false,
@@ -157,7 +178,9 @@ impl Machine {
             self.trace.take(),
         );
         let (clock, position, steps) = (self.clock.clone(), self.position, self.steps_total);
+        let motor = self.motor.take();
         *self = fresh;
+        self.motor = motor;
         self.clock = clock;
         self.clock.set_sysclk(self.chip.reset_sysclk);
         self.position = position;
@@ -195,6 +218,9 @@ impl Machine {
             self.tim[i].sync(t);
         }
         self.step_edges();
+        if let Some(at) = self.motor.as_mut().and_then(|m| m.advance(t)) {
+            self.follow_encoder(at);
+        }
         let de = self.gpio_de();
         // The pin changes hands (GPIO ↔ the G4 USART's DE function) or
         // level as a GPIO: an edge where its level changes. The USART's own
@@ -256,11 +282,52 @@ impl Machine {
                 self.position += if dir { 1 } else { -1 };
                 self.steps_total += 1;
                 self.apply_switches();
+                if let Some(m) = self.motor.as_mut() {
+                    m.step(t, self.position);
+                    self.follow_encoder(t);
+                }
             } else if let Some((t0, dir)) = self.pending_rise.take() {
                 if let Some(tr) = self.trace.as_mut() {
                     tr.step(t0, dir, t - t0);
                 }
             }
+        }
+    }
+
+    /// The encoder's A and B (PB6, PB7) follow the motor's shaft, one edge
+    /// at a time, into the TIM4 channel 1 and 2 inputs when the pins are
+    /// routed there: on the G4 in their alternate function 2 (RM0440 §9.4,
+    /// datasheet DS12589 table "Alternate functions"), on the F1 in any
+    /// input or alternate mode with TIM4 not remapped (RM0008 §9.3.7,
+    /// AFIO_MAPR TIM4_REMAP = 0).
+    fn follow_encoder(&mut self, t: u64) {
+        let (a, b) = pins::ENCODER;
+        while let Some((la, lb)) = self.motor.as_mut().and_then(Motor::edge) {
+            let port = &mut self.gpio[a.0];
+            let before = [port.level(a.1, None), port.level(b.1, None)];
+            port.external[a.1 as usize] = Some(la);
+            port.external[b.1 as usize] = Some(lb);
+            let after = [port.level(a.1, None), port.level(b.1, None)];
+            for (pin, (x, y)) in [(a.1, (before[0], after[0])), (b.1, (before[1], after[1]))] {
+                if x != y {
+                    self.exti.edge(a.0, pin, y);
+                }
+            }
+            let routed = self.tim4_inputs_routed();
+            self.tim[2].inputs([la, lb], t, routed);
+        }
+    }
+
+    fn tim4_inputs_routed(&self) -> bool {
+        let (a, b) = pins::ENCODER;
+        let port = &self.gpio[a.0];
+        if self.chip.is_g4() {
+            [a.1, b.1]
+                .iter()
+                .all(|&p| port.mode(p) == Mode::Alternate && port.af(p) == 2)
+        } else {
+            let remap = self.syscfg.get(0x04) & (1 << 12) != 0;
+            !remap && [a.1, b.1].iter().all(|&p| port.mode(p) != Mode::Analog)
         }
     }
 
@@ -313,6 +380,7 @@ impl Machine {
             self.flash.next_event(),
             self.iwdg.next_event(),
             self.scs.systick_next(hclk),
+            self.motor.as_ref().and_then(Motor::next_event),
         ]
         .into_iter()
         .flatten()

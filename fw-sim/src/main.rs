@@ -10,6 +10,7 @@ mod elf;
 mod gateway;
 mod line;
 mod machine;
+mod motor;
 mod periph;
 mod rtt;
 mod scs;
@@ -92,6 +93,7 @@ fn run() -> Result<i32, String> {
     let mut machine = Machine::new(chip, flash, args.switches, trace);
     machine.flash.cut_at = args.power_cut;
     machine.flash.write_protected = args.write_protect;
+    machine.motor = args.motor.map(motor::Motor::new);
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
         None

@@ -6,7 +6,7 @@
 //! AIRCR.PRIGROUP, PRIMASK and BASEPRI); 4 priority bits are implemented.
 
 use crate::clock::clk_at;
-use crate::periph::timer::Access;
+use crate::periph::Access;
 
 pub const PENDSV: usize = 14;
 pub const SYSTICK: usize = 15;

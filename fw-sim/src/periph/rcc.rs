@@ -5,7 +5,7 @@
 //! the APB timer clocks (×2 when the APB prescaler is not 1: RM0440 §7.2.15,
 //! RM0008 §7.2) and the USART1 kernel clock.
 
-use super::timer::Access;
+use super::Access;
 
 #[derive(Debug)]
 pub struct Rcc {

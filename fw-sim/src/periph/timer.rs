@@ -8,6 +8,7 @@
 //! modes other than the encoder are not modelled: selecting one stops the
 //! runner (`Unsupported`).
 
+use super::Access;
 use crate::clock::{clk_at, time_of_clk};
 
 #[derive(Debug)]
@@ -42,12 +43,8 @@ pub struct Timer {
     /// enabled: an update interrupt that did not run between two of them
     /// (with preloads, the period before ran again unchanged).
     pub missed_updates: u64,
-}
-
-pub enum Access {
-    Ok(u32),
-    Unmodelled,
-    Unsupported(&'static str),
+    /// The levels of the TI1 and TI2 inputs (the channel 1 and 2 pins).
+    ti: [bool; 2],
 }
 
 const CEN: u32 = 1;
@@ -86,6 +83,7 @@ impl Timer {
             out1: false,
             edges1: Vec::new(),
             missed_updates: 0,
+            ti: [false; 2],
         }
     }
 
@@ -275,6 +273,63 @@ impl Timer {
         }
     }
 
+    /// The TI1 / TI2 input pins are at `ti` from time `t` on. In encoder
+    /// mode (SMS 001..011, with CEN) the counter follows each edge: RM0440
+    /// §29.3.22 / RM0008 §15.3.12, table "Counting direction versus
+    /// encoder signals". TI1FP1 and TI2FP2 are the inputs after the CC1P /
+    /// CC2P polarity; the input filters are not modelled (clean edges).
+    /// Encoder mode 1 counts on TI1FP1 edges, mode 2 on TI2FP2 edges (the
+    /// SMCR field descriptions of RM0440), mode 3 on both. Only one input
+    /// may change per call (a quadrature signal never moves both at once).
+    /// `routed`: the pins reach the timer (their alternate function).
+    pub fn inputs(&mut self, ti: [bool; 2], t: u64, routed: bool) {
+        self.sync(t);
+        let before = self.ti;
+        self.ti = ti;
+        if !routed || !self.encoder() || self.cr1 & CEN == 0 {
+            return;
+        }
+        let pol = [self.ccer & 2 != 0, self.ccer & (1 << 5) != 0];
+        let fp = |l: [bool; 2]| [l[0] ^ pol[0], l[1] ^ pol[1]];
+        let (old, new) = (fp(before), fp(ti));
+        let sms = self.smcr & 7;
+        let up = if old[0] != new[0] {
+            if sms == 2 {
+                return;
+            }
+            // TI1FP1 edge: rising with TI2FP2 low counts up
+            new[0] != new[1]
+        } else if old[1] != new[1] {
+            if sms == 1 {
+                return;
+            }
+            // TI2FP2 edge: rising with TI1FP1 high counts up
+            new[0] == new[1]
+        } else {
+            return;
+        };
+        self.cr1 = if up { self.cr1 & !DIR } else { self.cr1 | DIR };
+        let wrapped = if up {
+            if self.cnt >= self.arr_sh {
+                self.cnt = 0;
+                true
+            } else {
+                self.cnt += 1;
+                false
+            }
+        } else if self.cnt == 0 {
+            self.cnt = self.arr_sh;
+            true
+        } else {
+            self.cnt -= 1;
+            false
+        };
+        if wrapped && self.cr1 & UDIS == 0 {
+            self.sr |= 1;
+            self.update_event();
+        }
+    }
+
     pub fn read(&mut self, off: u32, t: u64) -> Access {
         self.sync(t);
         Access::Ok(match off {
@@ -312,7 +367,13 @@ impl Timer {
         let max = self.max();
         match off {
             0x00 => {
-                if v & (DIR | CMS) != 0 {
+                // DIR is read-only in encoder mode (the count's direction)
+                let v = if self.encoder() {
+                    (v & !DIR) | (self.cr1 & DIR)
+                } else {
+                    v
+                };
+                if !self.encoder() && v & (DIR | CMS) != 0 {
                     return Access::Unsupported("down-counting / centre-aligned mode");
                 }
                 let start = v & CEN != 0 && self.cr1 & CEN == 0;
@@ -375,5 +436,67 @@ impl Timer {
             _ => return Access::Unmodelled,
         }
         Access::Ok(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// TIM4 as embassy's Qei sets it up: CC1S = CC2S = 01, SMS = 011, ARR.
+    fn encoder(arr: u32) -> Timer {
+        let mut t = Timer::new(30, false, false);
+        t.write(0x18, 0x0101, 0);
+        t.write(0x08, 3, 0);
+        t.write(0x2C, arr, 0);
+        t.write(0x00, CEN, 0);
+        t
+    }
+
+    fn quadrature(t: &mut Timer, phases: impl Iterator<Item = i64>) {
+        for p in phases {
+            let ab = match p.rem_euclid(4) {
+                0 => [false, false],
+                1 => [true, false],
+                2 => [true, true],
+                _ => [false, true],
+            };
+            t.inputs(ab, 0, true);
+        }
+    }
+
+    #[test]
+    fn encoder_mode_counts_every_edge_up_and_down_and_wraps_at_arr() {
+        let mut t = encoder(99);
+        quadrature(&mut t, 1..=10);
+        assert!(matches!(t.read(0x24, 0), Access::Ok(10)));
+        assert!(matches!(t.read(0x00, 0), Access::Ok(v) if v & DIR == 0));
+        quadrature(&mut t, (-2..=9).rev());
+        // 10 → -2: down through 0 to ARR, an update event on the way
+        assert!(matches!(t.read(0x24, 0), Access::Ok(98)));
+        assert!(matches!(t.read(0x00, 0), Access::Ok(v) if v & DIR != 0));
+        assert!(matches!(t.read(0x10, 0), Access::Ok(v) if v & 1 != 0));
+        // the firmware's read-modify-write of CR1 keeps the direction
+        t.write(0x00, CEN | DIR, 0);
+        quadrature(&mut t, -1..=0);
+        assert!(matches!(t.read(0x24, 0), Access::Ok(0)));
+    }
+
+    #[test]
+    fn encoder_modes_one_and_two_count_one_input_and_polarity_reverses() {
+        let mut t = encoder(0xFFFF);
+        t.write(0x08, 1, 0); // TI1FP1 edges only
+        quadrature(&mut t, 1..=8);
+        assert!(matches!(t.read(0x24, 0), Access::Ok(4)));
+        t.write(0x08, 2, 0); // TI2FP2 edges only
+        quadrature(&mut t, 9..=16);
+        assert!(matches!(t.read(0x24, 0), Access::Ok(8)));
+        t.write(0x08, 3, 0);
+        t.write(0x20, 1 << 1, 0); // CC1P: TI1 inverted, the count reverses
+        quadrature(&mut t, 17..=20);
+        assert!(matches!(t.read(0x24, 0), Access::Ok(4)));
+        t.write(0x00, 0, 0); // CEN off: edges are not counted
+        quadrature(&mut t, 21..=24);
+        assert!(matches!(t.read(0x24, 0), Access::Ok(4)));
     }
 }
