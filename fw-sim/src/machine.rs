@@ -10,14 +10,17 @@ use unicorn_engine::unicorn_const::MemType;
 
 use crate::chip::{self, pins, Chip};
 use crate::clock::Clock;
+use crate::mem::HostMem;
 use crate::motor::Motor;
 use crate::periph::bank::Bank;
+use crate::periph::dma::Dma;
+use crate::periph::dmamux::DmaMux;
 use crate::periph::exti::Exti;
 use crate::periph::flash::{Flash, FlashWrite};
 use crate::periph::gpio::{Mode, Port};
 use crate::periph::iwdg::Iwdg;
 use crate::periph::rcc::Rcc;
-use crate::periph::timer::Timer;
+use crate::periph::timer::{Irqs, Kind as TimerKind, Timer};
 use crate::periph::usart::Usart;
 use crate::periph::Access;
 use crate::scs::Scs;
@@ -73,7 +76,14 @@ pub struct Machine {
     pub flash: Flash,
     pub exti: Exti,
     pub gpio: [Port; 2],
-    pub tim: [Timer; 3],
+    /// In the order of `chip::tim` (TIM2, TIM3, TIM4, TIM1, and the G4's TIM8).
+    pub tim: Vec<Timer>,
+    /// DMA1 (and the G4's DMA2).
+    pub dma: Vec<Dma>,
+    pub dmamux: DmaMux,
+    /// SRAM and the code flash, shared with the CPU (cpu.rs maps them).
+    pub sram: Option<HostMem>,
+    pub code: Option<HostMem>,
     pub usart: Usart,
     pub iwdg: Iwdg,
     pub scs: Scs,
@@ -115,6 +125,9 @@ pub struct Machine {
     pub event: bool,
     /// What the CPU hooks saw in the current slice.
     pub events: SliceEvents,
+    /// The STEP pin's edges (unit tests).
+    #[cfg(test)]
+    pub step_log: Vec<(u64, bool)>,
 }
 
 impl Machine {
@@ -130,11 +143,18 @@ impl Machine {
             flash,
             exti: Exti::new(g4),
             gpio: [Port::new(g4, 0), Port::new(g4, 1)],
-            tim: [
-                Timer::new(chip::IRQ_TIM2, g4, g4),
-                Timer::new(chip::IRQ_TIM3, g4, false),
-                Timer::new(chip::IRQ_TIM4, g4, false),
-            ],
+            tim: Self::timers(g4),
+            dma: if g4 {
+                vec![
+                    Dma::new(true, (11..17).collect()),
+                    Dma::new(true, vec![56, 57, 58, 59, 60, 97]),
+                ]
+            } else {
+                vec![Dma::new(false, (11..18).collect())]
+            },
+            dmamux: DmaMux::default(),
+            sram: None,
+            code: None,
             usart: Usart::new(g4),
             iwdg: Iwdg::new(g4, chip.lsi_hz),
             scs: Scs::new(chip.has_fpu, chip.cpuid),
@@ -159,10 +179,50 @@ impl Machine {
             pending_rise: None,
             event: false,
             events: Default::default(),
+            #[cfg(test)]
+            step_log: Vec::new(),
         };
         m.apply_clocks();
         m.apply_switches();
         m
+    }
+
+    /// The chip's timers (interrupt numbers: RM0440 table 97 / RM0008
+    /// table 63, the vector tables).
+    fn timers(g4: bool) -> Vec<Timer> {
+        let gp2 = if g4 {
+            TimerKind::General32
+        } else {
+            TimerKind::General16
+        };
+        let mut t = vec![
+            Timer::new(Irqs::One(chip::IRQ_TIM2), g4, gp2),
+            Timer::new(Irqs::One(chip::IRQ_TIM3), g4, TimerKind::General16),
+            Timer::new(Irqs::One(chip::IRQ_TIM4), g4, TimerKind::General16),
+            Timer::new(
+                Irqs::Split {
+                    brk: 24,
+                    up: 25,
+                    trg_com: 26,
+                    cc: 27,
+                },
+                g4,
+                TimerKind::Advanced,
+            ),
+        ];
+        if g4 {
+            t.push(Timer::new(
+                Irqs::Split {
+                    brk: 43,
+                    up: 44,
+                    trg_com: 45,
+                    cc: 46,
+                },
+                g4,
+                TimerKind::Advanced,
+            ));
+        }
+        t
     }
 
     /// A system reset (watchdog, SYSRESETREQ): every peripheral to its reset
@@ -179,8 +239,11 @@ impl Machine {
         );
         let (clock, position, steps) = (self.clock.clone(), self.position, self.steps_total);
         let motor = self.motor.take();
+        let (sram, code) = (self.sram.take(), self.code.take());
         *self = fresh;
         self.motor = motor;
+        self.sram = sram;
+        self.code = code;
         self.clock = clock;
         self.clock.set_sysclk(self.chip.reset_sysclk);
         self.position = position;
@@ -203,8 +266,14 @@ impl Machine {
         let c = self.rcc.clocks();
         self.clocks = c;
         let now = self.now();
-        for t in &mut self.tim {
-            t.set_clock(c.tim_apb1 as u64, now);
+        for (i, t) in self.tim.iter_mut().enumerate() {
+            // TIM1 / TIM8 are on APB2, the others on APB1
+            let hz = if i >= chip::tim::TIM1 {
+                c.tim_apb2
+            } else {
+                c.tim_apb1
+            };
+            t.set_clock(hz as u64, now);
         }
         self.usart.fck = c.usart1 as u64;
     }
@@ -214,9 +283,8 @@ impl Machine {
 
     /// Brings every peripheral to time `t`.
     pub fn sync(&mut self, t: u64) {
-        for i in 0..3 {
-            self.tim[i].sync(t);
-        }
+        self.run_timers(t);
+        self.update_breaks(t);
         self.step_edges();
         if let Some(at) = self.motor.as_mut().and_then(|m| m.advance(t)) {
             self.follow_encoder(at);
@@ -261,7 +329,8 @@ impl Machine {
         // a step interrupt that missed an update event let the timer repeat
         // the period it had preloaded: a STEP pulse the firmware never
         // counted (reported at the first and then at every doubling)
-        let missed = self.tim[1].missed_updates;
+        let source = self.step_source();
+        let missed = source.map_or(0, |(i, _)| self.tim[i].missed_updates);
         let reported = self.missed_reported;
         if missed > reported && (reported == 0 || missed.ilog2() > reported.ilog2()) {
             eprintln!(
@@ -270,12 +339,22 @@ impl Machine {
             );
         }
         self.missed_reported = missed;
-        let edges = std::mem::take(&mut self.tim[1].edges1);
-        let (sp, spin) = pins::STEP;
-        for (t, level) in edges {
-            if self.gpio[sp].mode(spin) != Mode::Alternate {
-                continue;
+        // the STEP pin is an output compare channel's in its alternate
+        // function: its level is that channel's output (see
+        // Timer::pin_level), edges at the emulated times the counter made
+        // them, whether its periods were written by the CPU or by DMA
+        let mut edges = Vec::new();
+        for (i, tm) in self.tim.iter_mut().enumerate() {
+            for ch in 0..4 {
+                let e = std::mem::take(&mut tm.edges[ch]);
+                if source == Some((i, ch)) {
+                    edges = e;
+                }
             }
+        }
+        #[cfg(test)]
+        self.step_log.extend(&edges);
+        for (t, level) in edges {
             if level {
                 let dir = self.gpio[pins::DIR.0].level(pins::DIR.1, None);
                 self.pending_rise = Some((t, dir));
@@ -314,7 +393,8 @@ impl Machine {
                 }
             }
             let routed = self.tim4_inputs_routed();
-            self.tim[2].inputs([la, lb], t, routed);
+            self.tim[chip::tim::TIM4].inputs([la, lb], t, routed);
+            self.timer_requests(t);
         }
     }
 
@@ -352,9 +432,16 @@ impl Machine {
     }
 
     pub fn update_irqs(&mut self) {
-        for i in 0..3 {
-            let (irq, l) = (self.tim[i].irq, self.tim[i].irq_level());
-            self.scs.set_level(irq, l);
+        for i in 0..self.tim.len() {
+            for (irq, l) in self.tim[i].irq_levels() {
+                self.scs.set_level(irq, l);
+            }
+        }
+        for d in 0..self.dma.len() {
+            let levels: Vec<_> = self.dma[d].irq_levels().collect();
+            for (irq, l) in levels {
+                self.scs.set_level(irq, l);
+            }
         }
         let l = self.usart.irq_level();
         self.scs.set_level(chip::IRQ_USART1, l);
@@ -372,10 +459,9 @@ impl Machine {
     /// The next time a peripheral changes something the CPU may see.
     pub fn next_event(&self) -> Option<u64> {
         let hclk = self.hclk();
+        let timers = self.tim.iter().filter_map(Timer::next_event).min();
         [
-            self.tim[0].next_event(),
-            self.tim[1].next_event(),
-            self.tim[2].next_event(),
+            timers,
             self.usart.next_event(),
             self.flash.next_event(),
             self.iwdg.next_event(),
@@ -397,12 +483,14 @@ impl Machine {
         }
         v
     }
-    fn af_output(&self, port: usize, pin: u8) -> Option<bool> {
-        match (port, pin) {
-            (0, 6) => Some(self.tim[1].edges1.last().is_some_and(|e| e.1)),
-            (0, 12) if self.chip.is_g4() => self.usart.de_output(),
-            _ => None,
+    pub(crate) fn af_output(&self, port: usize, pin: u8) -> Option<bool> {
+        if port == 0 && pin == 12 && self.chip.is_g4() {
+            return self.usart.de_output();
         }
+        let af = self.gpio[port].af(pin);
+        chip::timer_output_at(self.chip.kind, (port, pin), af)
+            .filter(|&(t, _)| t < self.tim.len())
+            .map(|(t, ch)| self.tim[t].pin_level(ch))
     }
 
     /// A read by the CPU from peripheral space.
@@ -441,6 +529,10 @@ impl Machine {
             )),
             Access::Unsupported(w) => self.fail(format!("{w} at {a:#010x} is not modelled")),
         }
+        self.timer_requests(t);
+        if let Err(e) = self.check_slaves(t) {
+            self.fail(format!("{e} (write to {a:#010x})"));
+        }
         if word & !0x3FF == chip::RCC {
             self.apply_clocks();
         }
@@ -467,6 +559,11 @@ impl Machine {
             0x4000_0000..=0x4000_03FF => "TIM2",
             0x4000_0400..=0x4000_07FF => "TIM3",
             0x4000_0800..=0x4000_0BFF => "TIM4",
+            0x4001_2C00..=0x4001_2FFF => "TIM1",
+            0x4001_3400..=0x4001_37FF if g4 => "TIM8",
+            0x4002_0000..=0x4002_03FF => "DMA1",
+            0x4002_0400..=0x4002_07FF if g4 => "DMA2",
+            0x4002_0800..=0x4002_0BFF if g4 => "DMAMUX1",
             0x4000_3000..=0x4000_33FF => "IWDG",
             0x4000_7000..=0x4000_73FF => "PWR",
             0x4001_0000..=0x4001_03FF => {
@@ -487,14 +584,20 @@ impl Machine {
         }
     }
 
-    fn dispatch_read(&mut self, a: u32, t: u64) -> Access {
+    pub fn dispatch_read(&mut self, a: u32, t: u64) -> Access {
         let off = a & 0x3FF;
+        let g4 = self.chip.is_g4();
         let ga = self.chip.gpioa;
         let gb = self.chip.gpiob;
         match a & !0x3FF {
             chip::TIM2 => self.tim[0].read(off, t),
             chip::TIM3 => self.tim[1].read(off, t),
             chip::TIM4 => self.tim[2].read(off, t),
+            chip::TIM1 => self.tim[3].read(off, t),
+            chip::TIM8 if g4 => self.tim[4].read(off, t),
+            chip::DMA1 => self.dma[0].read(off),
+            chip::DMA2 if g4 => self.dma[1].read(off),
+            chip::DMAMUX1 if g4 => self.dmamux.read(off),
             chip::IWDG => self.iwdg.read(off, t),
             chip::PWR => self.pwr.read(off),
             chip::SYSCFG_AFIO => self.syscfg.read(off),
@@ -519,17 +622,34 @@ impl Machine {
         }
     }
 
-    fn dispatch_write(&mut self, a: u32, v: u32, size: usize, exact: u32, t: u64) -> Access {
+    pub fn dispatch_write(&mut self, a: u32, v: u32, size: usize, exact: u32, t: u64) -> Access {
         let off = a & 0x3FF;
+        let g4 = self.chip.is_g4();
         let ga = self.chip.gpioa;
         let gb = self.chip.gpiob;
         match a & !0x3FF {
             chip::TIM2 => self.tim[0].write(off, v, t),
             chip::TIM3 => self.tim[1].write(off, v, t),
             chip::TIM4 => self.tim[2].write(off, v, t),
+            chip::TIM1 => self.tim[3].write(off, v, t),
+            chip::TIM8 if g4 => self.tim[4].write(off, v, t),
+            x if x == chip::DMA1 || (g4 && x == chip::DMA2) => {
+                let d = usize::from(x == chip::DMA2);
+                let (r, started) = self.dma[d].write(off, v);
+                if let Some(c) = started {
+                    self.mem2mem(d, c, t);
+                }
+                r
+            }
+            chip::DMAMUX1 if g4 => self.dmamux.write(off, v),
             chip::IWDG => self.iwdg.write(off, v, t),
             chip::PWR => self.pwr.write(off, v),
             chip::SYSCFG_AFIO => {
+                // AFIO_MAPR: the timers' pins are modelled unremapped
+                // (TIM1 partial remap only moves its break input)
+                if !g4 && off == 0x04 && (v & 0x1F00 != 0 || (v >> 6) & 3 > 1) {
+                    return Access::Unsupported("AFIO_MAPR timer remap");
+                }
                 let r = self.syscfg.write(off, v);
                 for i in 0..4 {
                     self.exti.exticr[i] = self.syscfg.get(0x08 + 4 * i as u32);

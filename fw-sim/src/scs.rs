@@ -126,6 +126,12 @@ impl Scs {
         p
     }
 
+    /// The level of external interrupt line `irq`, as the peripherals set it.
+    #[cfg(test)]
+    pub fn line(&self, irq: usize) -> bool {
+        self.level[irq]
+    }
+
     /// The pending enabled exception with the highest priority.
     pub fn best_pending(&self) -> Option<(usize, i32)> {
         let mut best: Option<(usize, i32)> = None;

@@ -1,6 +1,8 @@
 //! The peripheral model, one file per peripheral (see docs/fw-sim.md for
 //! the reference manual sections).
 pub mod bank;
+pub mod dma;
+pub mod dmamux;
 pub mod exti;
 pub mod flash;
 pub mod gpio;
