@@ -433,13 +433,14 @@ impl Machine {
 
     pub fn update_irqs(&mut self) {
         for i in 0..self.tim.len() {
-            for (irq, l) in self.tim[i].irq_levels() {
+            let (lines, n) = self.tim[i].irq_levels();
+            for &(irq, l) in &lines[..n] {
                 self.scs.set_level(irq, l);
             }
         }
         for d in 0..self.dma.len() {
-            let levels: Vec<_> = self.dma[d].irq_levels().collect();
-            for (irq, l) in levels {
+            for c in 0..self.dma[d].channels() {
+                let (irq, l) = self.dma[d].irq_level(c);
                 self.scs.set_level(irq, l);
             }
         }

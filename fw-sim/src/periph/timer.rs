@@ -269,22 +269,25 @@ impl Timer {
         }
     }
 
-    /// Interrupt lines with their levels.
-    pub fn irq_levels(&self) -> Vec<(usize, bool)> {
+    /// Interrupt lines with their levels (the first `n` of the array).
+    pub fn irq_levels(&self) -> ([(usize, bool); 4], usize) {
         let p = self.sr & self.dier;
         match self.irqs {
-            Irqs::One(n) => vec![(n, p & 0xDF != 0)],
+            Irqs::One(n) => ([(n, p & 0xDF != 0); 4], 1),
             Irqs::Split {
                 brk,
                 up,
                 trg_com,
                 cc,
-            } => vec![
-                (brk, p & BIF != 0),
-                (up, p & UIF != 0),
-                (trg_com, p & (TIF | 1 << 5) != 0),
-                (cc, p & 0x1E != 0),
-            ],
+            } => (
+                [
+                    (brk, p & BIF != 0),
+                    (up, p & UIF != 0),
+                    (trg_com, p & (TIF | 1 << 5) != 0),
+                    (cc, p & 0x1E != 0),
+                ],
+                4,
+            ),
         }
     }
 
