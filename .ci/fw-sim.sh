@@ -36,7 +36,7 @@ cargo fw
 cargo fw-f103
 # the core's step schedule for the same moves, to compare the pulses with
 cargo build --example step_schedule
-( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings && cargo build --release )
+( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings && cargo test --release && cargo build --release )
 fw_target=$(target_of)
 export FW_SIM_ELF_G431="$fw_target/thumbv7em-none-eabihf/fw/modbus-drive"
 export FW_SIM_ELF_F103="$fw_target/thumbv7m-none-eabi/fw/modbus-drive"

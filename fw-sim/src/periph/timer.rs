@@ -380,7 +380,10 @@ impl Timer {
         for ch in 0..4 {
             self.ccr_sh[ch] = self.ccr[ch];
         }
-        if (self.cr2 >> 4) & 7 == 2 {
+        // TRGO: MMS update on every UEV, MMS reset on UG (and a reset by
+        // the slave controller)
+        let mms = (self.cr2 >> 4) & 7;
+        if mms == 2 || (mms == 0 && !from_counter) {
             self.fired.trgo_rise = true;
         }
         if self.cr1 & OPM != 0 && from_counter {
