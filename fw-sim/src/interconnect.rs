@@ -45,6 +45,18 @@ impl Machine {
     /// Serves what the timers asked for at `t` (after an event or a
     /// register write), until nothing is left.
     pub(crate) fn timer_requests(&mut self, t: u64) {
+        // a DMA write into a timer can request DMA again at the same
+        // instant (UG through a burst); a chain this deep is a loop
+        if self.chain_depth >= MAX_CHAIN {
+            self.fail("timers and DMA request each other in a loop".into());
+            return;
+        }
+        self.chain_depth += 1;
+        self.timer_requests_inner(t);
+        self.chain_depth -= 1;
+    }
+
+    fn timer_requests_inner(&mut self, t: u64) {
         for _ in 0..MAX_CHAIN {
             let Some(i) = self.tim.iter().position(|tm| !tm.fired.is_empty()) else {
                 return;
@@ -100,8 +112,22 @@ impl Machine {
         Ok(())
     }
 
+    /// A DMA channel was enabled: the requests waiting for one.
+    pub(crate) fn serve_pending(&mut self, t: u64) {
+        for i in 0..self.tim.len() {
+            let p = self.tim[i].dma_pending;
+            for bit in 0..7 {
+                if p & (1 << bit) != 0 {
+                    self.dma_request(i, bit, t);
+                }
+            }
+        }
+        self.timer_requests(t);
+    }
+
     /// Request `bit` of timer `i` (see `timer::Fired::dma`) to the DMA
-    /// channels it reaches, served by priority then channel number.
+    /// channels it reaches, served by priority then channel number; kept
+    /// pending while no enabled channel takes it.
     fn dma_request(&mut self, i: usize, bit: u32, t: u64) {
         let mut chans: Vec<(usize, usize)> = Vec::new();
         match self.chip.kind {
@@ -119,6 +145,14 @@ impl Machine {
             }
         }
         chans.sort_by_key(|&(d, c)| (d, std::cmp::Reverse(self.dma[d].priority(c)), c));
+        let taken = chans
+            .iter()
+            .any(|&(d, c)| self.dma[d].next_transfer(c).is_some());
+        if taken {
+            self.tim[i].dma_pending &= !(1 << bit);
+        } else {
+            self.tim[i].dma_pending |= 1 << bit;
+        }
         for (d, c) in chans {
             // a burst through DMAR holds the request until DBL + 1 items
             while let Some(x) = self.dma[d].next_transfer(c) {
@@ -516,5 +550,29 @@ mod tests {
         assert_eq!(r(&mut m, chip::DMA1) >> 8, 0b1001, "TEIF3 + GIF3");
         assert_eq!(r(&mut m, DMA_CCR3) & 1, 0, "channel disabled");
         assert_eq!(m.fault, None);
+    }
+
+    #[test]
+    fn a_request_waits_for_its_channel_to_be_enabled() {
+        let mut m = machine(Kind::F103);
+        fill16(&mut m, SRAM, &[33]);
+        step_timer(&mut m, 9, 1 << 8);
+        w(&mut m, chip::TIM3, 1);
+        at_tick(&mut m, 15);
+        // the update at tick 10 asked; channel 3 is enabled at 15
+        w(&mut m, DMA_CCR3 + 4, 1);
+        w(&mut m, DMA_CCR3 + 8, chip::TIM3 + 0x38);
+        w(&mut m, DMA_CCR3 + 12, SRAM);
+        w(&mut m, DMA_CCR3, TO_PERIPH_16);
+        assert_eq!(
+            r(&mut m, chip::TIM3 + 0x38),
+            33,
+            "served as the channel starts"
+        );
+        assert_eq!(r(&mut m, DMA_CCR3 + 4), 0);
+        // clearing UDE withdraws a request no channel took
+        at_tick(&mut m, 25);
+        w(&mut m, chip::TIM3 + 0x0C, 0);
+        assert_eq!(m.tim[tim::TIM3].dma_pending, 0);
     }
 }

@@ -125,6 +125,8 @@ pub struct Machine {
     pub event: bool,
     /// What the CPU hooks saw in the current slice.
     pub events: SliceEvents,
+    /// Nesting of timer requests and DMA transfers within one instant.
+    pub chain_depth: u32,
     /// The STEP pin's edges (unit tests).
     #[cfg(test)]
     pub step_log: Vec<(u64, bool)>,
@@ -179,6 +181,7 @@ impl Machine {
             pending_rise: None,
             event: false,
             events: Default::default(),
+            chain_depth: 0,
             #[cfg(test)]
             step_log: Vec::new(),
         };
@@ -639,6 +642,7 @@ impl Machine {
                 let (r, started) = self.dma[d].write(off, v);
                 if let Some(c) = started {
                     self.mem2mem(d, c, t);
+                    self.serve_pending(t);
                 }
                 r
             }

@@ -121,6 +121,10 @@ pub struct Timer {
     trgo_level: bool,
     /// What the events since the machine last asked requested.
     pub fired: Fired,
+    /// DMA requests no enabled channel has taken yet: a request stays
+    /// asserted until a DMA channel serves it (RM0008 §13.3.1, RM0440
+    /// §12.4.1), so enabling the channel later serves it then.
+    pub dma_pending: u8,
     /// Update events that came with UIF still set and its interrupt
     /// enabled: an update interrupt that did not run between two of them
     /// (with preloads, the period before ran again unchanged).
@@ -189,6 +193,7 @@ impl Timer {
             edges: Default::default(),
             trgo_level: false,
             fired: Fired::default(),
+            dma_pending: 0,
             missed_updates: 0,
             ti: [false; 2],
         }
@@ -775,7 +780,12 @@ impl Timer {
                 self.smcr = v;
                 self.anchor_clk = clk_at(t, self.clk_hz);
             }
-            0x0C => self.dier = v & 0x7FFF,
+            0x0C => {
+                self.dier = v & 0x7FFF;
+                // a request whose enable is cleared is withdrawn
+                let de = (self.dier >> 8) & 0x7F;
+                self.dma_pending &= de as u8;
+            }
             // rc_w0: writing 1 leaves a flag, 0 clears it
             0x10 => self.sr &= v | !0x1FFF,
             0x14 => {
