@@ -123,7 +123,10 @@ impl Chip {
 pub mod pins {
     /// (port 0 = A, 1 = B, pin)
     pub type Pin = (usize, u8);
-    pub const STEP: Pin = (0, 6);
+    /// STEP: PA6 (TIM3_CH1) in today's images; PA7 (TIM1_CH1N) in the
+    /// timer + DMA step engine's design (docs/firmware.md). The STEP pin
+    /// is the first of these a timer output drives.
+    pub const STEP: [Pin; 2] = [(0, 6), (0, 7)];
     pub const DIR: Pin = (1, 0);
     pub const CW_LIMIT: Pin = (1, 12);
     pub const CCW_LIMIT: Pin = (1, 13);
@@ -231,46 +234,79 @@ pub fn g4_request_id(timer: usize, req: u32) -> Option<u32> {
     }
 }
 
-/// The timer channel (timer, channel 0..3) whose output drives a pin in
-/// its alternate function: the G4's AF numbers from DS12589's alternate
-/// function table, the F1's default (not remapped) timer pins of RM0008
-/// §9.3.7 ("Timer alternate function remapping"), as in the STM32 data of
-/// embassy's stm32-metapac. `af` is the G4's AFRx value (ignored on F1).
-pub fn timer_output_at(kind: Kind, pin: pins::Pin, af: u32) -> Option<(usize, usize)> {
+/// A timer output: (timer, channel 0..3, the complementary OCxN).
+pub type TimerOut = (usize, usize, bool);
+
+/// The timer outputs that may drive a pin in its alternate function (on
+/// the F1 two peripherals can share a pin; the machine takes the enabled
+/// one): the G4's AF numbers from DS12589's alternate function table, the
+/// F1's timer pins of RM0008 §9.3.7 ("Timer alternate function
+/// remapping") without remap, except TIM1's partial remap
+/// (`f1_tim1_remap` = AFIO_MAPR.TIM1_REMAP = 01: CH1N..CH3N on PA7, PB0,
+/// PB1 and BKIN on PA6, where no remap has them on PB13..PB15 and PB12);
+/// cross-checked with the STM32 data of embassy's stm32-metapac. `af` is
+/// the G4's AFRx value (ignored on the F1).
+pub fn timer_outputs_at(
+    kind: Kind,
+    pin: pins::Pin,
+    af: u32,
+    f1_tim1_remap: u32,
+) -> [Option<TimerOut>; 2] {
     use tim::*;
     let (port, n) = pin;
+    let nu = n as usize;
     match kind {
-        Kind::F103 => Some(match (port, n) {
-            (0, 0..=3) => (TIM2, n as usize),
-            (0, 6) => (TIM3, 0),
-            (0, 7) => (TIM3, 1),
-            (1, 0) => (TIM3, 2),
-            (1, 1) => (TIM3, 3),
-            (1, 6..=9) => (TIM4, n as usize - 6),
-            (0, 8..=11) => (TIM1, n as usize - 8),
-            _ => return None,
-        }),
-        Kind::G431 => Some(match (port, n, af) {
-            (0, 0..=3, 1) => (TIM2, n as usize),
-            (0, 5, 1) | (0, 15, 1) => (TIM2, 0),
-            (1, 3, 1) => (TIM2, 1),
-            (1, 10, 1) | (0, 9, 10) => (TIM2, 2),
-            (1, 11, 1) | (0, 10, 10) => (TIM2, 3),
-            (0, 6, 2) | (1, 4, 2) => (TIM3, 0),
-            (0, 4, 2) | (0, 7, 2) | (1, 5, 2) => (TIM3, 1),
-            (1, 0, 2) => (TIM3, 2),
-            (1, 1, 2) | (1, 7, 10) => (TIM3, 3),
-            (1, 6..=9, 2) => (TIM4, n as usize - 6),
-            (0, 11, 10) => (TIM4, 0),
-            (0, 12, 10) => (TIM4, 1),
-            (0, 13, 10) => (TIM4, 2),
-            (0, 8..=10, 6) => (TIM1, n as usize - 8),
-            (0, 11, 11) => (TIM1, 3),
-            (0, 15, 2) | (1, 6, 5) => (TIM8, 0),
-            (0, 14, 5) | (1, 8, 10) => (TIM8, 1),
-            (1, 9, 10) => (TIM8, 2),
-            _ => return None,
-        }),
+        Kind::F103 => {
+            let partial = f1_tim1_remap == 1;
+            let general = match (port, n) {
+                (0, 0..=3) => Some((TIM2, nu, false)),
+                (0, 6) => Some((TIM3, 0, false)),
+                (0, 7) => Some((TIM3, 1, false)),
+                (1, 0) => Some((TIM3, 2, false)),
+                (1, 1) => Some((TIM3, 3, false)),
+                (1, 6..=9) => Some((TIM4, nu - 6, false)),
+                _ => None,
+            };
+            let tim1 = match (port, n) {
+                (0, 8..=11) => Some((TIM1, nu - 8, false)),
+                (0, 7) if partial => Some((TIM1, 0, true)),
+                (1, 0) if partial => Some((TIM1, 1, true)),
+                (1, 1) if partial => Some((TIM1, 2, true)),
+                (1, 13..=15) if !partial => Some((TIM1, nu - 13, true)),
+                _ => None,
+            };
+            [general, tim1]
+        }
+        Kind::G431 => [
+            match (port, n, af) {
+                (0, 0..=3, 1) => Some((TIM2, nu, false)),
+                (0, 5, 1) | (0, 15, 1) => Some((TIM2, 0, false)),
+                (1, 3, 1) => Some((TIM2, 1, false)),
+                (1, 10, 1) | (0, 9, 10) => Some((TIM2, 2, false)),
+                (1, 11, 1) | (0, 10, 10) => Some((TIM2, 3, false)),
+                (0, 6, 2) | (1, 4, 2) => Some((TIM3, 0, false)),
+                (0, 4, 2) | (0, 7, 2) | (1, 5, 2) => Some((TIM3, 1, false)),
+                (1, 0, 2) => Some((TIM3, 2, false)),
+                (1, 1, 2) | (1, 7, 10) => Some((TIM3, 3, false)),
+                (1, 6..=9, 2) => Some((TIM4, nu - 6, false)),
+                (0, 11, 10) => Some((TIM4, 0, false)),
+                (0, 12, 10) => Some((TIM4, 1, false)),
+                (0, 13, 10) => Some((TIM4, 2, false)),
+                (0, 8..=10, 6) => Some((TIM1, nu - 8, false)),
+                (0, 11, 11) => Some((TIM1, 3, false)),
+                (0, 7, 6) | (0, 11, 6) | (1, 13, 6) => Some((TIM1, 0, true)),
+                (1, 0, 6) | (0, 12, 6) | (1, 14, 6) => Some((TIM1, 1, true)),
+                (1, 1, 6) | (1, 15, 4) | (1, 9, 12) => Some((TIM1, 2, true)),
+                (0, 15, 2) | (1, 6, 5) => Some((TIM8, 0, false)),
+                (0, 14, 5) | (1, 8, 10) => Some((TIM8, 1, false)),
+                (1, 9, 10) => Some((TIM8, 2, false)),
+                (0, 7, 4) | (1, 3, 4) => Some((TIM8, 0, true)),
+                (1, 0, 4) | (1, 4, 4) => Some((TIM8, 1, true)),
+                (1, 1, 4) | (1, 5, 3) => Some((TIM8, 2, true)),
+                _ => None,
+            },
+            None,
+        ],
     }
 }
 

@@ -274,15 +274,21 @@ impl Machine {
         }
     }
 
-    /// The timer channel driving the STEP pin now, if the pin is in a
-    /// timer's alternate function.
-    pub(crate) fn step_source(&self) -> Option<(usize, usize)> {
-        let (port, pin) = pins::STEP;
+    /// The timer output driving a pin now, if the pin is in a timer's
+    /// alternate function: of the candidates, the enabled one.
+    pub(crate) fn timer_output(&self, (port, pin): pins::Pin) -> Option<chip::TimerOut> {
         if self.gpio[port].mode(pin) != Mode::Alternate {
             return None;
         }
         let af = self.gpio[port].af(pin);
-        chip::timer_output_at(self.chip.kind, pins::STEP, af).filter(|&(t, _)| t < self.tim.len())
+        let remap = (self.syscfg.get(0x04) >> 6) & 3;
+        let c = chip::timer_outputs_at(self.chip.kind, (port, pin), af, remap);
+        let present = |o: &chip::TimerOut| o.0 < self.tim.len();
+        let mut it = c.iter().flatten().filter(|o| present(o));
+        let first = it.clone().next().copied();
+        it.find(|o| self.tim[o.0].output_enabled(o.1, o.2))
+            .copied()
+            .or(first)
     }
 }
 
@@ -493,12 +499,12 @@ mod tests {
         w(&mut m, t1 + 0x0C, 1 << 7); // BIE
         w(&mut m, t1 + 0x44, (1 << 15) | (1 << 12)); // MOE, BKE, BKP = 0
         at_tick(&mut m, 5);
-        assert!(m.tim[tim::TIM1].pin_level(0));
+        assert!(m.tim[tim::TIM1].pin_level(0, false));
         m.gpio[1].external[12] = Some(false);
         at_tick(&mut m, 6);
         assert_eq!(r(&mut m, t1 + 0x44) & (1 << 15), 0, "MOE cleared");
         assert_eq!(r(&mut m, t1 + 0x10) & (1 << 7), 1 << 7, "BIF");
-        assert!(!m.tim[tim::TIM1].pin_level(0), "output released");
+        assert!(!m.tim[tim::TIM1].pin_level(0, false), "output released");
         assert!(m.scs.line(24), "TIM1_BRK");
         // MOE cannot be set while the break is active
         w(&mut m, t1 + 0x44, (1 << 15) | (1 << 12));
@@ -507,9 +513,9 @@ mod tests {
         m.gpio[1].external[12] = Some(true);
         at_tick(&mut m, 7);
         w(&mut m, t1 + 0x44, (1 << 15) | (1 << 12));
-        assert!(m.tim[tim::TIM1].pin_level(0));
+        assert!(m.tim[tim::TIM1].pin_level(0, false));
         w(&mut m, t1 + 0x14, 1 << 7);
-        assert!(!m.tim[tim::TIM1].pin_level(0));
+        assert!(!m.tim[tim::TIM1].pin_level(0, false));
     }
 
     #[test]
@@ -574,5 +580,61 @@ mod tests {
         at_tick(&mut m, 25);
         w(&mut m, chip::TIM3 + 0x0C, 0);
         assert_eq!(m.tim[tim::TIM3].dma_pending, 0);
+    }
+
+    /// The F103 engine of docs/firmware.md's design: TIM1 with its partial
+    /// remap, STEP = CH1N on PA7 and DIR = CH2N on PB0, one DMA burst
+    /// (ARR, RCR, CCR1, CCR2) per update from DMA1 channel 5 (TIM1_UP),
+    /// TIM3 counting TIM1's OC1REF through ITR0, a software break.
+    #[test]
+    fn f1_tim1_burst_engine_steps_counts_and_stops_on_a_break() {
+        let mut m = machine(Kind::F103);
+        let t1 = chip::TIM1;
+        w(&mut m, 0x4001_0004, 1 << 6); // AFIO_MAPR: TIM1 partial remap
+        w(&mut m, 0x4001_0800, 0xB444_4444); // PA7 AF push-pull
+        w(&mut m, 0x4001_0C00, 0x4444_444B); // PB0 AF push-pull
+                                             // three entries: (ARR, RCR, CCR1, CCR2)
+        let entries = [99, 0, 50, 0xFFFF, 199, 0, 50, 0xFFFF, 99, 1, 50, 0];
+        fill16(&mut m, SRAM, &entries);
+        let c5 = chip::DMA1 + 0x08 + 0x14 * 4;
+        w(&mut m, c5 + 4, 12);
+        w(&mut m, c5 + 8, t1 + 0x4C);
+        w(&mut m, c5 + 12, SRAM);
+        w(&mut m, c5, TO_PERIPH_16);
+        w(&mut m, t1 + 0x48, 11 | (3 << 8)); // DCR: DBA = ARR, DBL = 3
+        w(&mut m, t1 + 0x2C, 99);
+        w(&mut m, t1 + 0x34, 50);
+        w(&mut m, t1 + 0x38, 0xFFFF);
+        // OC1 PWM 2, OC2 PWM 1, both preloaded; CC1NE, CC2NE; MOE
+        w(
+            &mut m,
+            t1 + 0x18,
+            (7 << 4) | (1 << 3) | (6 << 12) | (1 << 11),
+        );
+        w(&mut m, t1 + 0x20, (1 << 2) | (1 << 6));
+        w(&mut m, t1 + 0x44, 1 << 15);
+        w(&mut m, t1 + 0x04, 4 << 4); // MMS = OC1REF
+        w(&mut m, t1 + 0x14, 1); // UG
+        w(&mut m, t1 + 0x0C, 1 << 8); // UDE
+                                      // TIM3: external clock mode 1 on ITR0 (TIM1)
+        w(&mut m, chip::TIM3 + 0x08, 7);
+        w(&mut m, chip::TIM3, 1);
+        w(&mut m, t1, 1 | (1 << 7)); // CEN, ARPE
+        at_tick(&mut m, 680);
+        // each entry acts from the update after the one that loaded it:
+        // 100, 100, 100 (entry 0), 200 (entry 1), then entry 2's period
+        // twice (RCR = 1) with DIR low from its update at 500
+        assert_eq!(rising(&mut m), [50, 150, 250, 350, 550, 650]);
+        assert_eq!(m.position, 2, "4 steps forward, 2 back");
+        assert_eq!(
+            r(&mut m, chip::TIM3 + 0x24),
+            6,
+            "the slave counted every pulse"
+        );
+        assert_eq!(r(&mut m, c5 + 4), 0);
+        w(&mut m, t1 + 0x14, 1 << 7); // BG: the fault path's software break
+        at_tick(&mut m, 900);
+        assert!(rising(&mut m).is_empty(), "no pulse after the break");
+        assert!(!m.tim[tim::TIM1].pin_level(0, true));
     }
 }

@@ -329,11 +329,15 @@ impl Machine {
     }
 
     fn step_edges(&mut self) {
+        let source = pins::STEP
+            .iter()
+            .filter_map(|&p| self.timer_output(p))
+            .find(|o| self.tim[o.0].output_enabled(o.1, o.2));
+        let dir_source = self.timer_output(pins::DIR);
         // a step interrupt that missed an update event let the timer repeat
         // the period it had preloaded: a STEP pulse the firmware never
         // counted (reported at the first and then at every doubling)
-        let source = self.step_source();
-        let missed = source.map_or(0, |(i, _)| self.tim[i].missed_updates);
+        let missed = source.map_or(0, |(i, _, _)| self.tim[i].missed_updates);
         let reported = self.missed_reported;
         if missed > reported && (reported == 0 || missed.ilog2() > reported.ilog2()) {
             eprintln!(
@@ -342,24 +346,44 @@ impl Machine {
             );
         }
         self.missed_reported = missed;
-        // the STEP pin is an output compare channel's in its alternate
-        // function: its level is that channel's output (see
-        // Timer::pin_level), edges at the emulated times the counter made
-        // them, whether its periods were written by the CPU or by DMA
+        // the STEP pin in a timer's alternate function shows that timer
+        // output's level (Timer::pin_level), with edges at the emulated
+        // times the counter made them, whether the CPU or DMA wrote its
+        // periods; DIR too may be a timer output, then its level at each
+        // STEP edge comes from its own edges
         let mut edges = Vec::new();
+        let mut dir_edges = Vec::new();
         for (i, tm) in self.tim.iter_mut().enumerate() {
-            for ch in 0..4 {
-                let e = std::mem::take(&mut tm.edges[ch]);
-                if source == Some((i, ch)) {
-                    edges = e;
+            for k in 0..8 {
+                let out = Some((i, k % 4, k >= 4));
+                if out == source {
+                    edges = std::mem::take(&mut tm.edges[k]);
+                } else if out == dir_source {
+                    dir_edges = std::mem::take(&mut tm.edges[k]);
+                } else {
+                    tm.edges[k].clear();
                 }
             }
         }
         #[cfg(test)]
         self.step_log.extend(&edges);
+        let mut dir_level = match (dir_source, dir_edges.first()) {
+            (Some(_), Some(&(_, first))) => !first,
+            (Some((i, ch, n)), None) => self.tim[i].pin_level(ch, n),
+            (None, _) => self.gpio[pins::DIR.0].level(pins::DIR.1, None),
+        };
+        let mut dir_next = dir_edges.into_iter().peekable();
         for (t, level) in edges {
+            // DIR edges up to this STEP edge (a tie: DIR first)
+            while let Some(&(td, l)) = dir_next.peek() {
+                if td > t {
+                    break;
+                }
+                dir_level = l;
+                dir_next.next();
+            }
             if level {
-                let dir = self.gpio[pins::DIR.0].level(pins::DIR.1, None);
+                let dir = dir_level;
                 self.pending_rise = Some((t, dir));
                 self.position += if dir { 1 } else { -1 };
                 self.steps_total += 1;
@@ -491,10 +515,8 @@ impl Machine {
         if port == 0 && pin == 12 && self.chip.is_g4() {
             return self.usart.de_output();
         }
-        let af = self.gpio[port].af(pin);
-        chip::timer_output_at(self.chip.kind, (port, pin), af)
-            .filter(|&(t, _)| t < self.tim.len())
-            .map(|(t, ch)| self.tim[t].pin_level(ch))
+        self.timer_output((port, pin))
+            .map(|(t, ch, n)| self.tim[t].pin_level(ch, n))
     }
 
     /// A read by the CPU from peripheral space.

@@ -17,9 +17,10 @@
 //!   external clock mode 1 from an internal trigger ITRx (the machine wires
 //!   ITRx to the other timers' TRGO), and the encoder modes 1..3 from TI1 /
 //!   TI2;
-//! - on the advanced timers: BDTR's MOE (the outputs' master enable), AOE,
-//!   the break input (BKE, BKP; a pin or EGR.BG) that clears MOE and sets
-//!   BIF, and the idle levels OISx the outputs take while MOE is 0.
+//! - on the advanced timers: the complementary outputs OC1N..OC3N, BDTR's
+//!   MOE (the outputs' master enable), AOE, OSSR / OSSI, the break input
+//!   (BKE, BKP; a pin or EGR.BG) that clears MOE and sets BIF, and the idle
+//!   levels OISx / OISxN the outputs take while MOE is 0.
 //!
 //! The counter is lazy: it is computed from the timer-clock edges since an
 //! anchor, and the machine asks for the next event (a compare match or an
@@ -27,8 +28,8 @@
 //! transfer or a slave timer acts at the event's emulated time.
 //!
 //! Not modelled (selecting it stops the runner, `Unsupported`):
-//! down-counting and centre-aligned modes, input capture, complementary
-//! outputs and dead time, channels 5 and 6, the G4's extended output modes
+//! down-counting and centre-aligned modes, input capture, dead time
+//! (complementary outputs are modelled without it), channels 5 and 6, the G4's extended output modes
 //! (OCxM[3]), external clock mode 2 (ECE), slave modes triggered by a timer
 //! input or ETR, break 2.
 
@@ -113,10 +114,11 @@ pub struct Timer {
     trgi: bool,
     break_in: bool,
     oc_ref: [bool; 4],
-    /// Output level of each channel (false while undriven) and its changes
-    /// since the machine last took them.
-    out: [bool; 4],
-    pub edges: [Vec<(u64, bool)>; 4],
+    /// Output level of each output (false while undriven) and its changes
+    /// since the machine last took them: index `ch` for OCx, `4 + ch` for
+    /// the complementary OCxN.
+    out: [bool; 8],
+    pub edges: [Vec<(u64, bool)>; 8],
     /// TRGO as a level (MMS enable / OCxREF).
     trgo_level: bool,
     /// What the events since the machine last asked requested.
@@ -146,6 +148,7 @@ const AOE: u32 = 1 << 14;
 const BKP: u32 = 1 << 13;
 const BKE: u32 = 1 << 12;
 const OSSI: u32 = 1 << 10;
+const OSSR: u32 = 1 << 11;
 const UIF: u32 = 1;
 const TIF: u32 = 1 << 6;
 const BIF: u32 = 1 << 7;
@@ -189,7 +192,7 @@ impl Timer {
             trgi: false,
             break_in: false,
             oc_ref: [false; 4],
-            out: [false; 4],
+            out: [false; 8],
             edges: Default::default(),
             trgo_level: false,
             fired: Fired::default(),
@@ -324,30 +327,57 @@ impl Timer {
         }
     }
 
-    /// The level the channel drives on its pin (false while undriven):
-    /// OCx = OCxREF ^ CCxP with CCxE, and on the advanced timers only while
-    /// MOE is set; with MOE clear an enabled output takes its idle level
-    /// OISx when OSSI = 1 and is released (read low here) when OSSI = 0
-    /// (RM0440 §29.6.11 table "Output control bits", RM0008 §14.4.9).
-    pub fn pin_level(&self, ch: usize) -> bool {
-        let e = self.ccer & (1 << (4 * ch)) != 0;
-        let p = self.ccer & (2 << (4 * ch)) != 0;
-        if !e {
-            return false;
+    /// Output `ch` (OCx) or, with `n`, its complement OCxN drives its pin
+    /// (TIM1/TIM8 have OC1N..OC3N).
+    pub fn output_enabled(&self, ch: usize, n: bool) -> bool {
+        let bit = if n { 4 * ch + 2 } else { 4 * ch };
+        (!n || (self.advanced() && ch < 3)) && self.ccer & (1 << bit) != 0
+    }
+
+    /// The level output `ch` (OCx, or with `n` OCxN) drives on its pin
+    /// (false while undriven), per RM0440 §29.6.11 / RM0008 §14.4.9 table
+    /// "Output control bits for complementary OCx and OCxN channels with
+    /// break feature":
+    /// - general-purpose timers: OCx = OCxREF ^ CCxP while CCxE is set;
+    /// - TIM1/TIM8 with MOE set: an output alone is OCxREF ^ its polarity
+    ///   (CCxP / CCxNP); with both enabled OCxN is the complement,
+    ///   !OCxREF ^ CCxNP (no dead time: DTG must be 0 then); a disabled
+    ///   output with the other enabled shows its inactive level when OSSR
+    ///   is set, else it is released;
+    /// - with MOE clear an enabled output shows its idle level OISx /
+    ///   OISxN when OSSI is set and is released when OSSI is clear.
+    ///
+    /// A released output reads low here.
+    pub fn pin_level(&self, ch: usize, n: bool) -> bool {
+        let e = self.output_enabled(ch, false);
+        let ne = self.output_enabled(ch, true);
+        let (me, other) = if n { (ne, e) } else { (e, ne) };
+        let pol = self.ccer & (1 << (4 * ch + if n { 3 } else { 1 })) != 0;
+        if !self.advanced() {
+            return e && !n && self.oc_ref[ch] ^ pol;
         }
-        if self.advanced() && self.bdtr & MOE == 0 {
-            return self.bdtr & OSSI != 0 && self.cr2 & (1 << (8 + 2 * ch)) != 0;
+        if self.bdtr & MOE == 0 {
+            let ois = self.cr2 & (1 << (8 + 2 * ch + usize::from(n))) != 0;
+            return me && self.bdtr & OSSI != 0 && ois;
         }
-        self.oc_ref[ch] ^ p
+        if !me {
+            return other && self.bdtr & OSSR != 0 && pol;
+        }
+        let r = if n && e {
+            !self.oc_ref[ch]
+        } else {
+            self.oc_ref[ch]
+        };
+        r ^ pol
     }
 
     /// Records edges of the outputs and TRGO's level after a change at `t`.
     fn refresh(&mut self, t: u64) {
-        for ch in 0..4 {
-            let l = self.pin_level(ch);
-            if l != self.out[ch] {
-                self.out[ch] = l;
-                self.edges[ch].push((t, l));
+        for i in 0..8 {
+            let l = self.pin_level(i % 4, i >= 4);
+            if l != self.out[i] {
+                self.out[i] = l;
+                self.edges[i].push((t, l));
             }
         }
         let level = match (self.cr2 >> 4) & 7 {
@@ -830,8 +860,12 @@ impl Timer {
                 }
             }
             0x20 => {
-                if adv && v & 0x4444 != 0 {
-                    return Access::Unsupported("complementary outputs (CCxNE)");
+                if adv && v & (1 << 14) != 0 {
+                    return Access::Unsupported("CC4NE (TIM1/TIM8 have no OC4N)");
+                }
+                let both = (0..3).any(|ch| v & (5 << (4 * ch)) == 5 << (4 * ch));
+                if adv && both && self.bdtr & 0xFF != 0 {
+                    return Access::Unsupported("dead-time insertion (DTG with CCxE and CCxNE)");
                 }
                 for ch in 0..4 {
                     let enabled = v & (1 << (4 * ch)) != 0;
@@ -872,6 +906,10 @@ impl Timer {
             0x44 if adv => {
                 if g4 && v & (1 << 24) != 0 {
                     return Access::Unsupported("break 2 (BK2E)");
+                }
+                let both = (0..3).any(|ch| self.ccer & (5 << (4 * ch)) == 5 << (4 * ch));
+                if both && v & 0xFF != 0 {
+                    return Access::Unsupported("dead-time insertion (DTG with CCxE and CCxNE)");
                 }
                 self.bdtr = v;
                 if self.break_active() {
