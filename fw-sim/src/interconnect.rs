@@ -589,52 +589,71 @@ mod tests {
     #[test]
     fn f1_tim1_burst_engine_steps_counts_and_stops_on_a_break() {
         let mut m = machine(Kind::F103);
-        let t1 = chip::TIM1;
         w(&mut m, 0x4001_0004, 1 << 6); // AFIO_MAPR: TIM1 partial remap
         w(&mut m, 0x4001_0800, 0xB444_4444); // PA7 AF push-pull
         w(&mut m, 0x4001_0C00, 0x4444_444B); // PB0 AF push-pull
-                                             // three entries: (ARR, RCR, CCR1, CCR2)
+        burst_engine(&mut m, 4); // F1: TIM1_UP is DMA1 channel 5
+    }
+
+    /// The same on the G431: PA7 / PB0 in AF6, TIM1_UP (request 46)
+    /// through DMAMUX channel 0 to DMA1 channel 1.
+    #[test]
+    fn g4_tim1_burst_engine_through_dmamux_steps_counts_and_stops_on_a_break() {
+        let mut m = machine(Kind::G431);
+        let moder_a = r(&mut m, 0x4800_0000);
+        w(&mut m, 0x4800_0000, (moder_a & !(3 << 14)) | (2 << 14));
+        w(&mut m, 0x4800_0020, 6 << 28);
+        let moder_b = r(&mut m, 0x4800_0400);
+        w(&mut m, 0x4800_0400, (moder_b & !3) | 2);
+        w(&mut m, 0x4800_0420, 6);
+        w(&mut m, chip::DMAMUX1, 46);
+        burst_engine(&mut m, 0);
+    }
+
+    /// The engine on TIM1 with its DMA channel `ch` (0-based) of DMA1.
+    fn burst_engine(m: &mut Machine, ch: u32) {
+        let t1 = chip::TIM1;
+        // three entries: (ARR, RCR, CCR1, CCR2)
         let entries = [99, 0, 50, 0xFFFF, 199, 0, 50, 0xFFFF, 99, 1, 50, 0];
-        fill16(&mut m, SRAM, &entries);
-        let c5 = chip::DMA1 + 0x08 + 0x14 * 4;
-        w(&mut m, c5 + 4, 12);
-        w(&mut m, c5 + 8, t1 + 0x4C);
-        w(&mut m, c5 + 12, SRAM);
-        w(&mut m, c5, TO_PERIPH_16);
-        w(&mut m, t1 + 0x48, 11 | (3 << 8)); // DCR: DBA = ARR, DBL = 3
-        w(&mut m, t1 + 0x2C, 99);
-        w(&mut m, t1 + 0x34, 50);
-        w(&mut m, t1 + 0x38, 0xFFFF);
+        fill16(m, SRAM, &entries);
+        let c5 = chip::DMA1 + 0x08 + 0x14 * ch;
+        w(m, c5 + 4, 12);
+        // DCR / DMAR: G4 0x3DC / 0x3E0, F1 0x48 / 0x4C
+        let (dcr, dmar) = if m.chip.is_g4() {
+            (0x3DC, 0x3E0)
+        } else {
+            (0x48, 0x4C)
+        };
+        w(m, c5 + 8, t1 + dmar);
+        w(m, c5 + 12, SRAM);
+        w(m, c5, TO_PERIPH_16);
+        w(m, t1 + dcr, 11 | (3 << 8)); // DBA = ARR, DBL = 3
+        w(m, t1 + 0x2C, 99);
+        w(m, t1 + 0x34, 50);
+        w(m, t1 + 0x38, 0xFFFF);
         // OC1 PWM 2, OC2 PWM 1, both preloaded; CC1NE, CC2NE; MOE
-        w(
-            &mut m,
-            t1 + 0x18,
-            (7 << 4) | (1 << 3) | (6 << 12) | (1 << 11),
-        );
-        w(&mut m, t1 + 0x20, (1 << 2) | (1 << 6));
-        w(&mut m, t1 + 0x44, 1 << 15);
-        w(&mut m, t1 + 0x04, 4 << 4); // MMS = OC1REF
-        w(&mut m, t1 + 0x14, 1); // UG
-        w(&mut m, t1 + 0x0C, 1 << 8); // UDE
-                                      // TIM3: external clock mode 1 on ITR0 (TIM1)
-        w(&mut m, chip::TIM3 + 0x08, 7);
-        w(&mut m, chip::TIM3, 1);
-        w(&mut m, t1, 1 | (1 << 7)); // CEN, ARPE
-        at_tick(&mut m, 680);
+        w(m, t1 + 0x18, (7 << 4) | (1 << 3) | (6 << 12) | (1 << 11));
+        w(m, t1 + 0x20, (1 << 2) | (1 << 6));
+        w(m, t1 + 0x44, 1 << 15);
+        w(m, t1 + 0x04, 4 << 4); // MMS = OC1REF
+        w(m, t1 + 0x14, 1); // UG
+        w(m, t1 + 0x0C, 1 << 8); // UDE
+
+        // TIM3: external clock mode 1 on ITR0 (TIM1)
+        w(m, chip::TIM3 + 0x08, 7);
+        w(m, chip::TIM3, 1);
+        w(m, t1, 1 | (1 << 7)); // CEN, ARPE
+        at_tick(m, 680);
         // each entry acts from the update after the one that loaded it:
         // 100, 100, 100 (entry 0), 200 (entry 1), then entry 2's period
         // twice (RCR = 1) with DIR low from its update at 500
-        assert_eq!(rising(&mut m), [50, 150, 250, 350, 550, 650]);
+        assert_eq!(rising(m), [50, 150, 250, 350, 550, 650]);
         assert_eq!(m.position, 2, "4 steps forward, 2 back");
-        assert_eq!(
-            r(&mut m, chip::TIM3 + 0x24),
-            6,
-            "the slave counted every pulse"
-        );
-        assert_eq!(r(&mut m, c5 + 4), 0);
-        w(&mut m, t1 + 0x14, 1 << 7); // BG: the fault path's software break
-        at_tick(&mut m, 900);
-        assert!(rising(&mut m).is_empty(), "no pulse after the break");
+        assert_eq!(r(m, chip::TIM3 + 0x24), 6, "the slave counted every pulse");
+        assert_eq!(r(m, c5 + 4), 0);
+        w(m, t1 + 0x14, 1 << 7); // BG: the fault path's software break
+        at_tick(m, 900);
+        assert!(rising(m).is_empty(), "no pulse after the break");
         assert!(!m.tim[tim::TIM1].pin_level(0, true));
     }
 }
