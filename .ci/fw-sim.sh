@@ -5,7 +5,10 @@
 # 000 frames byte for byte, exceptions, addressing, a position move counted
 # in step pulses, one at the acceleration limit, DE around every reply and
 # its lead / tail PA57 / PA58, a limit through GPIO/EXTI, a parameter save
-# through the flash controller, mbpoll over the pty). Run by .ci/run.
+# through the flash controller, mbpoll over the pty, the closed loop on
+# TIM4's encoder mode fed by the emulated motor, DMA seeing the CPU's SRAM).
+# The runner's own unit tests (timers, DMA, DMAMUX, master/slave, break,
+# encoder, motor) run with its build. Run by .ci/run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
