@@ -23,7 +23,7 @@ impl Machine {
     pub(crate) fn run_timers(&mut self, t: u64) {
         loop {
             let mut best: Option<(usize, u64)> = None;
-            for (i, tm) in self.tim.iter().enumerate() {
+            for (i, tm) in self.tim.iter_mut().enumerate() {
                 if let Some(e) = tm.next_internal() {
                     if e <= t && best.is_none_or(|b| e < b.1) {
                         best = Some((i, e));
@@ -37,9 +37,8 @@ impl Machine {
                 break;
             }
         }
-        for tm in &mut self.tim {
-            tm.catch_up(t);
-        }
+        // the counters themselves stay lazy: a read or write catches its
+        // timer up to its own time
     }
 
     /// Serves what the timers asked for at `t` (after an event or a
@@ -250,6 +249,9 @@ impl Machine {
     /// (an input path always exists); G4 the BKIN pins in their alternate
     /// function (chip::G4_BKIN), low when none is.
     pub(crate) fn update_breaks(&mut self, t: u64) {
+        if !self.tim.iter().any(|tm| tm.break_enabled()) {
+            return;
+        }
         match self.chip.kind {
             Kind::F103 => {
                 let partial = (self.syscfg.get(0x04) >> 6) & 3 == 1;

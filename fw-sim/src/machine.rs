@@ -120,6 +120,10 @@ pub struct Machine {
     pub motor: Option<Motor>,
     /// The step timer's missed update interrupts already reported.
     missed_reported: u64,
+    /// All timers' missed update interrupts when last looked at.
+    missed_seen: u64,
+    /// Some DMA interrupt line may be high (per controller).
+    dma_lines_high: [bool; 2],
     pending_rise: Option<(u64, bool)>,
     /// Event register (WFE/SEV).
     pub event: bool,
@@ -178,6 +182,8 @@ impl Machine {
             trace,
             motor: None,
             missed_reported: 0,
+            missed_seen: 0,
+            dma_lines_high: [false; 2],
             pending_rise: None,
             event: false,
             events: Default::default(),
@@ -329,6 +335,14 @@ impl Machine {
     }
 
     fn step_edges(&mut self) {
+        // nothing moved since the last look (the common case: a register
+        // access between two timer events)
+        let missed: u64 = self.tim.iter().map(|tm| tm.missed_updates).sum();
+        let quiet = self.tim.iter().all(|tm| tm.edges.iter().all(Vec::is_empty));
+        if quiet && missed == self.missed_seen {
+            return;
+        }
+        self.missed_seen = missed;
         let source = pins::STEP
             .iter()
             .filter_map(|&p| self.timer_output(p))
@@ -466,6 +480,11 @@ impl Machine {
             }
         }
         for d in 0..self.dma.len() {
+            // lines are only ever high with a flag set: once low they stay
+            if self.dma[d].quiet() && !self.dma_lines_high[d] {
+                continue;
+            }
+            self.dma_lines_high[d] = !self.dma[d].quiet();
             for c in 0..self.dma[d].channels() {
                 let (irq, l) = self.dma[d].irq_level(c);
                 self.scs.set_level(irq, l);

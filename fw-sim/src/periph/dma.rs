@@ -86,6 +86,11 @@ impl Dma {
         }
     }
 
+    /// No flag is set: every channel's interrupt line is low.
+    pub fn quiet(&self) -> bool {
+        self.isr == 0
+    }
+
     /// Channel `c`'s interrupt line and its level.
     pub fn irq_level(&self, c: usize) -> (usize, bool) {
         let f = (self.isr >> (4 * c)) & 0xF;

@@ -133,6 +133,9 @@ pub struct Timer {
     pub missed_updates: u64,
     /// The levels of the TI1 and TI2 inputs (the channel 1 and 2 pins).
     ti: [bool; 2],
+    /// `next_internal` as last computed; `None` once anything it depends
+    /// on changed (a write, an event, a trigger, an input, the clock).
+    next_cache: Option<Option<u64>>,
 }
 
 const CEN: u32 = 1;
@@ -199,6 +202,7 @@ impl Timer {
             dma_pending: 0,
             missed_updates: 0,
             ti: [false; 2],
+            next_cache: None,
         }
     }
 
@@ -272,6 +276,7 @@ impl Timer {
     pub fn set_clock(&mut self, hz: u64, now: u64) {
         if hz != self.clk_hz {
             self.catch_up(now);
+            self.next_cache = None;
             self.clk_hz = hz;
             self.anchor_clk = clk_at(now, hz);
         }
@@ -515,7 +520,15 @@ impl Timer {
 
     /// The time of the next event of the counter running from the timer
     /// clock (a compare match or an overflow), if it runs.
-    pub fn next_internal(&self) -> Option<u64> {
+    pub fn next_internal(&mut self) -> Option<u64> {
+        if let Some(n) = self.next_cache {
+            return n;
+        }
+        let n = self.compute_next();
+        self.next_cache = Some(n);
+        n
+    }
+    fn compute_next(&self) -> Option<u64> {
         if !self.clocked() {
             return None;
         }
@@ -529,11 +542,12 @@ impl Timer {
     /// Brings the counter to time `t` without passing an event: one due
     /// at or before `t` stays for [`Timer::fire`].
     pub fn catch_up(&mut self, t: u64) {
-        let now_clk = clk_at(t, self.clk_hz);
+        // a stopped counter needs no anchor: every way of starting it
+        // (CEN, a trigger, the gate, SMCR) sets one
         if !self.clocked() {
-            self.anchor_clk = now_clk.max(self.anchor_clk);
             return;
         }
+        let now_clk = clk_at(t, self.clk_hz);
         if now_clk <= self.anchor_clk {
             return;
         }
@@ -546,6 +560,7 @@ impl Timer {
 
     /// Fires the event [`Timer::next_internal`] names.
     pub fn fire(&mut self) {
+        self.next_cache = None;
         let (k, ovf, chans) = self.next_step(self.cnt);
         self.anchor_clk += k * self.period();
         let at = time_of_clk(self.anchor_clk, self.clk_hz);
@@ -567,13 +582,14 @@ impl Timer {
     /// A moment far enough ahead to check again, for the runner's slices:
     /// the next event.
     pub fn next_event(&self) -> Option<u64> {
-        self.next_internal()
+        self.next_cache.unwrap_or_else(|| self.compute_next())
     }
 
     /// An edge of TRGI (the selected ITRx, i.e. another timer's TRGO) at
     /// `t`: RM0440 §29.3.26 / §30.4.20, RM0008 §14.3.14 / §15.3.14.
     pub fn trigger_input(&mut self, rising: bool, t: u64) {
         self.catch_up(t);
+        self.next_cache = None;
         let sms = self.sms();
         if !matches!(sms, 4..=7) {
             return;
@@ -626,6 +642,10 @@ impl Timer {
             self.do_break(t);
         }
     }
+    /// BKE: the break input matters.
+    pub fn break_enabled(&self) -> bool {
+        self.advanced() && self.bdtr & BKE != 0
+    }
     fn break_active(&self) -> bool {
         self.advanced() && self.bdtr & BKE != 0 && (self.break_in == (self.bdtr & BKP != 0))
     }
@@ -646,6 +666,7 @@ impl Timer {
     /// `routed`: the pins reach the timer (their alternate function).
     pub fn inputs(&mut self, ti: [bool; 2], t: u64, routed: bool) {
         self.catch_up(t);
+        self.next_cache = None;
         let before = self.ti;
         self.ti = ti;
         if !routed || !self.encoder() || self.cr1 & CEN == 0 {
@@ -764,6 +785,7 @@ impl Timer {
 
     pub fn write(&mut self, off: u32, v: u32, t: u64) -> Access {
         self.catch_up(t);
+        self.next_cache = None;
         if off == self.dmar_offset() {
             let target = self.burst_target();
             if target == off {
@@ -911,10 +933,9 @@ impl Timer {
                 if both && v & 0xFF != 0 {
                     return Access::Unsupported("dead-time insertion (DTG with CCxE and CCxNE)");
                 }
+                // an active break input clears MOE again as the machine
+                // reads the pin right after this write (Machine::write)
                 self.bdtr = v;
-                if self.break_active() {
-                    self.bdtr &= !MOE;
-                }
             }
             0x48 if adv && g4 => self.ccr[4] = v,
             0x4C if adv && g4 => self.ccr[5] = v,
