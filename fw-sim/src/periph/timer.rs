@@ -883,7 +883,7 @@ impl Timer {
             }
             0x20 => {
                 if adv && v & (1 << 14) != 0 {
-                    return Access::Unsupported("CC4NE (TIM1/TIM8 have no OC4N)");
+                    return Access::Unsupported("the complementary output OC4N (CC4NE)");
                 }
                 let both = (0..3).any(|ch| v & (5 << (4 * ch)) == 5 << (4 * ch));
                 if adv && both && self.bdtr & 0xFF != 0 {
