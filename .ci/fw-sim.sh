@@ -5,7 +5,10 @@
 # 000 frames byte for byte, exceptions, addressing, a position move counted
 # in step pulses, one at the acceleration limit, DE around every reply and
 # its lead / tail PA57 / PA58, a limit through GPIO/EXTI, a parameter save
-# through the flash controller, mbpoll over the pty). Run by .ci/run.
+# through the flash controller, mbpoll over the pty, the closed loop on
+# TIM4's encoder mode fed by the emulated motor, DMA seeing the CPU's SRAM).
+# The runner's own unit tests (timers, DMA, DMAMUX, master/slave, break,
+# encoder, motor) run with its build. Run by .ci/run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -27,7 +30,7 @@ source .ci/lib.sh
 venv=.venv/e2e
 pytest_venv "$venv" tests/e2e/requirements.txt
 
-( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings )
+( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings && cargo test --release )
 fw_sim_images
 # the core's step schedule for the same moves, to compare the pulses with
 cargo build --example step_schedule

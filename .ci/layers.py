@@ -12,7 +12,11 @@ Prints the module graph in layer order (lowest first), then either `no
 cycle` or each cycle with one file:line that makes each of its edges.
 docs/architecture.md states the layer rule this guards.
 
-Usage: python3 .ci/layers.py [SRC_DIR]   (default: src)
+With `--files` every file is a module of its own (`periph/timer.rs` is
+`periph::timer`) and the crate root (main.rs / lib.rs) is left out: the
+finer check for a crate without a core/host split, such as fw-sim.
+
+Usage: python3 .ci/layers.py [--files] [SRC_DIR]   (default: src)
 """
 
 import re
@@ -105,6 +109,64 @@ def graph(src: Path):
     return core, edges
 
 
+FULL_PATH = re.compile(r"\b(crate|(?:super::)+)((?:::)?(?:[A-Za-z_][A-Za-z0-9_]*::)*)(\{[^}]*\}|[A-Za-z_][A-Za-z0-9_]*)?")
+
+
+def code_lines(file: Path):
+    """(line number, code) of `file`, comments removed."""
+    in_block_comment = False
+    for n, raw in enumerate(file.read_text(encoding="utf-8").splitlines(), 1):
+        line = raw
+        if in_block_comment:
+            end = line.find("*/")
+            if end < 0:
+                continue
+            line = line[end + 2 :]
+            in_block_comment = False
+        start = line.find("/*")
+        if start >= 0 and line.find("*/", start) < 0:
+            in_block_comment = True
+            line = line[:start]
+        yield n, strip_comments(line)
+
+
+def file_graph(src: Path):
+    """The graph of `--files`: each file a module named by its full path,
+    an edge to the longest module that prefixes a `crate::` / `super::`
+    path (a group `a::{b, c::d}` is one path per item)."""
+    files = {}
+    for f in sorted(src.rglob("*.rs")):
+        parts = module_path(src, f)
+        if parts and parts != ["main"] and parts != ["lib"]:
+            files["::".join(parts)] = (f, parts)
+    names = sorted(files)
+    edges = {m: {} for m in names}
+
+    def resolve(path):
+        for k in range(len(path), 0, -1):
+            name = "::".join(path[:k])
+            if name in files:
+                return name
+        return None
+
+    for name, (f, here) in files.items():
+        for n, code in code_lines(f):
+            for m in FULL_PATH.finditer(code):
+                if m.group(1) == "crate":
+                    base = []
+                else:
+                    base = here[: len(here) - m.group(1).count("super::")]
+                prefix = [p for p in m.group(2).split("::") if p]
+                tail = m.group(3) or ""
+                items = tail[1:-1].split(",") if tail.startswith("{") else [tail]
+                for item in items:
+                    rest = [p.strip() for p in item.split("::") if p.strip()]
+                    target = resolve(base + prefix + rest)
+                    if target and target != name and target not in edges[name]:
+                        edges[name][target] = f"{f}:{n}"
+    return names, edges
+
+
 def cycles(core, edges):
     """Strongly connected components of more than one module (Tarjan)."""
     index, low, stack, on, out = {}, {}, [], set(), []
@@ -154,8 +216,11 @@ def layers(core, edges):
 
 
 def main():
-    src = Path(sys.argv[1] if len(sys.argv) > 1 else "src")
-    core, edges = graph(src)
+    args = sys.argv[1:]
+    files = "--files" in args
+    args = [a for a in args if a != "--files"]
+    src = Path(args[0] if args else "src")
+    core, edges = file_graph(src) if files else graph(src)
     found = cycles(core, edges)
     if found:
         for comp in found:
@@ -166,9 +231,10 @@ def main():
                         print(f"  {v} -> {w}  ({where})")
         sys.exit(1)
     layer = layers(core, edges)
+    width = max([12] + [len(v) for v in core])
     for v in sorted(core, key=lambda v: (layer[v], v)):
         below = ", ".join(sorted(edges[v])) or "-"
-        print(f"layer {layer[v]}: {v:<12} imports {below}")
+        print(f"layer {layer[v]}: {v:<{width}} imports {below}")
     print("no cycle")
 
 

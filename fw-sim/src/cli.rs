@@ -7,12 +7,15 @@ use std::process::Command;
 
 use crate::chip::Kind;
 use crate::machine::Switches;
+use crate::motor::MotorOptions;
 
 pub const USAGE: &str = "\
 usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--modbus-tcp HOST:PORT]...
               [--pty-link PATH]
               [--trace-steps FILE] [--trace-line FILE] [--trace-pins FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
               [--home-switch FROM:TO] [--write-protect] [--run-for SECONDS] [--quiet]
+              [--encoder] [--encoder-counts N] [--steps-per-rev N] [--stall-at STEPS]
+              [--slip STEPS@POS] [--encoder-noise COUNTS]
 
 Runs the unmodified firmware image of a board on an emulated STM32.
   --board       g431 (STM32G431CB, default) or f103 (STM32F103C8)
@@ -36,7 +39,18 @@ Runs the unmodified firmware image of a board on an emulated STM32.
   --write-protect the parameter pages are write-protected (as by the option
                 bytes): erase and program set WRPERR / WRPRTERR, change nothing
   --run-for     stop after this much emulated time (exit 0)
-  --quiet       do not print the firmware's defmt log";
+  --quiet       do not print the firmware's defmt log
+  --encoder     a quadrature encoder on the motor, A on PB6 and B on PB7
+                (TIM4_CH1/CH2), driven by the STEP pulses; the firmware reads
+                it once its PA17 is set (set PA17 to --encoder-counts)
+  --encoder-counts N  counts per revolution after x4 decoding [4000]
+  --steps-per-rev N   motor steps per revolution (the firmware's PA10) [10000]
+  --stall-at STEPS    the motor stalls where the steps reach STEPS (once; the
+                stall ends when step output stops). Implies --encoder
+  --slip STEPS@POS    the motor loses STEPS steps once where the steps pass
+                POS. Implies --encoder
+  --encoder-noise COUNTS  the shaft vibrates by up to +-COUNTS counts (a new
+                value every 250 us). Implies --encoder";
 
 /// A fault the line puts on one received character (the USART's PE, FE,
 /// NE flags; a break is a character of zeros without a stop bit).
@@ -66,6 +80,8 @@ pub struct Args {
     pub switches: Switches,
     pub run_for_ps: Option<u64>,
     pub quiet: bool,
+    /// `--encoder` and the flags that imply it.
+    pub motor: Option<MotorOptions>,
 }
 
 fn num<T: std::str::FromStr>(flag: &str, v: &str) -> Result<T, String> {
@@ -91,6 +107,7 @@ impl Args {
             switches: Switches::default(),
             run_for_ps: None,
             quiet: false,
+            motor: None,
         };
         let mut it = argv.peekable();
         while let Some(flag) = it.next() {
@@ -102,6 +119,10 @@ impl Args {
             }
             if flag == "--quiet" {
                 a.quiet = true;
+                continue;
+            }
+            if flag == "--encoder" {
+                a.motor.get_or_insert_with(Default::default);
                 continue;
             }
             if flag == "--write-protect" {
@@ -158,6 +179,31 @@ impl Args {
                 "--home-switch" => {
                     let (f, t) = v.split_once(':').ok_or("--home-switch: FROM:TO")?;
                     a.switches.home = Some((num(&flag, f)?, num(&flag, t)?));
+                }
+                "--encoder-counts" => {
+                    let n: u32 = num(&flag, &v)?;
+                    if n == 0 {
+                        return Err("--encoder-counts: at least 1".into());
+                    }
+                    a.motor.get_or_insert_with(Default::default).counts_per_rev = n;
+                }
+                "--steps-per-rev" => {
+                    let n: u32 = num(&flag, &v)?;
+                    if n == 0 {
+                        return Err("--steps-per-rev: at least 1".into());
+                    }
+                    a.motor.get_or_insert_with(Default::default).steps_per_rev = n;
+                }
+                "--stall-at" => {
+                    a.motor.get_or_insert_with(Default::default).stall_at = Some(num(&flag, &v)?)
+                }
+                "--slip" => {
+                    let (n, at) = v.split_once('@').ok_or("--slip: STEPS@POS")?;
+                    a.motor.get_or_insert_with(Default::default).slip =
+                        Some((num(&flag, n)?, num(&flag, at)?));
+                }
+                "--encoder-noise" => {
+                    a.motor.get_or_insert_with(Default::default).noise_counts = num(&flag, &v)?
                 }
                 "--run-for" => a.run_for_ps = Some((num::<f64>(&flag, &v)? * 1e12) as u64),
                 _ => return Err(format!("unknown option {flag}\n{USAGE}")),

@@ -18,6 +18,7 @@ use unicorn_engine::{ArmCpuModel, RegisterARM as R, Unicorn};
 use crate::chip::Kind;
 use crate::elf::Image;
 use crate::machine::Machine;
+use crate::mem::HostMem;
 
 pub type Uc = Unicorn<'static, Machine>;
 
@@ -25,17 +26,6 @@ pub const ENTRY_CYCLES: u64 = 12;
 pub const RETURN_CYCLES: u64 = 10;
 /// Fetches at or above this address are EXC_RETURN values.
 const EXC_RETURN_BASE: u64 = 0xFFFF_FF00;
-
-/// What the hooks saw during a slice.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct SliceEvents {
-    /// A WFI (false) or WFE (true) was reached; PC is past it.
-    pub sleep: Option<bool>,
-    /// The firmware branched to EXC_RETURN (PC holds it).
-    pub exc_return: bool,
-    /// An access outside the memories: (kind, address, size).
-    pub bad_access: Option<(MemType, u64, usize)>,
-}
 
 /// Where the parameter pages start (the rest of flash is code).
 pub fn param_base(m: &Machine) -> u32 {
@@ -55,8 +45,12 @@ pub fn create(image: &Image, machine: Machine) -> Result<Uc, String> {
     let pb = param_base(uc.get_data()) as u64;
     let plen = uc.get_data().flash.data.len() as u64;
     let fb = chip.flash_base as u64;
-    // code flash: what the CPU fetches and reads; a store is a fault
-    uc.mem_map(fb, pb - fb, Prot::READ | Prot::EXEC)
+    // code flash: what the CPU fetches and reads; a store is a fault. It
+    // and SRAM are host buffers the machine holds too, for DMA (mem.rs)
+    let code = HostMem::new(chip.flash_base, (pb - fb) as usize);
+    // SAFETY: the buffer is leaked (lives as long as the process) and is
+    // `pb - fb` bytes long
+    unsafe { uc.mem_map_ptr(fb, pb - fb, Prot::READ | Prot::EXEC, code.ptr().cast()) }
         .map_err(|e| format!("map flash: {e:?}"))?;
     if pb + plen != chip.flash_end() as u64 {
         return Err("parameter pages are not at the end of flash".into());
@@ -78,12 +72,19 @@ pub fn create(image: &Image, machine: Machine) -> Result<Uc, String> {
         ),
     )
     .map_err(|e| format!("map parameter pages: {e:?}"))?;
-    uc.mem_map(
-        chip.sram_base as u64,
-        chip.sram_len as u64,
-        Prot::READ | Prot::WRITE,
-    )
+    let sram = HostMem::new(chip.sram_base, chip.sram_len as usize);
+    // SAFETY: as for the code flash
+    unsafe {
+        uc.mem_map_ptr(
+            chip.sram_base as u64,
+            chip.sram_len as u64,
+            Prot::READ | Prot::WRITE,
+            sram.ptr().cast(),
+        )
+    }
     .map_err(|e| format!("map SRAM: {e:?}"))?;
+    uc.get_data_mut().code = Some(code);
+    uc.get_data_mut().sram = Some(sram);
     // every peripheral address: the model answers or names the fault
     for (base, len) in [(0x4000_0000u64, 0x2000_0000u64), (0xE000_0000, 0x10_0000)] {
         uc.mmio_map(

@@ -6,17 +6,24 @@
 
 use std::hash::{BuildHasherDefault, Hasher};
 
+use unicorn_engine::unicorn_const::MemType;
+
 use crate::chip::{self, pins, Chip};
 use crate::clock::Clock;
+use crate::mem::HostMem;
+use crate::motor::Motor;
 use crate::periph::bank::Bank;
+use crate::periph::dma::Dma;
+use crate::periph::dmamux::DmaMux;
 use crate::periph::exti::Exti;
 use crate::periph::flash::{Flash, FlashWrite};
 use crate::periph::gpio::{Mode, Port};
 use crate::periph::iwdg::Iwdg;
 use crate::periph::rcc::Rcc;
-use crate::periph::timer::{Access, Timer};
+use crate::periph::timer::{Irqs, Kind as TimerKind, Timer};
 use crate::periph::usart::Usart;
 use crate::pin_trace::PinTrace;
+use crate::periph::Access;
 use crate::scs::Scs;
 use crate::trace::StepTrace;
 
@@ -39,6 +46,19 @@ impl Hasher for AddrHasher {
     }
 }
 
+/// What the CPU's hooks (cpu.rs) saw during a slice: kept here, with the
+/// rest of the state the hooks write, so that the CPU depends on the
+/// machine and not the other way round.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct SliceEvents {
+    /// A WFI (false) or WFE (true) was reached; PC is past it.
+    pub sleep: Option<bool>,
+    /// The firmware branched to EXC_RETURN (PC holds it).
+    pub exc_return: bool,
+    /// An access outside the memories: (kind, address, size).
+    pub bad_access: Option<(MemType, u64, usize)>,
+}
+
 /// Switch windows in steps (same meaning as the virtual drive's options).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Switches {
@@ -57,7 +77,14 @@ pub struct Machine {
     pub flash: Flash,
     pub exti: Exti,
     pub gpio: [Port; 2],
-    pub tim: [Timer; 3],
+    /// In the order of `chip::tim` (TIM2, TIM3, TIM4, TIM1, and the G4's TIM8).
+    pub tim: Vec<Timer>,
+    /// DMA1 (and the G4's DMA2).
+    pub dma: Vec<Dma>,
+    pub dmamux: DmaMux,
+    /// SRAM and the code flash, shared with the CPU (cpu.rs maps them).
+    pub sram: Option<HostMem>,
+    pub code: Option<HostMem>,
     pub usart: Usart,
     pub iwdg: Iwdg,
     pub scs: Scs,
@@ -93,13 +120,25 @@ pub struct Machine {
     pub pin_trace: Option<PinTrace>,
     /// Core cycles at the last reset.
     reset_cycles: u64,
+    /// The motor and its encoder (`--encoder`), part of the world outside
+    /// the chip: a reset keeps it.
+    pub motor: Option<Motor>,
     /// The step timer's missed update interrupts already reported.
     missed_reported: u64,
+    /// All timers' missed update interrupts when last looked at.
+    missed_seen: u64,
+    /// Some DMA interrupt line may be high (per controller).
+    dma_lines_high: [bool; 2],
     pending_rise: Option<(u64, bool)>,
     /// Event register (WFE/SEV).
     pub event: bool,
     /// What the CPU hooks saw in the current slice.
-    pub events: crate::cpu::SliceEvents,
+    pub events: SliceEvents,
+    /// Nesting of timer requests and DMA transfers within one instant.
+    pub chain_depth: u32,
+    /// The STEP pin's edges (unit tests).
+    #[cfg(test)]
+    pub step_log: Vec<(u64, bool)>,
 }
 
 impl Machine {
@@ -115,11 +154,18 @@ impl Machine {
             flash,
             exti: Exti::new(g4),
             gpio: [Port::new(g4, 0), Port::new(g4, 1)],
-            tim: [
-                Timer::new(chip::IRQ_TIM2, g4, g4),
-                Timer::new(chip::IRQ_TIM3, g4, false),
-                Timer::new(chip::IRQ_TIM4, g4, false),
-            ],
+            tim: Self::timers(g4),
+            dma: if g4 {
+                vec![
+                    Dma::new(true, (11..17).collect()),
+                    Dma::new(true, vec![56, 57, 58, 59, 60, 97]),
+                ]
+            } else {
+                vec![Dma::new(false, (11..18).collect())]
+            },
+            dmamux: DmaMux::default(),
+            sram: None,
+            code: None,
             usart: Usart::new(g4),
             iwdg: Iwdg::new(g4, chip.lsi_hz),
             scs: Scs::new(chip.has_fpu, chip.cpuid),
@@ -141,14 +187,58 @@ impl Machine {
             trace,
             pin_trace: None,
             reset_cycles: 0,
+            motor: None,
             missed_reported: 0,
+            missed_seen: 0,
+            dma_lines_high: [false; 2],
             pending_rise: None,
             event: false,
             events: Default::default(),
+            chain_depth: 0,
+            #[cfg(test)]
+            step_log: Vec::new(),
         };
         m.apply_clocks();
         m.apply_switches();
         m
+    }
+
+    /// The chip's timers (interrupt numbers: RM0440 table 97 / RM0008
+    /// table 63, the vector tables).
+    fn timers(g4: bool) -> Vec<Timer> {
+        let gp2 = if g4 {
+            TimerKind::General32
+        } else {
+            TimerKind::General16
+        };
+        let mut t = vec![
+            Timer::new(Irqs::One(chip::IRQ_TIM2), g4, gp2),
+            Timer::new(Irqs::One(chip::IRQ_TIM3), g4, TimerKind::General16),
+            Timer::new(Irqs::One(chip::IRQ_TIM4), g4, TimerKind::General16),
+            Timer::new(
+                Irqs::Split {
+                    brk: 24,
+                    up: 25,
+                    trg_com: 26,
+                    cc: 27,
+                },
+                g4,
+                TimerKind::Advanced,
+            ),
+        ];
+        if g4 {
+            t.push(Timer::new(
+                Irqs::Split {
+                    brk: 43,
+                    up: 44,
+                    trg_com: 45,
+                    cc: 46,
+                },
+                g4,
+                TimerKind::Advanced,
+            ));
+        }
+        t
     }
 
     /// A system reset (watchdog, SYSRESETREQ): every peripheral to its reset
@@ -169,7 +259,12 @@ impl Machine {
             self.trace.take(),
         );
         let (clock, position, steps) = (self.clock.clone(), self.position, self.steps_total);
+        let motor = self.motor.take();
+        let (sram, code) = (self.sram.take(), self.code.take());
         *self = fresh;
+        self.motor = motor;
+        self.sram = sram;
+        self.code = code;
         self.clock = clock;
         self.clock.set_sysclk(self.chip.reset_sysclk);
         self.position = position;
@@ -210,8 +305,14 @@ impl Machine {
         let c = self.rcc.clocks();
         self.clocks = c;
         let now = self.now();
-        for t in &mut self.tim {
-            t.set_clock(c.tim_apb1 as u64, now);
+        for (i, t) in self.tim.iter_mut().enumerate() {
+            // TIM1 / TIM8 are on APB2, the others on APB1
+            let hz = if i >= chip::tim::TIM1 {
+                c.tim_apb2
+            } else {
+                c.tim_apb1
+            };
+            t.set_clock(hz as u64, now);
         }
         self.usart.fck = c.usart1 as u64;
     }
@@ -221,10 +322,12 @@ impl Machine {
 
     /// Brings every peripheral to time `t`.
     pub fn sync(&mut self, t: u64) {
-        for i in 0..3 {
-            self.tim[i].sync(t);
-        }
+        self.run_timers(t);
+        self.update_breaks(t);
         self.step_edges();
+        if let Some(at) = self.motor.as_mut().and_then(|m| m.advance(t)) {
+            self.follow_encoder(at);
+        }
         let de = self.gpio_de();
         // The pin changes hands (GPIO ↔ the G4 USART's DE function) or
         // level as a GPIO: an edge where its level changes. The USART's own
@@ -262,10 +365,23 @@ impl Machine {
     }
 
     fn step_edges(&mut self) {
+        // nothing moved since the last look (the common case: a register
+        // access between two timer events)
+        let missed: u64 = self.tim.iter().map(|tm| tm.missed_updates).sum();
+        let quiet = self.tim.iter().all(|tm| tm.edges.iter().all(Vec::is_empty));
+        if quiet && missed == self.missed_seen {
+            return;
+        }
+        self.missed_seen = missed;
+        let source = pins::STEP
+            .iter()
+            .filter_map(|&p| self.timer_output(p))
+            .find(|o| self.tim[o.0].output_enabled(o.1, o.2));
+        let dir_source = self.timer_output(pins::DIR);
         // a step interrupt that missed an update event let the timer repeat
         // the period it had preloaded: a STEP pulse the firmware never
         // counted (reported at the first and then at every doubling)
-        let missed = self.tim[1].missed_updates;
+        let missed = source.map_or(0, |(i, _, _)| self.tim[i].missed_updates);
         let reported = self.missed_reported;
         if missed > reported && (reported == 0 || missed.ilog2() > reported.ilog2()) {
             eprintln!(
@@ -274,23 +390,95 @@ impl Machine {
             );
         }
         self.missed_reported = missed;
-        let edges = std::mem::take(&mut self.tim[1].edges1);
-        let (sp, spin) = pins::STEP;
+        // the STEP pin in a timer's alternate function shows that timer
+        // output's level (Timer::pin_level), with edges at the emulated
+        // times the counter made them, whether the CPU or DMA wrote its
+        // periods; DIR too may be a timer output, then its level at each
+        // STEP edge comes from its own edges
+        let mut edges = Vec::new();
+        let mut dir_edges = Vec::new();
+        for (i, tm) in self.tim.iter_mut().enumerate() {
+            for k in 0..8 {
+                let out = Some((i, k % 4, k >= 4));
+                if out == source {
+                    edges = std::mem::take(&mut tm.edges[k]);
+                } else if out == dir_source {
+                    dir_edges = std::mem::take(&mut tm.edges[k]);
+                } else {
+                    tm.edges[k].clear();
+                }
+            }
+        }
+        #[cfg(test)]
+        self.step_log.extend(&edges);
+        let mut dir_level = match (dir_source, dir_edges.first()) {
+            (Some(_), Some(&(_, first))) => !first,
+            (Some((i, ch, n)), None) => self.tim[i].pin_level(ch, n),
+            (None, _) => self.gpio[pins::DIR.0].level(pins::DIR.1, None),
+        };
+        let mut dir_next = dir_edges.into_iter().peekable();
         for (t, level) in edges {
-            if self.gpio[sp].mode(spin) != Mode::Alternate {
-                continue;
+            // DIR edges up to this STEP edge (a tie: DIR first)
+            while let Some(&(td, l)) = dir_next.peek() {
+                if td > t {
+                    break;
+                }
+                dir_level = l;
+                dir_next.next();
             }
             if level {
-                let dir = self.gpio[pins::DIR.0].level(pins::DIR.1, None);
+                let dir = dir_level;
                 self.pending_rise = Some((t, dir));
                 self.position += if dir { 1 } else { -1 };
                 self.steps_total += 1;
                 self.apply_switches();
+                if let Some(m) = self.motor.as_mut() {
+                    m.step(t, self.position);
+                    self.follow_encoder(t);
+                }
             } else if let Some((t0, dir)) = self.pending_rise.take() {
                 if let Some(tr) = self.trace.as_mut() {
                     tr.step(t0, dir, t - t0);
                 }
             }
+        }
+    }
+
+    /// The encoder's A and B (PB6, PB7) follow the motor's shaft, one edge
+    /// at a time, into the TIM4 channel 1 and 2 inputs when the pins are
+    /// routed there: on the G4 in their alternate function 2 (RM0440 §9.4,
+    /// datasheet DS12589 table "Alternate functions"), on the F1 in any
+    /// input or alternate mode with TIM4 not remapped (RM0008 §9.3.7,
+    /// AFIO_MAPR TIM4_REMAP = 0).
+    fn follow_encoder(&mut self, t: u64) {
+        let (a, b) = pins::ENCODER;
+        while let Some((la, lb)) = self.motor.as_mut().and_then(Motor::edge) {
+            let port = &mut self.gpio[a.0];
+            let before = [port.level(a.1, None), port.level(b.1, None)];
+            port.external[a.1 as usize] = Some(la);
+            port.external[b.1 as usize] = Some(lb);
+            let after = [port.level(a.1, None), port.level(b.1, None)];
+            for (pin, (x, y)) in [(a.1, (before[0], after[0])), (b.1, (before[1], after[1]))] {
+                if x != y {
+                    self.exti.edge(a.0, pin, y);
+                }
+            }
+            let routed = self.tim4_inputs_routed();
+            self.tim[chip::tim::TIM4].inputs([la, lb], t, routed);
+            self.timer_requests(t);
+        }
+    }
+
+    fn tim4_inputs_routed(&self) -> bool {
+        let (a, b) = pins::ENCODER;
+        let port = &self.gpio[a.0];
+        if self.chip.is_g4() {
+            [a.1, b.1]
+                .iter()
+                .all(|&p| port.mode(p) == Mode::Alternate && port.af(p) == 2)
+        } else {
+            let remap = self.syscfg.get(0x04) & (1 << 12) != 0;
+            !remap && [a.1, b.1].iter().all(|&p| port.mode(p) != Mode::Analog)
         }
     }
 
@@ -315,9 +503,22 @@ impl Machine {
     }
 
     pub fn update_irqs(&mut self) {
-        for i in 0..3 {
-            let (irq, l) = (self.tim[i].irq, self.tim[i].irq_level());
-            self.scs.set_level(irq, l);
+        for i in 0..self.tim.len() {
+            let (lines, n) = self.tim[i].irq_levels();
+            for &(irq, l) in &lines[..n] {
+                self.scs.set_level(irq, l);
+            }
+        }
+        for d in 0..self.dma.len() {
+            // lines are only ever high with a flag set: once low they stay
+            if self.dma[d].quiet() && !self.dma_lines_high[d] {
+                continue;
+            }
+            self.dma_lines_high[d] = !self.dma[d].quiet();
+            for c in 0..self.dma[d].channels() {
+                let (irq, l) = self.dma[d].irq_level(c);
+                self.scs.set_level(irq, l);
+            }
         }
         let l = self.usart.irq_level();
         self.scs.set_level(chip::IRQ_USART1, l);
@@ -335,14 +536,14 @@ impl Machine {
     /// The next time a peripheral changes something the CPU may see.
     pub fn next_event(&self) -> Option<u64> {
         let hclk = self.hclk();
+        let timers = self.tim.iter().filter_map(Timer::next_event).min();
         [
-            self.tim[0].next_event(),
-            self.tim[1].next_event(),
-            self.tim[2].next_event(),
+            timers,
             self.usart.next_event(),
             self.flash.next_event(),
             self.iwdg.next_event(),
             self.scs.systick_next(hclk),
+            self.motor.as_ref().and_then(Motor::next_event),
         ]
         .into_iter()
         .flatten()
@@ -359,12 +560,12 @@ impl Machine {
         }
         v
     }
-    fn af_output(&self, port: usize, pin: u8) -> Option<bool> {
-        match (port, pin) {
-            (0, 6) => Some(self.tim[1].edges1.last().is_some_and(|e| e.1)),
-            (0, 12) if self.chip.is_g4() => self.usart.de_output(),
-            _ => None,
+    pub(crate) fn af_output(&self, port: usize, pin: u8) -> Option<bool> {
+        if port == 0 && pin == 12 && self.chip.is_g4() {
+            return self.usart.de_output();
         }
+        self.timer_output((port, pin))
+            .map(|(t, ch, n)| self.tim[t].pin_level(ch, n))
     }
 
     /// A read by the CPU from peripheral space.
@@ -403,6 +604,10 @@ impl Machine {
             )),
             Access::Unsupported(w) => self.fail(format!("{w} at {a:#010x} is not modelled")),
         }
+        self.timer_requests(t);
+        if let Err(e) = self.check_slaves(t) {
+            self.fail(format!("{e} (write to {a:#010x})"));
+        }
         if word & !0x3FF == chip::RCC {
             self.apply_clocks();
         }
@@ -429,6 +634,11 @@ impl Machine {
             0x4000_0000..=0x4000_03FF => "TIM2",
             0x4000_0400..=0x4000_07FF => "TIM3",
             0x4000_0800..=0x4000_0BFF => "TIM4",
+            0x4001_2C00..=0x4001_2FFF => "TIM1",
+            0x4001_3400..=0x4001_37FF if g4 => "TIM8",
+            0x4002_0000..=0x4002_03FF => "DMA1",
+            0x4002_0400..=0x4002_07FF if g4 => "DMA2",
+            0x4002_0800..=0x4002_0BFF if g4 => "DMAMUX1",
             0x4000_3000..=0x4000_33FF => "IWDG",
             0x4000_7000..=0x4000_73FF => "PWR",
             0x4001_0000..=0x4001_03FF => {
@@ -449,14 +659,20 @@ impl Machine {
         }
     }
 
-    fn dispatch_read(&mut self, a: u32, t: u64) -> Access {
+    pub fn dispatch_read(&mut self, a: u32, t: u64) -> Access {
         let off = a & 0x3FF;
+        let g4 = self.chip.is_g4();
         let ga = self.chip.gpioa;
         let gb = self.chip.gpiob;
         match a & !0x3FF {
             chip::TIM2 => self.tim[0].read(off, t),
             chip::TIM3 => self.tim[1].read(off, t),
             chip::TIM4 => self.tim[2].read(off, t),
+            chip::TIM1 => self.tim[3].read(off, t),
+            chip::TIM8 if g4 => self.tim[4].read(off, t),
+            chip::DMA1 => self.dma[0].read(off),
+            chip::DMA2 if g4 => self.dma[1].read(off),
+            chip::DMAMUX1 if g4 => self.dmamux.read(off),
             chip::IWDG => self.iwdg.read(off, t),
             chip::PWR => self.pwr.read(off),
             chip::SYSCFG_AFIO => self.syscfg.read(off),
@@ -481,17 +697,35 @@ impl Machine {
         }
     }
 
-    fn dispatch_write(&mut self, a: u32, v: u32, size: usize, exact: u32, t: u64) -> Access {
+    pub fn dispatch_write(&mut self, a: u32, v: u32, size: usize, exact: u32, t: u64) -> Access {
         let off = a & 0x3FF;
+        let g4 = self.chip.is_g4();
         let ga = self.chip.gpioa;
         let gb = self.chip.gpiob;
         match a & !0x3FF {
             chip::TIM2 => self.tim[0].write(off, v, t),
             chip::TIM3 => self.tim[1].write(off, v, t),
             chip::TIM4 => self.tim[2].write(off, v, t),
+            chip::TIM1 => self.tim[3].write(off, v, t),
+            chip::TIM8 if g4 => self.tim[4].write(off, v, t),
+            x if x == chip::DMA1 || (g4 && x == chip::DMA2) => {
+                let d = usize::from(x == chip::DMA2);
+                let (r, started) = self.dma[d].write(off, v);
+                if let Some(c) = started {
+                    self.mem2mem(d, c, t);
+                    self.serve_pending(t);
+                }
+                r
+            }
+            chip::DMAMUX1 if g4 => self.dmamux.write(off, v),
             chip::IWDG => self.iwdg.write(off, v, t),
             chip::PWR => self.pwr.write(off, v),
             chip::SYSCFG_AFIO => {
+                // AFIO_MAPR: the timers' pins are modelled unremapped
+                // (TIM1 partial remap only moves its break input)
+                if !g4 && off == 0x04 && (v & 0x1F00 != 0 || (v >> 6) & 3 > 1) {
+                    return Access::Unsupported("AFIO_MAPR timer remap");
+                }
                 let r = self.syscfg.write(off, v);
                 for i in 0..4 {
                     self.exti.exticr[i] = self.syscfg.get(0x08 + 4 * i as u32);

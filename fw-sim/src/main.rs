@@ -8,8 +8,11 @@ mod clock;
 mod cpu;
 mod elf;
 mod gateway;
+mod interconnect;
 mod line;
 mod machine;
+mod mem;
+mod motor;
 mod periph;
 mod pin_trace;
 mod rtt;
@@ -111,7 +114,7 @@ fn run() -> Result<i32, String> {
         let traced = [
             ("enable", pins::ENABLE),
             ("brake", brake),
-            ("step", pins::STEP),
+            ("step", pins::STEP[0]),
             ("de", de),
         ];
         machine.pin_trace =
@@ -120,6 +123,7 @@ fn run() -> Result<i32, String> {
     }
     machine.flash.cut_at = args.power_cut;
     machine.flash.write_protected = args.write_protect;
+    machine.motor = args.motor.map(motor::Motor::new);
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
         None

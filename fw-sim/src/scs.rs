@@ -6,7 +6,7 @@
 //! AIRCR.PRIGROUP, PRIMASK and BASEPRI); 4 priority bits are implemented.
 
 use crate::clock::clk_at;
-use crate::periph::timer::Access;
+use crate::periph::Access;
 
 pub const PENDSV: usize = 14;
 pub const SYSTICK: usize = 15;
@@ -124,6 +124,12 @@ impl Scs {
             p = p.min(0);
         }
         p
+    }
+
+    /// The level of external interrupt line `irq`, as the peripherals set it.
+    #[cfg(test)]
+    pub fn line(&self, irq: usize) -> bool {
+        self.level[irq]
     }
 
     /// The pending enabled exception with the highest priority.

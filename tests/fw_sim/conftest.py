@@ -11,6 +11,7 @@ import os
 import select
 import signal
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -53,6 +54,40 @@ for _name in dir(e2e):
 def e2e_module(name: str):
     """A test module of tests/e2e, for its data tables."""
     return _load("e2e_" + name, E2E / f"{name}.py")
+
+
+FLASH = 0x0800_0000
+
+
+def elf_image(body: bytes) -> bytes:
+    """A hand-assembled ELF32 ARM executable: the vector table (SP
+    0x2000_1000, Reset at 0x0800_0008), then `body` (Thumb code and its
+    literals) as the FUNC symbol Reset. For tests of the runner itself."""
+    code = struct.pack("<II", 0x2000_1000, FLASH + 8 + 1) + body
+    shstr = b"\0.text\0.symtab\0.strtab\0.shstrtab\0"
+    strtab = b"\0Reset\0"
+    symtab = bytes(16) + struct.pack("<IIIBBH", 1, FLASH + 8 + 1, len(body), 0x12, 0, 1)
+    ehsize, phsize = 52, 32
+    off_text = ehsize + phsize
+    off_sym = off_text + len(code)
+    off_str = off_sym + len(symtab)
+    off_shstr = off_str + len(strtab)
+    off_sh = (off_shstr + len(shstr) + 3) & ~3
+    eh = b"\x7fELF\x01\x01\x01" + bytes(9) + struct.pack(
+        "<HHIIIIIHHHHHH", 2, 40, 1, FLASH + 9, ehsize, off_sh, 0x0500_0200,
+        ehsize, phsize, 1, 40, 5, 4)
+    ph = struct.pack("<IIIIIIII", 1, off_text, FLASH, FLASH, len(code), len(code), 5, 4)
+
+    def sh(name, kind, flags, addr, off, size, link=0, info=0, align=1, entsize=0):
+        return struct.pack("<IIIIIIIIII", name, kind, flags, addr, off, size, link, info,
+                           align, entsize)
+    shdrs = (bytes(40)
+             + sh(1, 1, 6, FLASH, off_text, len(code), align=4)
+             + sh(7, 2, 0, 0, off_sym, len(symtab), link=3, info=1, align=4, entsize=16)
+             + sh(15, 3, 0, 0, off_str, len(strtab))
+             + sh(23, 3, 0, 0, off_shstr, len(shstr)))
+    body = eh + ph + code + symtab + strtab + shstr
+    return body + bytes(off_sh - len(body)) + shdrs
 
 
 def free_port() -> int:

@@ -3,7 +3,7 @@
 //! once, CR5 R1MODE; RM0008 §5.4), SYSCFG (RM0440 §10.2) / AFIO (RM0008
 //! §9.4) and DBGMCU (RM0440 §47.15 / RM0008 §31.16).
 
-use super::timer::Access;
+use super::Access;
 
 #[derive(Debug)]
 pub struct Bank {

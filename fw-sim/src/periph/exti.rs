@@ -2,7 +2,7 @@
 //! SWIER1/PR1 and the second bank) and RM0008 §10.3; the port of each line
 //! comes from SYSCFG_EXTICRx (G4) / AFIO_EXTICRx (F1), kept here.
 
-use super::timer::Access;
+use super::Access;
 
 #[derive(Debug)]
 pub struct Exti {

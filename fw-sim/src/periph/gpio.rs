@@ -5,7 +5,7 @@
 //! alternate function takes the level of the peripheral output routed to it
 //! (the caller supplies those).
 
-use super::timer::Access;
+use super::Access;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Mode {
@@ -81,6 +81,11 @@ impl Port {
         }
     }
 
+    /// G4: the alternate function number AFRL/AFRH select for `pin`.
+    pub fn af(&self, pin: u8) -> u32 {
+        (self.afr[(pin / 8) as usize] >> (4 * (pin % 8))) & 0xF
+    }
+
     pub fn odr_bit(&self, pin: u8) -> bool {
         self.odr & (1 << pin) != 0
     }
@@ -90,7 +95,9 @@ impl Port {
     pub fn level(&self, pin: u8, af: Option<bool>) -> bool {
         match self.mode(pin) {
             Mode::Output => self.odr_bit(pin),
-            Mode::Alternate => af.unwrap_or(true),
+            // a peripheral input (a timer channel) leaves the pin to the
+            // world outside
+            Mode::Alternate => af.or(self.external[pin as usize]).unwrap_or(true),
             Mode::Analog => false,
             Mode::Input => self.external[pin as usize]
                 .or(self.pull(pin))

@@ -3,7 +3,7 @@
 //! down at LSI / (4 << PR) from RLR and resets the chip at zero. PVU/RVU/WVU
 //! stay set for five LSI periods after a write (the register update).
 
-use super::timer::Access;
+use super::Access;
 use crate::clock::PS_PER_S;
 
 #[derive(Debug)]

@@ -5,7 +5,7 @@
 //! the APB timer clocks (×2 when the APB prescaler is not 1: RM0440 §7.2.15,
 //! RM0008 §7.2) and the USART1 kernel clock.
 
-use super::timer::Access;
+use super::Access;
 
 #[derive(Debug)]
 pub struct Rcc {
@@ -22,6 +22,8 @@ pub struct Clocks {
     pub pclk1: u32,
     pub pclk2: u32,
     pub tim_apb1: u32,
+    /// TIM1 / TIM8's kernel clock: the APB2 timer clock (same ×2 rule).
+    pub tim_apb2: u32,
     pub usart1: u32,
 }
 
@@ -198,6 +200,7 @@ impl Rcc {
         let pclk1 = hclk / d1;
         let pclk2 = hclk / d2;
         let tim_apb1 = if d1 == 1 { pclk1 } else { pclk1 * 2 };
+        let tim_apb2 = if d2 == 1 { pclk2 } else { pclk2 * 2 };
         let usart1 = if self.g4 {
             match self.get(0x88) & 3 {
                 0 => pclk2,
@@ -214,6 +217,7 @@ impl Rcc {
             pclk1: pclk1 as u32,
             pclk2: pclk2 as u32,
             tim_apb1: tim_apb1 as u32,
+            tim_apb2: tim_apb2 as u32,
             usart1: usart1 as u32,
         }
     }

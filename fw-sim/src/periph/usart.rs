@@ -10,7 +10,7 @@
 
 use std::collections::VecDeque;
 
-use super::timer::Access;
+use super::Access;
 use crate::clock::PS_PER_S;
 
 /// A character on the RX wire, with what the line did to it.
