@@ -22,8 +22,8 @@ use crate::periph::iwdg::Iwdg;
 use crate::periph::rcc::Rcc;
 use crate::periph::timer::{Irqs, Kind as TimerKind, Timer};
 use crate::periph::usart::Usart;
-use crate::pin_trace::PinTrace;
 use crate::periph::Access;
+use crate::pin_trace::PinTrace;
 use crate::scs::Scs;
 use crate::trace::StepTrace;
 
