@@ -67,7 +67,7 @@ impl Block {
         match self {
             Self::Monitor => address != OLD_EE_COMMAND,
             Self::EeCommand => false,
-            Self::Params => PA[pa_number(address)].read_only,
+            Self::Params => PA[pa_number(address)].read_only(),
         }
     }
 

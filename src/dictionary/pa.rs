@@ -1,76 +1,137 @@
 //! The PA set: 60 16-bit parameters at legacy addresses 0x0064..=0x009F.
 
+use super::table::Range::{self, Any, OffOr, Span as Between};
+use crate::closed_loop::COUNTS_PER_REV_MIN;
 use crate::rtu::{DriverEnable, DEFAULT_DE_BITS, MAX_DE_BITS};
 
 /// Number of parameters, PA0..=PA59.
 pub const PA_COUNT: usize = 60;
 
-/// Range, default and access of one parameter.
+/// One parameter: name, unit, range, default and access. Fields are read
+/// through the accessors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PaDef {
-    pub min: u16,
-    pub max: u16,
-    pub default: u16,
-    pub read_only: bool,
+    name: &'static str,
+    unit: &'static str,
+    range: Range,
+    default: u16,
+    read_only: bool,
 }
 
-const fn rw(min: u16, max: u16, default: u16) -> PaDef {
+impl PaDef {
+    /// What it is, in drive terms ("" for a reserved one).
+    pub const fn name(&self) -> &'static str {
+        self.name
+    }
+    /// Its unit ("" for codes and flags).
+    pub const fn unit(&self) -> &'static str {
+        self.unit
+    }
+    /// The values a write may carry (SPEC §7).
+    pub const fn range(&self) -> Range {
+        self.range
+    }
+    /// Smallest value of [`PaDef::range`].
+    pub const fn min(&self) -> u16 {
+        match self.range.min() {
+            Some(v) => v as u16,
+            None => 0,
+        }
+    }
+    /// Largest value of [`PaDef::range`].
+    pub const fn max(&self) -> u16 {
+        match self.range.max() {
+            Some(v) => v as u16,
+            None => u16::MAX,
+        }
+    }
+    pub const fn default(&self) -> u16 {
+        self.default
+    }
+    pub const fn read_only(&self) -> bool {
+        self.read_only
+    }
+    /// Assigned by SPEC §7, not reserved.
+    pub const fn assigned(&self) -> bool {
+        !self.name.is_empty()
+    }
+    /// Whether `v` is in range: on the wire (with the access check in
+    /// [`Params::valid`]) and at load ([`Params::load`]), one check.
+    #[inline(always)]
+    pub const fn contains(&self, v: u16) -> bool {
+        self.range.contains(v as i64)
+    }
+}
+
+const fn rw(name: &'static str, unit: &'static str, range: Range, default: u16) -> PaDef {
     PaDef {
-        min,
-        max,
+        name,
+        unit,
+        range,
         default,
         read_only: false,
     }
 }
 
 /// Unassigned parameters: stored and reserved, any value.
-const RESERVED: PaDef = rw(0, u16::MAX, 0);
+const RESERVED: PaDef = rw("", "", Any, 0);
 
 /// Firmware version reported in PA2 (≥ 7050: the new EE format, SPEC §7).
 pub const FIRMWARE_VERSION: u16 = 7060;
 
-/// The assignment of SPEC §7, indexed by PA number.
+const FW: i32 = FIRMWARE_VERSION as i32;
+const U16: i32 = u16::MAX as i32;
+const DE: i32 = MAX_DE_BITS as i32;
+
+/// The assigned parameters of SPEC §7, one line each: the number, then
+/// name, unit, range and default. Every other number is reserved.
+#[rustfmt::skip]
+const ASSIGNED: [(usize, PaDef); 21] = [
+    (2, PaDef { read_only: true, ..rw("firmware version", "", Between(FW, FW), FIRMWARE_VERSION) }),
+    (10, rw("steps per revolution", "steps", Between(200, 60000), 10000)),
+    (11, rw("direction invert", "", Between(0, 1), 0)),
+    (12, rw("maximum speed", "r/min", Between(1, 6000), 3000)),
+    (13, rw("switch polarity (bit 0 CW, 1 CCW, 2 home; 1 = NC)", "bits", Between(0, 7), 0)),
+    (14, rw("limit switch enable (bit 0 CW, 1 CCW)", "bits", Between(0, 3), 3)),
+    (15, rw("STEP pulse width (0 = the board's minimum)", "0.1 µs", Any, 0)),
+    (16, rw("DIR set-up time (0 = the board's minimum)", "0.1 µs", Any, 0)),
+    // 1..COUNTS_PER_REV_MIN: too coarse to check a following error against (SPEC §8.8)
+    (17, rw("encoder counts per revolution (0 = none)", "counts",
+            OffOr(COUNTS_PER_REV_MIN as i32, U16), 0)),
+    (18, rw("encoder direction invert", "", Between(0, 1), 0)),
+    (20, rw("communication-loss timeout (0 = off)", "ms", Between(0, 60000), 0)),
+    (22, rw("brake release delay", "ms", Between(0, 2000), 0)),
+    (23, rw("brake engage time", "ms", Between(0, 2000), 0)),
+    (51, rw("slave address", "", Between(1, 247), 1)),
+    (52, rw("baud (0 9600 … 4 115200)", "", Between(0, 4), 4)),
+    (53, rw("format (0 8N1, 1 8E1, 2 8O1, 3 8N2)", "", Between(0, 3), 0)),
+    (54, rw("answer frame errors with 9/10", "", Between(0, 1), 1)),
+    (55, rw("exception profile (0 vendor, 1 standard)", "", Between(0, 1), 0)),
+    (56, rw("minimum response delay", "ms", Between(0, 100), 0)),
+    (57, rw("RS-485 DE lead", "bit times", Between(0, DE), DEFAULT_DE_BITS)),
+    (58, rw("RS-485 DE tail", "bit times", Between(0, DE), DEFAULT_DE_BITS)),
+];
+
+/// Every parameter, indexed by PA number.
 pub const PA: [PaDef; PA_COUNT] = {
     let mut t = [RESERVED; PA_COUNT];
-    t[2] = PaDef {
-        min: FIRMWARE_VERSION,
-        max: FIRMWARE_VERSION,
-        default: FIRMWARE_VERSION,
-        read_only: true,
-    };
-    t[10] = rw(200, 60000, 10000); // steps per revolution
-    t[11] = rw(0, 1, 0); // direction invert
-    t[12] = rw(1, 6000, 3000); // maximum speed, r/min
-    t[13] = rw(0, 7, 0); // switch polarity bits (1 = normally closed)
-    t[14] = rw(0, 3, 3); // limit switch enable bits
-                         // encoder counts per revolution after ×4 decoding: 0 = no encoder,
-                         // else COUNTS_PER_REV_MIN..=65535 (the gap is checked in `in_range`)
-    t[17] = rw(0, u16::MAX, 0);
-    t[18] = rw(0, 1, 0); // encoder direction invert
-    t[20] = rw(0, 60000, 0); // communication-loss timeout, ms
-    t[51] = rw(1, 247, 1); // slave address
-    t[52] = rw(0, 4, 4); // baud
-    t[53] = rw(0, 3, 0); // character format
-    t[54] = rw(0, 1, 1); // answer frame errors with 9/10
-    t[55] = rw(0, 1, 0); // exception profile
-    t[56] = rw(0, 100, 0); // minimum response delay, ms
-    t[57] = rw(0, MAX_DE_BITS, DEFAULT_DE_BITS); // RS-485 DE lead, bit times
-    t[58] = rw(0, MAX_DE_BITS, DEFAULT_DE_BITS); // RS-485 DE tail, bit times
+    let mut i = 0;
+    while i < ASSIGNED.len() {
+        let (n, d) = ASSIGNED[i];
+        assert!(!t[n].assigned(), "a PA number assigned twice");
+        assert!(d.assigned(), "an assigned PA has a name");
+        assert!(
+            d.range.contains(d.default as i64),
+            "a default out of its range"
+        );
+        t[n] = d;
+        i += 1;
+    }
     t
 };
 
-/// PA17 below this (and above 0) is refused: too coarse to check a
-/// following error against (SPEC §8.8).
+/// PA17: encoder counts per revolution.
 const ENCODER_PA: usize = 17;
-
-/// Whether `v` is in PA`n`'s range (SPEC §7, §8.8): [`PA`]'s bounds, and
-/// PA17's gap 1..=99 ([`crate::closed_loop::COUNTS_PER_REV_MIN`]).
-#[inline(always)]
-fn in_range(n: usize, d: PaDef, v: u16) -> bool {
-    const GAP: u16 = crate::closed_loop::COUNTS_PER_REV_MIN - 1;
-    // v - 1 < 99 ⇔ 1 ≤ v ≤ 99, one compare
-    d.min <= v && v <= d.max && !(n == ENCODER_PA && v.wrapping_sub(1) < GAP)
-}
 
 /// The working set of parameters.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -89,7 +150,7 @@ impl Params {
         let mut values = [0; PA_COUNT];
         let mut i = 0;
         while i < PA_COUNT {
-            values[i] = PA[i].default;
+            values[i] = PA[i].default();
             i += 1;
         }
         Self { values }
@@ -103,7 +164,7 @@ impl Params {
     /// Whether `v` is in the range of PA`n` (read-only ones accept nothing).
     pub fn valid(n: usize, v: u16) -> bool {
         let d = PA[n];
-        !d.read_only && in_range(n, d, v)
+        !d.read_only && d.contains(v)
     }
 
     /// Stores `v` in PA`n` without checks: the caller has validated it.
@@ -123,7 +184,7 @@ impl Params {
             let d = PA[n];
             if d.read_only {
                 self.values[n] = d.default;
-            } else if in_range(n, d, v) {
+            } else if d.contains(v) {
                 self.values[n] = v;
             } else {
                 self.values[n] = d.default;
@@ -202,7 +263,7 @@ impl Params {
     /// PA17: encoder counts per revolution (0: none; else at least
     /// [`crate::closed_loop::COUNTS_PER_REV_MIN`], which this keeps).
     pub fn set_encoder_counts_per_rev(&mut self, counts: u16) {
-        if in_range(ENCODER_PA, PA[ENCODER_PA], counts) {
+        if PA[ENCODER_PA].contains(counts) {
             self.values[ENCODER_PA] = counts;
         }
     }

@@ -4,7 +4,7 @@
 
 use std::fmt::Write;
 
-use modbus_drive::dictionary::{position, Access, DataType, DriveLayer, Object, TABLE};
+use modbus_drive::dictionary::{position, DataType, DriveLayer, Entry, TABLE};
 use modbus_drive::motion::Switches;
 use modbus_drive::params::PA;
 use modbus_drive::slave::{Counters, Slave};
@@ -29,14 +29,8 @@ pub struct View<'a> {
 /// (signed types sign-extended); `None` for strings.
 pub fn entry_value(device: &Device, index: u16) -> Option<i64> {
     let e = &TABLE[position(index)?];
-    let raw = e.object.read_raw(device.od(), device.drive());
-    Some(match e.data_type {
-        DataType::U16 => i64::from(raw as u16),
-        DataType::I16 => i64::from(raw as u16 as i16),
-        DataType::U32 => i64::from(raw),
-        DataType::I32 => i64::from(raw as i32),
-        DataType::Str => return None,
-    })
+    let raw = e.object().read_raw(device.od(), device.drive());
+    (e.data_type() != DataType::Str).then(|| e.data_type().value(raw))
 }
 
 /// JSON string literal.
@@ -69,63 +63,6 @@ fn counters(c: &Counters) -> String {
         c.busy,
         c.overruns
     )
-}
-
-/// Unit and range in words of a §5 entry (SPEC §5, §8).
-fn od_meta(index: u16) -> (&'static str, &'static str) {
-    match index {
-        0x1001 => ("bits", "bit 0 generic, 4 communication, 5 following error"),
-        0x6000 => ("", "0 high word first, 1 low word first"),
-        0x605A => ("", "0..=32767 (1: 0x6084, 2: 0x6085, else at once)"),
-        0x6040 => ("", "0..=0xFFFF"),
-        0x6060 => ("", "1 position, 3 velocity, 6 homing"),
-        0x6081 => ("0.1 rev/s", "i32 (signed in velocity mode)"),
-        0x6083 | 0x6084 | 0x6085 | 0x609A => ("0.1 rev/s²", "0..=65535"),
-        0x607A | 0x607C | 0x6064 => ("steps", "i32"),
-        0x6098 => ("", "1..=8"),
-        0x6099 | 0x609B => ("0.1 rev/s", "0..=100000"),
-        0x6041 => ("bits", "§8.2"),
-        0x6061 => ("", "1, 3, 6"),
-        0x606C => ("r/min", "i32"),
-        0x6065 => ("steps", "0xFFFFFFFF = off"),
-        0x6066 => ("ms", "0..=65535"),
-        0x60F4 => ("steps", "i32"),
-        _ => ("", ""),
-    }
-}
-
-/// Name and unit of an assigned PA (SPEC §7).
-pub fn pa_meta(n: usize) -> (&'static str, &'static str) {
-    match n {
-        2 => ("firmware version", ""),
-        10 => ("steps per revolution", "steps"),
-        11 => ("direction invert", ""),
-        12 => ("maximum speed", "r/min"),
-        13 => ("switch polarity (bit 0 CW, 1 CCW, 2 home; 1 = NC)", "bits"),
-        14 => ("limit switch enable (bit 0 CW, 1 CCW)", "bits"),
-        15 => ("STEP pulse width (firmware)", "0.1 µs"),
-        16 => ("DIR set-up time (firmware)", "0.1 µs"),
-        17 => ("encoder counts per revolution (0 = none)", "counts"),
-        18 => ("encoder direction invert", ""),
-        20 => ("communication-loss timeout (0 = off)", "ms"),
-        51 => ("slave address", ""),
-        52 => ("baud (0 9600 … 4 115200)", ""),
-        53 => ("format (0 8N1, 1 8E1, 2 8O1, 3 8N2)", ""),
-        54 => ("answer frame errors with 9/10", ""),
-        55 => ("exception profile (0 vendor, 1 standard)", ""),
-        56 => ("minimum response delay", "ms"),
-        57 => ("RS-485 DE lead (firmware)", "bit times"),
-        58 => ("RS-485 DE tail (firmware)", "bit times"),
-        _ => ("reserved", ""),
-    }
-}
-
-fn access(a: Access) -> &'static str {
-    match a {
-        Access::Ro => "RO",
-        Access::Rw => "RW",
-        Access::Wo => "WO",
-    }
 }
 
 fn opt_bool(v: Option<bool>) -> &'static str {
@@ -192,41 +129,44 @@ pub fn drive_json(v: &View<'_>) -> String {
     }
     s.push_str("],\"od\":[");
     for (i, e) in TABLE.iter().enumerate() {
-        let (unit, range) = od_meta(e.index);
-        let value = match e.object.string(d.identity()) {
+        let value = match e.object().string(d.identity()) {
             Some(text) => quote(text),
-            None if e.access.readable() => entry_value(d, e.index).unwrap_or(0).to_string(),
+            None if e.access().readable() => entry_value(d, e.index()).unwrap_or(0).to_string(),
             // A master reads exception 7; the page shows the last write.
-            None => format!("{{\"written\":{}}}", written(e.object, d)),
+            None => format!("{{\"written\":{}}}", written(e, d)),
         };
         let _ = write!(
             s,
             "{}{{\"index\":{},\"name\":{},\"access\":\"{}\",\"type\":\"{:?}\",\
              \"unit\":{},\"range\":{},\"value\":{}}}",
             if i > 0 { "," } else { "" },
-            e.index,
-            quote(&format!("{:?}", e.object)),
-            access(e.access),
-            e.data_type,
-            quote(unit),
-            quote(range),
+            e.index(),
+            quote(&format!("{:?}", e.object())),
+            e.access().label(),
+            e.data_type(),
+            quote(e.unit()),
+            quote(&e.range().to_string()),
             value
         );
     }
     s.push_str("],\"pa\":[");
     for (n, def) in PA.iter().enumerate() {
-        let (name, unit) = pa_meta(n);
+        let name = if def.assigned() {
+            def.name()
+        } else {
+            "reserved"
+        };
         let _ = write!(
             s,
             "{}{{\"n\":{n},\"name\":{},\"unit\":{},\"min\":{},\"max\":{},\"default\":{},\
              \"access\":\"{}\",\"value\":{}}}",
             if n > 0 { "," } else { "" },
             quote(name),
-            quote(unit),
-            def.min,
-            def.max,
-            def.default,
-            if def.read_only { "RO" } else { "RW" },
+            quote(def.unit()),
+            def.min(),
+            def.max(),
+            def.default(),
+            if def.read_only() { "RO" } else { "RW" },
             d.params().get(n)
         );
     }
@@ -235,12 +175,8 @@ pub fn drive_json(v: &View<'_>) -> String {
 }
 
 /// The last value written to a write-only entry (what the drive holds).
-fn written(object: Object, d: &Device) -> i64 {
-    let raw = object.read_raw(d.od(), d.drive());
-    match object {
-        Object::ModeOfOperation => i64::from(raw as u16 as i16),
-        _ => i64::from(raw),
-    }
+fn written(e: &Entry, d: &Device) -> i64 {
+    e.data_type().value(e.object().read_raw(d.od(), d.drive()))
 }
 
 #[cfg(test)]
