@@ -2,7 +2,7 @@
 //! registers below 0x00A0, next to (not overlapping) the §5 table.
 //!
 //! - the DP monitor 0x0000..=0x0017 (RO, read from the drive layer,
-//!   `params/monitor.rs`); 0x0000 is also the old-format EE command
+//!   `dictionary/monitor.rs`); 0x0000 is also the old-format EE command
 //!   register when *written* (seed 001 format 3(1): `06 00 00 00 0k`);
 //! - the EE command register 0x003A (new format, `10 00 3A 00 01 02 00 0k`),
 //!   write-only;

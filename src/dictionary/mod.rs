@@ -124,7 +124,7 @@ pub trait DriveLayer {
     fn following_error(&self) -> i32 {
         0
     }
-    /// Live values of the legacy DP monitor (SPEC §9, `params/monitor.rs`)
+    /// Live values of the legacy DP monitor (SPEC §9, [`dp_value`])
     /// beyond the entries above; a drive that does not know reports zeros.
     fn monitor(&self) -> DriveMonitor {
         DriveMonitor::default()

@@ -182,7 +182,7 @@ impl StepSchedule {
     /// only): the queue then ends before `at`, and the next push starts
     /// there, carrying the fraction `frac` (that of the step before `at`,
     /// [`Segment::advance_until`]). The planner cuts a segment pushed
-    /// whole this way when a new goal arrives (planner.rs `drop_pending`).
+    /// whole this way when a new goal arrives (planner/segment.rs `drop_pending`).
     ///
     /// False, and nothing taken back, unless `at` is inside the queue and
     /// not behind the interrupt's next read.
