@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Layers stage: the core's modules import each other without a cycle
-# (docs/architecture.md states the rule; .ci/layers.py prints the graph).
+# Layers stage: the core's modules import each other without a cycle, and
+# the virtual drive's files neither (docs/architecture.md states the rule;
+# .ci/layers.py prints the graph).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python3 .ci/layers.py src

@@ -6,7 +6,7 @@
 use std::fmt::Write;
 
 use modbus_drive::dictionary::{
-    DataType, Range, DP_BASE, DP_ITEMS, PA, PA_BASE, SAVED_COUNT, TABLE,
+    pa_entries, DataType, Range, DP_BASE, DP_ITEMS, PA_BASE, SAVED_COUNT, TABLE,
 };
 use modbus_drive::params::{RECORD_LEN, RECORD_VERSION};
 
@@ -76,10 +76,8 @@ fn render() -> String {
          | PA | address | name | access | range | default | unit |\n\
          |---:|---|---|---|---|---:|---|\n"
     );
-    for (n, d) in PA.iter().enumerate() {
-        if !d.assigned() {
-            continue;
-        }
+    for p in pa_entries().filter(|p| p.assigned()) {
+        let (n, d) = (p.number(), p.def());
         let range = match d.range() {
             Range::Any => "0..=65535".to_string(),
             r => r.to_string(),
@@ -87,19 +85,17 @@ fn render() -> String {
         let _ = writeln!(
             s,
             "| {n} | 0x{:04X} | {} | {} | {} | {} | {} |",
-            PA_BASE + n as u16,
-            d.name(),
+            p.address(),
+            p.name(),
             if d.read_only() { "RO" } else { "RW" },
             range,
             d.default(),
-            cell(d.unit())
+            cell(p.unit())
         );
     }
-    let reserved: Vec<String> = PA
-        .iter()
-        .enumerate()
-        .filter(|(_, d)| !d.assigned())
-        .map(|(n, _)| n.to_string())
+    let reserved: Vec<String> = pa_entries()
+        .filter(|p| !p.assigned())
+        .map(|p| p.number().to_string())
         .collect();
     let _ = writeln!(
         s,

@@ -1,49 +1,45 @@
 //! The PA set: 60 16-bit parameters at legacy addresses 0x0064..=0x009F.
 
-use super::table::Range::{self, Any, OffOr, Span as Between};
+use super::table::Range::{self, Any, OffOr, OneOf, Span as Between};
 use crate::closed_loop::COUNTS_PER_REV_MIN;
 use crate::rtu::{DriverEnable, DEFAULT_DE_BITS, MAX_DE_BITS};
 
 /// Number of parameters, PA0..=PA59.
 pub const PA_COUNT: usize = 60;
 
-/// One parameter: name, unit, range, default and access. Fields are read
-/// through the accessors.
+/// Range, default and access of one parameter: what the wire and the
+/// record check. Name and unit are the host's ([`PaEntry`]), kept apart so
+/// that the firmware links no text.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PaDef {
-    name: &'static str,
-    unit: &'static str,
-    range: Range,
+    min: u16,
+    max: u16,
     default: u16,
     read_only: bool,
+    /// 0 is accepted too ("off"), below `min`.
+    off: bool,
 }
 
 impl PaDef {
-    /// What it is, in drive terms ("" for a reserved one).
-    pub const fn name(&self) -> &'static str {
-        self.name
-    }
-    /// Its unit ("" for codes and flags).
-    pub const fn unit(&self) -> &'static str {
-        self.unit
-    }
     /// The values a write may carry (SPEC §7).
     pub const fn range(&self) -> Range {
-        self.range
+        match (self.off, self.min, self.max) {
+            (true, min, max) => OffOr(min as i32, max as i32),
+            (false, 0, u16::MAX) => Any,
+            (false, min, max) => Between(min as i32, max as i32),
+        }
     }
-    /// Smallest value of [`PaDef::range`].
+    /// Smallest value accepted.
     pub const fn min(&self) -> u16 {
-        match self.range.min() {
-            Some(v) => v as u16,
-            None => 0,
+        if self.off {
+            0
+        } else {
+            self.min
         }
     }
-    /// Largest value of [`PaDef::range`].
+    /// Largest value accepted.
     pub const fn max(&self) -> u16 {
-        match self.range.max() {
-            Some(v) => v as u16,
-            None => u16::MAX,
-        }
+        self.max
     }
     pub const fn default(&self) -> u16 {
         self.default
@@ -51,20 +47,73 @@ impl PaDef {
     pub const fn read_only(&self) -> bool {
         self.read_only
     }
-    /// Assigned by SPEC §7, not reserved.
-    pub const fn assigned(&self) -> bool {
-        !self.name.is_empty()
-    }
     /// Whether `v` is in range: on the wire (with the access check in
     /// [`Params::valid`]) and at load ([`Params::load`]), one check.
     #[inline(always)]
     pub const fn contains(&self, v: u16) -> bool {
-        self.range.contains(v as i64)
+        (self.min <= v && v <= self.max) || (self.off && v == 0)
     }
 }
 
-const fn rw(name: &'static str, unit: &'static str, range: Range, default: u16) -> PaDef {
-    PaDef {
+/// One parameter as a host sees it: number, address, name, unit and the
+/// [`PaDef`] checks. From [`pa_entries`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PaEntry {
+    n: usize,
+}
+
+impl PaEntry {
+    /// PA number, 0..[`PA_COUNT`].
+    pub const fn number(&self) -> usize {
+        self.n
+    }
+    /// Its Modbus address.
+    pub const fn address(&self) -> u16 {
+        super::PA_BASE + self.n as u16
+    }
+    /// What it is, in drive terms ("reserved" for an unassigned one).
+    pub const fn name(&self) -> &'static str {
+        if self.assigned() {
+            PA_TEXT[self.n].0
+        } else {
+            "reserved"
+        }
+    }
+    /// Its unit ("" for codes and flags).
+    pub const fn unit(&self) -> &'static str {
+        PA_TEXT[self.n].1
+    }
+    /// Assigned by SPEC §7, not reserved.
+    pub const fn assigned(&self) -> bool {
+        !PA_TEXT[self.n].0.is_empty()
+    }
+    /// Range, default and access.
+    pub const fn def(&self) -> PaDef {
+        PA[self.n]
+    }
+}
+
+/// Every parameter, PA0 first.
+pub fn pa_entries() -> impl Iterator<Item = PaEntry> {
+    (0..PA_COUNT).map(|n| PaEntry { n })
+}
+
+/// Firmware version reported in PA2 (≥ 7050: the new EE format, SPEC §7).
+pub const FIRMWARE_VERSION: u16 = 7060;
+
+/// One line of [`ASSIGNED`].
+struct Pa {
+    n: usize,
+    name: &'static str,
+    unit: &'static str,
+    range: Range,
+    default: u16,
+    read_only: bool,
+}
+
+const fn rw(n: usize, name: &'static str, unit: &'static str, range: Range, default: u16) -> Pa {
+    Pa {
+        n,
         name,
         unit,
         range,
@@ -73,58 +122,88 @@ const fn rw(name: &'static str, unit: &'static str, range: Range, default: u16) 
     }
 }
 
-/// Unassigned parameters: stored and reserved, any value.
-const RESERVED: PaDef = rw("", "", Any, 0);
-
-/// Firmware version reported in PA2 (≥ 7050: the new EE format, SPEC §7).
-pub const FIRMWARE_VERSION: u16 = 7060;
-
 const FW: i32 = FIRMWARE_VERSION as i32;
 const U16: i32 = u16::MAX as i32;
 const DE: i32 = MAX_DE_BITS as i32;
 
-/// The assigned parameters of SPEC §7, one line each: the number, then
-/// name, unit, range and default. Every other number is reserved.
+/// The assigned parameters of SPEC §7, one line each: number, name, unit,
+/// range, default. Every other number is reserved: any value, default 0.
 #[rustfmt::skip]
-const ASSIGNED: [(usize, PaDef); 21] = [
-    (2, PaDef { read_only: true, ..rw("firmware version", "", Between(FW, FW), FIRMWARE_VERSION) }),
-    (10, rw("steps per revolution", "steps", Between(200, 60000), 10000)),
-    (11, rw("direction invert", "", Between(0, 1), 0)),
-    (12, rw("maximum speed", "r/min", Between(1, 6000), 3000)),
-    (13, rw("switch polarity (bit 0 CW, 1 CCW, 2 home; 1 = NC)", "bits", Between(0, 7), 0)),
-    (14, rw("limit switch enable (bit 0 CW, 1 CCW)", "bits", Between(0, 3), 3)),
-    (15, rw("STEP pulse width (0 = the board's minimum)", "0.1 µs", Any, 0)),
-    (16, rw("DIR set-up time (0 = the board's minimum)", "0.1 µs", Any, 0)),
+const ASSIGNED: &[Pa] = &[
+    Pa { read_only: true, ..rw(2, "firmware version", "", Between(FW, FW), FIRMWARE_VERSION) },
+    rw(10, "steps per revolution", "steps", Between(200, 60000), 10000),
+    rw(11, "direction invert", "", Between(0, 1), 0),
+    rw(12, "maximum speed", "r/min", Between(1, 6000), 3000),
+    rw(13, "switch polarity (bit 0 CW, 1 CCW, 2 home; 1 = NC)", "bits", Between(0, 7), 0),
+    rw(14, "limit switch enable (bit 0 CW, 1 CCW)", "bits", Between(0, 3), 3),
+    rw(15, "STEP pulse width (0 = the board's minimum)", "0.1 µs", Any, 0),
+    rw(16, "DIR set-up time (0 = the board's minimum)", "0.1 µs", Any, 0),
     // 1..COUNTS_PER_REV_MIN: too coarse to check a following error against (SPEC §8.8)
-    (17, rw("encoder counts per revolution (0 = none)", "counts",
-            OffOr(COUNTS_PER_REV_MIN as i32, U16), 0)),
-    (18, rw("encoder direction invert", "", Between(0, 1), 0)),
-    (20, rw("communication-loss timeout (0 = off)", "ms", Between(0, 60000), 0)),
-    (22, rw("brake release delay", "ms", Between(0, 2000), 0)),
-    (23, rw("brake engage time", "ms", Between(0, 2000), 0)),
-    (51, rw("slave address", "", Between(1, 247), 1)),
-    (52, rw("baud (0 9600 … 4 115200)", "", Between(0, 4), 4)),
-    (53, rw("format (0 8N1, 1 8E1, 2 8O1, 3 8N2)", "", Between(0, 3), 0)),
-    (54, rw("answer frame errors with 9/10", "", Between(0, 1), 1)),
-    (55, rw("exception profile (0 vendor, 1 standard)", "", Between(0, 1), 0)),
-    (56, rw("minimum response delay", "ms", Between(0, 100), 0)),
-    (57, rw("RS-485 DE lead", "bit times", Between(0, DE), DEFAULT_DE_BITS)),
-    (58, rw("RS-485 DE tail", "bit times", Between(0, DE), DEFAULT_DE_BITS)),
+    rw(17, "encoder counts per revolution (0 = none)", "counts",
+       OffOr(COUNTS_PER_REV_MIN as i32, U16), 0),
+    rw(18, "encoder direction invert", "", Between(0, 1), 0),
+    rw(20, "communication-loss timeout (0 = off)", "ms", Between(0, 60000), 0),
+    rw(22, "brake release delay", "ms", Between(0, 2000), 0),
+    rw(23, "brake engage time", "ms", Between(0, 2000), 0),
+    rw(51, "slave address", "", Between(1, 247), 1),
+    rw(52, "baud (0 9600 … 4 115200)", "", Between(0, 4), 4),
+    rw(53, "format (0 8N1, 1 8E1, 2 8O1, 3 8N2)", "", Between(0, 3), 0),
+    rw(54, "answer frame errors with 9/10", "", Between(0, 1), 1),
+    rw(55, "exception profile (0 vendor, 1 standard)", "", Between(0, 1), 0),
+    rw(56, "minimum response delay", "ms", Between(0, 100), 0),
+    rw(57, "RS-485 DE lead", "bit times", Between(0, DE), DEFAULT_DE_BITS),
+    rw(58, "RS-485 DE tail", "bit times", Between(0, DE), DEFAULT_DE_BITS),
 ];
 
-/// Every parameter, indexed by PA number.
+/// Unassigned parameters: stored and reserved, any value.
+const RESERVED: PaDef = PaDef {
+    min: 0,
+    max: u16::MAX,
+    default: 0,
+    read_only: false,
+    off: false,
+};
+
+/// Range, default and access of every parameter, indexed by PA number.
 pub const PA: [PaDef; PA_COUNT] = {
     let mut t = [RESERVED; PA_COUNT];
     let mut i = 0;
     while i < ASSIGNED.len() {
-        let (n, d) = ASSIGNED[i];
-        assert!(!t[n].assigned(), "a PA number assigned twice");
-        assert!(d.assigned(), "an assigned PA has a name");
+        let a = &ASSIGNED[i];
+        let (min, max, off) = match a.range {
+            Any => (0, U16, false),
+            Between(min, max) => (min, max, false),
+            OffOr(min, max) => (min, max, true),
+            OneOf(_) => panic!("a PA range is a span"),
+        };
+        assert!(0 <= min && min <= max && max <= U16);
         assert!(
-            d.range.contains(d.default as i64),
+            a.range.contains(a.default as i64),
             "a default out of its range"
         );
-        t[n] = d;
+        t[a.n] = PaDef {
+            min: min as u16,
+            max: max as u16,
+            default: a.default,
+            read_only: a.read_only,
+            off,
+        };
+        i += 1;
+    }
+    t
+};
+
+/// Name and unit of every parameter ("" for a reserved one).
+const PA_TEXT: [(&str, &str); PA_COUNT] = {
+    let mut t = [("", ""); PA_COUNT];
+    let mut i = 0;
+    while i < ASSIGNED.len() {
+        let a = &ASSIGNED[i];
+        assert!(
+            t[a.n].0.is_empty() && !a.name.is_empty(),
+            "a PA number assigned twice"
+        );
+        t[a.n] = (a.name, a.unit);
         i += 1;
     }
     t

@@ -1,5 +1,5 @@
 //! The entry table of SPEC §5, in table order (seed 000 chapter 8): one
-//! line per object in [`od_table!`] holds every fact about it — address,
+//! line per object in `od_table!` holds every fact about it — address,
 //! type, access, where its value lives, range, default, name, unit and
 //! record slot. The enum [`Object`], [`TABLE`], [`position`], the value
 //! accessors and the factory [`OdValues`] are generated from that line;
@@ -96,8 +96,9 @@ pub enum Range {
 }
 
 impl Range {
-    /// Whether `v` is accepted.
-    #[inline]
+    /// Whether `v` is accepted. Inlined: with a constant range (as in
+    /// [`Object::accepts`]) it folds into one or two compares.
+    #[inline(always)]
     pub const fn contains(self, v: i64) -> bool {
         match self {
             Self::Any => true,
@@ -176,18 +177,17 @@ impl core::fmt::Display for Range {
     }
 }
 
-/// One entry of the table. Fields are read through the accessors.
+/// One entry of the table. Fields are read through the accessors; what
+/// only hosts read (range as a value, name, unit, slot) comes from the
+/// same table line through [`Object`], so that the firmware links none of
+/// the text it does not use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Entry {
     index: u16,
     object: Object,
     access: Access,
     data_type: DataType,
-    range: Range,
     default: i32,
-    name: &'static str,
-    unit: &'static str,
-    slot: Option<u8>,
 }
 
 impl Entry {
@@ -209,7 +209,7 @@ impl Entry {
     }
     /// The values a write may carry (§5.2 step 8).
     pub const fn range(&self) -> Range {
-        self.range
+        self.object.range()
     }
     /// Value after power-up (numeric entries; strings come from [`Identity`]).
     pub const fn default(&self) -> i32 {
@@ -217,23 +217,23 @@ impl Entry {
     }
     /// What it is, in drive terms.
     pub const fn name(&self) -> &'static str {
-        self.name
+        self.object.text().0
     }
     /// Its unit ("" for codes and flags).
     pub const fn unit(&self) -> &'static str {
-        self.unit
+        self.object.text().1
     }
     /// Its place among the saved entries of the parameter record (SPEC
     /// §9), `None` if it is not saved.
     pub const fn record_slot(&self) -> Option<u8> {
-        self.slot
+        self.object.record_slot()
     }
 
     /// Whether a written value is in range (§5.2 step 8). `raw` holds the
     /// value's bits: one word zero-extended, or both words as one `u32`.
     #[inline]
     pub const fn accepts(&self, raw: u32) -> bool {
-        self.range.contains(self.data_type.value(raw))
+        self.object.accepts(raw)
     }
 
     /// Whether a saved value may be loaded: in range, or the default
@@ -296,39 +296,43 @@ impl Raw for i32 {
 }
 
 /// Where a value lives: `od(field)` in [`OdValues`], `live(method)` in
-/// the [`DriveLayer`], `text(field)` in the [`Identity`].
+/// the [`DriveLayer`], `text(field)` in the [`Identity`]; `zero(_)`: a
+/// read-only value this drive does not measure, read as 0.
 macro_rules! stored_raw {
-    (od, $f:ident, $od:ident) => {
+    (od, $f:tt, $od:ident) => {
         Raw::to_raw($od.$f)
     };
-    ($other:ident, $f:ident, $od:ident) => {
+    ($other:ident, $f:tt, $od:ident) => {
         0
     };
 }
 macro_rules! live_raw {
-    (live, $f:ident, $drive:ident) => {
+    (live, $f:tt, $drive:ident) => {
         Raw::to_raw($drive.$f())
     };
-    ($other:ident, $f:ident, $drive:ident) => {
+    ($other:ident, $f:tt, $drive:ident) => {
         0
     };
 }
 macro_rules! store {
-    (od, $f:ident, $od:ident, $raw:expr) => {
+    (od, $f:tt, $od:ident, $raw:expr) => {
         $od.$f = Raw::from_raw($raw)
     };
-    ($other:ident, $f:ident, $od:ident, $raw:expr) => {{}};
+    ($other:ident, $f:tt, $od:ident, $raw:expr) => {{}};
 }
 macro_rules! text {
-    (text, $f:ident, $identity:ident) => {
+    (text, $f:tt, $identity:ident) => {
         Some($identity.$f)
     };
-    ($other:ident, $f:ident, $identity:ident) => {
+    ($other:ident, $f:tt, $identity:ident) => {
         None
     };
 }
 macro_rules! is {
     (live, live) => {
+        true
+    };
+    (zero, live) => {
         true
     };
     (od, od) => {
@@ -354,7 +358,7 @@ macro_rules! slot {
 /// [`TABLE`], [`position`], the value accessors and `OdValues::default`.
 macro_rules! od_table {
     ($(
-        $object:ident = $index:literal, $access:ident $ty:ident, $src:ident($f:ident),
+        $object:ident = $index:literal, $access:ident $ty:ident, $src:ident($f:tt),
         range $range:expr, default $default:expr, $name:literal, $unit:literal, slot $slot:tt;
     )*) => {
         /// The entries of SPEC §5; the discriminant is the position in [`TABLE`].
@@ -371,11 +375,7 @@ macro_rules! od_table {
                 object: Object::$object,
                 access: Access::$access,
                 data_type: DataType::$ty,
-                range: $range,
                 default: $default,
-                name: $name,
-                unit: $unit,
-                slot: slot!($slot),
             },
         )*];
 
@@ -389,6 +389,40 @@ macro_rules! od_table {
         }
 
         impl Object {
+            /// The values a write may carry (§5.2 step 8).
+            pub const fn range(self) -> Range {
+                match self {
+                    $(Self::$object => $range,)*
+                }
+            }
+
+            /// Whether a written value is in range (§5.2 step 8), see
+            /// [`Entry::accepts`]. One arm per entry with its range and
+            /// type as constants: the compiler folds each into a compare.
+            #[inline]
+            pub const fn accepts(self, raw: u32) -> bool {
+                match self {
+                    $(Self::$object => {
+                        const R: Range = $range;
+                        R.contains(DataType::$ty.value(raw))
+                    })*
+                }
+            }
+
+            /// Name and unit.
+            const fn text(self) -> (&'static str, &'static str) {
+                match self {
+                    $(Self::$object => ($name, $unit),)*
+                }
+            }
+
+            /// Place in the saved record, if saved.
+            pub const fn record_slot(self) -> Option<u8> {
+                match self {
+                    $(Self::$object => slot!($slot),)*
+                }
+            }
+
             /// The value of an entry stored in [`OdValues`] (0 for others).
             #[inline]
             pub fn read_stored(self, od: &OdValues) -> u32 {
@@ -518,10 +552,10 @@ const _: () = {
     while p < TABLE.len() {
         let e = &TABLE[p];
         assert!(e.object as usize == p);
-        if !matches!(e.range, Range::Any) {
+        if !matches!(e.object.range(), Range::Any) {
             assert!(e.words() == 1, "a ranged entry is one word");
         }
-        if let Some(s) = e.slot {
+        if let Some(s) = e.object.record_slot() {
             assert!(matches!(e.access, Access::Rw), "only RW entries are saved");
             assert!(!e.object.live(), "a saved entry is stored in OdValues");
             assert!(slots & (1 << s) == 0, "two entries in one record slot");
@@ -540,7 +574,7 @@ pub const SAVED_COUNT: usize = {
     let mut n = 0;
     let mut p = 0;
     while p < TABLE.len() {
-        if TABLE[p].slot.is_some() {
+        if TABLE[p].object.record_slot().is_some() {
             n += 1;
         }
         p += 1;
@@ -553,7 +587,7 @@ pub const SAVED: [Object; SAVED_COUNT] = {
     let mut out = [Object::ErrorRegister; SAVED_COUNT];
     let mut p = 0;
     while p < TABLE.len() {
-        if let Some(s) = TABLE[p].slot {
+        if let Some(s) = TABLE[p].object.record_slot() {
             out[s as usize] = TABLE[p].object;
         }
         p += 1;
@@ -709,13 +743,7 @@ impl Object {
 
     /// Whether [`Object::accepts`] refuses some value.
     pub const fn ranged(self) -> bool {
-        !matches!(self.entry().range, Range::Any)
-    }
-
-    /// Whether a written value is in range (§5.2 step 8): [`Entry::accepts`].
-    #[inline]
-    pub const fn accepts(self, raw: u32) -> bool {
-        self.entry().accepts(raw)
+        !matches!(self.range(), Range::Any)
     }
 
     /// The value of a numeric entry as raw bits (see [`Object::accepts`]).

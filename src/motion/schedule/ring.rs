@@ -284,7 +284,7 @@ impl StepSchedule {
         }
     }
 
-    /// Arms the limit brake with a [`brake_rate`], or disarms it (`None`:
+    /// Arms the limit brake with a [`brake_rate`](super::brake::brake_rate), or disarms it (`None`:
     /// homing, where the sequencer decides at the limits, SPEC §8.6).
     pub fn set_brake_rate(&self, rate: Option<u32>) {
         let rate = rate.unwrap_or(0);

@@ -21,7 +21,7 @@ pub struct Segment {
     /// step times, planner/segment.rs `fit_segment`).
     pub add3: i64,
     pub add4: i64,
-    /// Steps, at least 1 and at most what [`StepSchedule::free`] allows.
+    /// Steps, at least 1 and at most what [`StepSchedule::free`](super::StepSchedule::free) allows.
     pub count: u32,
     /// Positive direction (position counts up).
     pub forward: bool,

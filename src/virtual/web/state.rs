@@ -4,9 +4,8 @@
 
 use std::fmt::Write;
 
-use modbus_drive::dictionary::{position, DataType, DriveLayer, Entry, TABLE};
+use modbus_drive::dictionary::{pa_entries, position, DataType, DriveLayer, Entry, TABLE};
 use modbus_drive::motion::Switches;
-use modbus_drive::params::PA;
 use modbus_drive::slave::{Counters, Slave};
 use modbus_drive::Device;
 
@@ -150,19 +149,15 @@ pub fn drive_json(v: &View<'_>) -> String {
         );
     }
     s.push_str("],\"pa\":[");
-    for (n, def) in PA.iter().enumerate() {
-        let name = if def.assigned() {
-            def.name()
-        } else {
-            "reserved"
-        };
+    for p in pa_entries() {
+        let (n, def) = (p.number(), p.def());
         let _ = write!(
             s,
             "{}{{\"n\":{n},\"name\":{},\"unit\":{},\"min\":{},\"max\":{},\"default\":{},\
              \"access\":\"{}\",\"value\":{}}}",
             if n > 0 { "," } else { "" },
-            quote(name),
-            quote(def.unit()),
+            quote(p.name()),
+            quote(p.unit()),
             def.min(),
             def.max(),
             def.default(),
