@@ -9,8 +9,8 @@ use common::axis::Rig;
 use common::*;
 use modbus_drive::closed_loop::sim::SimEncoder;
 use modbus_drive::device::{Device, Identity};
-use modbus_drive::motion::sim::SimAxis;
 use modbus_drive::dictionary::TABLE;
+use modbus_drive::motion::sim::SimAxis;
 use modbus_drive::params::{ParamStore, SimFlash};
 
 const PA17: u16 = 0x0064 + 17;

@@ -128,3 +128,28 @@ impl<'a> SimHost<'a> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::Identity;
+
+    /// (Switch edges: the homing and limit tests, through `tests/common`.)
+    #[test]
+    fn control_is_called_when_poll_at_falls_due_and_after_a_frame() {
+        let mut device = Device::new(Identity::new("t"));
+        let mut axis = SimAxis::new(10_000_000).with_home(0, 10);
+        let schedule = StepSchedule::new();
+        // before the first call: due at once
+        assert_eq!(device.poll_at(), 0);
+        SimHost::new(&mut device, &mut axis, &schedule).run_to(5_500, |_| {});
+        // calls at 0, 1000, …, 5000: the next one a period after the last
+        assert_eq!(device.poll_at(), 6_000);
+        // after a frame: a call at once, the period counts from there
+        SimHost::new(&mut device, &mut axis, &schedule).control_at(5_700, |_| {});
+        assert_eq!(device.poll_at(), 6_700);
+        // a second control_at at the same instant changes nothing
+        SimHost::new(&mut device, &mut axis, &schedule).control_at(5_700, |_| {});
+        assert_eq!(device.poll_at(), 6_700);
+    }
+}
