@@ -328,20 +328,14 @@ macro_rules! text {
         None
     };
 }
-macro_rules! is {
-    (live, live) => {
+macro_rules! is_live {
+    (live) => {
         true
     };
-    (zero, live) => {
+    (zero) => {
         true
     };
-    (od, od) => {
-        true
-    };
-    (text, text) => {
-        true
-    };
-    ($a:ident, $b:ident) => {
+    ($other:ident) => {
         false
     };
 }
@@ -434,7 +428,7 @@ macro_rules! od_table {
             /// Whether the value lives in the drive layer.
             const fn live(self) -> bool {
                 match self {
-                    $(Self::$object => is!($src, live),)*
+                    $(Self::$object => is_live!($src),)*
                 }
             }
 
@@ -543,8 +537,10 @@ od_table! {
 
 /// Checks the table once at compile time: the request walk reads one
 /// word for each ranged entry, write-only and read-only entries are not
-/// saved, saved entries sit in distinct slots `0..n`, defaults are in
-/// range or "none yet", and the access masks below fit their width.
+/// saved, saved entries sit in distinct slots `0..n`, and the access
+/// masks below fit their width. (A default may lie outside the range a
+/// write must meet, e.g. homing method 0 = none yet; a saved default
+/// still loads, [`Entry::loadable`].)
 const _: () = {
     assert!(TABLE.len() <= MASK_BITS, "widen `Mask`");
     let mut p = 0;
