@@ -144,7 +144,12 @@ pub fn drive_json(v: &View<'_>) -> String {
             e.access().label(),
             e.data_type(),
             quote(e.unit()),
-            quote(&e.range().to_string()),
+            // what a write may carry; a read-only entry takes none
+            quote(&if e.access().writable() {
+                e.range().to_string()
+            } else {
+                "—".to_string()
+            }),
             value
         );
     }
