@@ -12,6 +12,12 @@ Prints the module graph in layer order (lowest first), then either `no
 cycle` or each cycle with one file:line that makes each of its edges.
 docs/architecture.md states the layer rule this guards.
 
+The virtual drive (`src/virtual/`, the crate's module `virtual_drive`) is
+checked too, one node per file: an edge is a `super::…`, `self::…` or
+`crate::virtual_drive::…` path to another file's module. A module and the
+modules inside it (`run.rs` and `run/serve.rs`) may use each other's items
+(that is nesting, not layering); any other cycle fails.
+
 With `--files` every file is a module of its own (`periph/timer.rs` is
 `periph::timer`) and the crate root (main.rs / lib.rs) is left out: the
 finer check for a crate without a core/host split, such as fw-sim.
@@ -215,11 +221,93 @@ def layers(core, edges):
     return layer
 
 
+HOST_PATH = re.compile(
+    r"\b(crate::virtual_drive::|(?:super::)+|self::)(\{[^}]*\}|[A-Za-z_][A-Za-z0-9_]*(?:::[A-Za-z_][A-Za-z0-9_]*)*)"
+)
+
+
+def host_graph(root: Path):
+    """Modules of a host directory, one per file, and the edges between
+    modules of which neither holds the other."""
+    files = sorted(root.rglob("*.rs"))
+    mods = {}
+    for f in files:
+        parts = list(f.relative_to(root).with_suffix("").parts)
+        if parts[-1] == "mod":
+            parts.pop()
+        mods[tuple(parts)] = f
+    edges = {m: {} for m in mods}
+
+    def resolve(base, names):
+        """The deepest module of `base` + `names`."""
+        at = tuple(base)
+        for n in names:
+            if at + (n,) in mods:
+                at = at + (n,)
+            else:
+                break
+        return at
+
+    for m, f in mods.items():
+        in_block_comment = False
+        for n, raw in enumerate(f.read_text(encoding="utf-8").splitlines(), 1):
+            line = raw
+            if in_block_comment:
+                end = line.find("*/")
+                if end < 0:
+                    continue
+                line = line[end + 2 :]
+                in_block_comment = False
+            start = line.find("/*")
+            if start >= 0 and line.find("*/", start) < 0:
+                in_block_comment = True
+                line = line[:start]
+            code = strip_comments(line)
+            for hit in HOST_PATH.finditer(code):
+                head, rest = hit.group(1), hit.group(2)
+                # `super` is the module's parent, whichever file holds it
+                if head.startswith("crate::"):
+                    base = ()
+                elif head == "self::":
+                    base = m
+                else:
+                    base = m[: max(len(m) - head.count("super::"), 0)]
+                paths = (
+                    [p.strip() for p in rest[1:-1].split(",")]
+                    if rest.startswith("{")
+                    else [rest]
+                )
+                for p in paths:
+                    names = [x for x in p.split("::") if x and x != "self"]
+                    target = resolve(base, names)
+                    nested = target[: len(m)] == m or m[: len(target)] == target
+                    if not nested and target not in edges[m]:
+                        edges[m][target] = f"{f}:{n}"
+    return sorted(mods), edges
+
+
 def main():
     args = sys.argv[1:]
     files = "--files" in args
     args = [a for a in args if a != "--files"]
     src = Path(args[0] if args else "src")
+    virtual = src / "virtual"
+    if not files and virtual.is_dir():
+        vmods, vedges = host_graph(virtual)
+        found = cycles(vmods, vedges)
+
+        def name(m):
+            return "virtual::" + "::".join(m) if m else "virtual"
+
+        if found:
+            for comp in found:
+                print("import cycle in the virtual drive between: " + ", ".join(map(name, comp)))
+                for v in comp:
+                    for w, where in sorted(vedges[v].items()):
+                        if w in comp:
+                            print(f"  {name(v)} -> {name(w)}  ({where})")
+            sys.exit(1)
+        print(f"virtual drive: {len(vmods)} modules, no cycle")
     core, edges = file_graph(src) if files else graph(src)
     found = cycles(core, edges)
     if found:

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Layers stage: the core's modules import each other without a cycle
-# (docs/architecture.md states the rule; .ci/layers.py prints the graph),
-# and neither do fw-sim's files (each file a module: docs/fw-sim.md).
+# Layers stage: the core's modules import each other without a cycle, and
+# neither do the virtual drive's files nor fw-sim's (each file a module)
+# (docs/architecture.md states the rule; .ci/layers.py prints the graph).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python3 .ci/layers.py src

@@ -9,6 +9,7 @@ use common::axis::Rig;
 use common::*;
 use modbus_drive::closed_loop::sim::SimEncoder;
 use modbus_drive::device::{Device, Identity};
+use modbus_drive::dictionary::TABLE;
 use modbus_drive::motion::sim::SimAxis;
 use modbus_drive::params::{ParamStore, SimFlash};
 
@@ -45,8 +46,10 @@ fn the_new_entries_follow_0x606c_in_table_order_with_their_defaults() {
     assert_eq!(bus.read(0x6065, 2), Ok(vec![0xFFFF, 0xFFFF]));
     assert_eq!(bus.read(0x6066, 1), Ok(vec![0]));
     assert_eq!(bus.read(0x60F4, 2), Ok(vec![0, 0]));
-    // past the last entry, or ending inside one: exception 2
-    assert_eq!(bus.read(0x60F4, 3), Err(2));
+    // past the last entry (whichever the table ends with), or ending
+    // inside one: exception 2
+    let last = TABLE[TABLE.len() - 1];
+    assert_eq!(bus.read(last.index(), last.words() + 1), Err(2));
     assert_eq!(bus.read(0x6065, 1), Err(2));
     assert_eq!(bus.read(0x606C, 3), Err(2));
     assert_eq!(bus.read(0x6067, 1), Err(11));

@@ -78,7 +78,7 @@ fn limit_stops_with_the_quick_stop_ramp_without_the_control_loop_spec_8_7() {
     assert!(!rig.axis.is_running(), "stopped without the control loop");
     let stop = rig.axis.position();
     // quick stop distance v²/2a = 2500 steps; two steps before rest the
-    // brake ends (schedule.rs), and the step already announced goes out
+    // brake ends (motion/schedule/mod.rs), and the step already announced goes out
     let dist = v_edge * v_edge / (2.0 * 2.0e6);
     let over = (stop - edge) as f64;
     assert!(
@@ -182,7 +182,7 @@ fn a_limit_stops_at_the_edge_step_with_the_quick_stop_distance_in_the_virtual_dr
     let over = (rig.axis.position() - edge) as f64;
     let dist = v_edge * v_edge / (2.0 * 500_000.0);
     // The brake starts from the next queued step's delay, a whole number
-    // of timer ticks (schedule.rs): up to one tick off the exact interval,
+    // of timer ticks (motion/schedule/mod.rs): up to one tick off the exact interval,
     // so the speed it brakes from is off by up to 1/interval and the
     // distance by twice that. Beyond that, as in the test above: the step
     // already announced goes out, the brake ends two steps before rest.

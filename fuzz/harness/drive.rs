@@ -1,6 +1,7 @@
 //! A sequence of frames driving the drive state machine and motion with
 //! time advancing (SPEC §5, §8), on the core's simulated axis the way the
-//! glue runs it: `Device::control` every 1 ms and after every frame, the
+//! glue runs it, through the simulation host (`SimHost`): `Device::control`
+//! when `Device::poll_at` says, at switch edges and after every frame, the
 //! step interrupt (`StepSource` inside `SimAxis`) making every step due.
 //!
 //! Input: switch layout, then operations `op a b c d`: `op % 8` = 0..=4 a
@@ -17,14 +18,13 @@
 
 use super::dispatcher::{check_frame, statusword_is_a_state};
 use super::Input;
-use modbus_drive::device::Identity;
+use modbus_drive::device::sim::SimHost;
+use modbus_drive::device::{Identity, CONTROL_PERIOD_US};
 use modbus_drive::dictionary::DriveLayer;
-use modbus_drive::motion::sim::{RunStop, SimAxis};
+use modbus_drive::motion::sim::SimAxis;
 use modbus_drive::motion::{PlannerConfig, StepSchedule};
 use modbus_drive::rtu::crc16;
 use modbus_drive::Device;
-
-const CONTROL_PERIOD_US: u64 = 1000;
 
 /// Controlwords worth trying (§8.1 seed and CiA sequences, halt, set-point
 /// bits 4/5/6/9, fault reset, quick stop, disable).
@@ -134,14 +134,14 @@ pub fn run(data: &[u8]) {
                 };
                 check_frame(&mut device, &bytes, false, &mut reply);
                 device.reply_sent();
-                device.control(now_us, axis.switches(), &sched);
-                axis.kick(&sched);
+                SimHost::new(&mut device, &mut axis, &sched).control(now_us);
             }
             _ => {
                 let until_us = now_us + u64::from(v[0] % 64 + 1) * CONTROL_PERIOD_US;
-                while now_us < until_us {
-                    let next_us = now_us + CONTROL_PERIOD_US;
-                    let stop = axis.run_until(&sched, axis.us_to_ticks(next_us), |step| {
+                // one control period (and the switch edges in it) a turn
+                while device.poll_at() <= until_us {
+                    now_us = device.poll_at();
+                    let on_step = |step: modbus_drive::motion::sim::StepRecord| {
                         if let Some((tick, exact)) = last_step {
                             assert!(step.tick >= tick, "step at tick {} after {tick}", step.tick);
                             assert!(
@@ -151,14 +151,8 @@ pub fn run(data: &[u8]) {
                             );
                         }
                         last_step = Some((step.tick, step.exact));
-                    });
-                    now_us = if stop == RunStop::SwitchChanged {
-                        axis.now_us()
-                    } else {
-                        next_us
                     };
-                    device.control(now_us, axis.switches(), &sched);
-                    axis.kick(&sched);
+                    SimHost::new(&mut device, &mut axis, &sched).run_to(now_us, on_step);
                     while device.take_event().is_some() {}
                     let sw = device.drive().statusword();
                     assert!(statusword_is_a_state(sw), "statusword {sw:#06X}");

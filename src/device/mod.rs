@@ -27,6 +27,8 @@
 //!   it with [`Device::refuse_storage`] instead of running it.
 
 mod poll;
+#[cfg(feature = "sim")]
+pub mod sim;
 
 use heapless::Deque;
 
@@ -76,7 +78,14 @@ pub struct Device {
     driver_enable: DriverEnable,
     events: Deque<Event, EVENT_QUEUE_LEN>,
     events_dropped: u32,
+    /// Time of the last control call (none yet: due at once).
+    last_control_us: Option<u64>,
 }
+
+/// The longest a host may leave between two [`Device::control`] calls, µs:
+/// the planner keeps its horizon of steps ahead of the step interrupt
+/// with this period ([`crate::motion::PlannerConfig`]).
+pub const CONTROL_PERIOD_US: u64 = 1_000;
 
 impl Device {
     pub fn new(identity: Identity) -> Self {
@@ -103,6 +112,7 @@ impl Device {
             store_status: StoreStatus::default(),
             events: Deque::new(),
             events_dropped: 0,
+            last_control_us: None,
         }
     }
 
@@ -372,19 +382,27 @@ impl Device {
         self.driver_enable
     }
 
-    /// The control loop (SPEC §8): call it at least every millisecond
-    /// (within the planner's horizon, [`crate::motion::PlannerConfig`]),
-    /// after each handled frame, and when a switch input changes (so that a
-    /// homing origin is latched at that step; glue that cannot, calls
-    /// [`Self::control_latched`]). `switches` are the logical
+    /// The control loop (SPEC §8): call it by [`Self::poll_at`] (at least
+    /// every [`CONTROL_PERIOD_US`], within the planner's horizon,
+    /// [`crate::motion::PlannerConfig`]), after each handled frame, and
+    /// when a switch input changes (so that a homing origin is latched at
+    /// that step; glue that cannot, calls [`Self::control_latched`]). `switches` are the logical
     /// states after PA13 ([`crate::drive::io::SwitchInputs::read`]);
     /// `schedule` is the one the step interrupt's
-    /// [`crate::motion::StepSource`] consumes (see `motion/schedule.rs` for
-    /// how the firmware shares it). Afterwards apply
+    /// [`crate::motion::StepSource`] consumes (see [`crate::motion::schedule`]
+    /// for how the firmware shares it). Afterwards apply
     /// [`Drive::outputs`](crate::drive::Drive::outputs) to ENABLE/BRAKE and
     /// start the step interrupt if it is idle and the schedule is not empty.
     pub fn control(&mut self, now_us: u64, switches: Switches, schedule: &StepSchedule) {
         self.control_latched(now_us, switches, SwitchEdges::default(), schedule);
+    }
+
+    /// When the host must call [`Self::control`] next, host µs: one
+    /// [`CONTROL_PERIOD_US`] after the last call (at once before the
+    /// first). Earlier calls are welcome: after a handled frame and at a
+    /// switch edge.
+    pub fn poll_at(&self) -> u64 {
+        self.last_control_us.map_or(0, |t| t + CONTROL_PERIOD_US)
     }
 
     /// The encoder timer's 16-bit counter, read by glue that has an encoder
@@ -413,6 +431,7 @@ impl Device {
             pa: &self.pa,
         };
         self.drive.control(now_us, switches, edges, schedule, cfg);
+        self.last_control_us = Some(now_us);
         while let Some(e) = self.drive.take_event() {
             self.push_event(Event::Drive(e));
         }

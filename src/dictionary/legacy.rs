@@ -2,7 +2,7 @@
 //! registers below 0x00A0, next to (not overlapping) the §5 table.
 //!
 //! - the DP monitor 0x0000..=0x0017 (RO, read from the drive layer,
-//!   `params/monitor.rs`); 0x0000 is also the old-format EE command
+//!   `dictionary/monitor.rs`); 0x0000 is also the old-format EE command
 //!   register when *written* (seed 001 format 3(1): `06 00 00 00 0k`);
 //! - the EE command register 0x003A (new format, `10 00 3A 00 01 02 00 0k`),
 //!   write-only;
@@ -67,7 +67,7 @@ impl Block {
         match self {
             Self::Monitor => address != OLD_EE_COMMAND,
             Self::EeCommand => false,
-            Self::Params => PA[pa_number(address)].read_only,
+            Self::Params => PA[pa_number(address)].read_only(),
         }
     }
 

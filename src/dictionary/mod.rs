@@ -15,11 +15,13 @@ mod table;
 
 pub use ee_command::EeOp;
 pub use legacy::{Block as LegacyBlock, PA_BASE, PA_LAST};
-pub use monitor::{dp_value, DriveMonitor, StoreStatus, DP_BASE, DP_ERR, DP_LAST};
-pub use pa::{PaDef, Params, FIRMWARE_VERSION, PA, PA_COUNT};
+pub use monitor::{
+    dp_value, DpItem, DriveMonitor, StoreStatus, DP_BASE, DP_ERR, DP_ITEMS, DP_LAST,
+};
+pub use pa::{pa_entries, PaDef, PaEntry, Params, FIRMWARE_VERSION, PA, PA_COUNT};
 pub use table::{
-    position, string_bytes, Access, DataType, Entry, Object, Span, STRING_BYTES, STRING_WORDS,
-    TABLE,
+    position, string_bytes, Access, DataType, Entry, Object, Range, Span, SAVED, SAVED_COUNT,
+    STRING_BYTES, STRING_WORDS, TABLE,
 };
 
 use crate::rtu::pdu::{ReadRequest, WriteMultipleRequest};
@@ -62,29 +64,27 @@ pub struct OdValues {
     pub following_error_timeout: u16,
 }
 
-impl Default for OdValues {
-    /// SPEC §5 and §8.8 defaults: all 0 but the following error window,
-    /// which is off so that the drive stays open loop.
-    fn default() -> Self {
-        Self {
-            word_order: 0,
-            quick_stop_option: 0,
-            controlword: 0,
-            mode: 0,
-            profile_velocity: 0,
-            acceleration: 0,
-            deceleration: 0,
-            quick_stop_deceleration: 0,
-            target_position: 0,
-            home_offset: 0,
-            homing_method: 0,
-            homing_speed: 0,
-            homing_acceleration: 0,
-            homing_zero_speed: 0,
-            following_error_window: crate::closed_loop::WINDOW_OFF,
-            following_error_timeout: 0,
-        }
-    }
+impl OdValues {
+    /// Every field 0: the start of `OdValues::default`, which the table
+    /// (`table.rs`) fills with its defaults.
+    pub(crate) const ZERO: Self = Self {
+        word_order: 0,
+        quick_stop_option: 0,
+        controlword: 0,
+        mode: 0,
+        profile_velocity: 0,
+        acceleration: 0,
+        deceleration: 0,
+        quick_stop_deceleration: 0,
+        target_position: 0,
+        home_offset: 0,
+        homing_method: 0,
+        homing_speed: 0,
+        homing_acceleration: 0,
+        homing_zero_speed: 0,
+        following_error_window: 0,
+        following_error_timeout: 0,
+    };
 }
 
 /// Everything the master configures, as the drive layer sees it.
@@ -124,7 +124,7 @@ pub trait DriveLayer {
     fn following_error(&self) -> i32 {
         0
     }
-    /// Live values of the legacy DP monitor (SPEC §9, `params/monitor.rs`)
+    /// Live values of the legacy DP monitor (SPEC §9, [`dp_value`])
     /// beyond the entries above; a drive that does not know reports zeros.
     fn monitor(&self) -> DriveMonitor {
         DriveMonitor::default()
@@ -327,12 +327,12 @@ impl<D: DriveLayer> Registers<'_, D> {
     /// the word order in force (§5.1).
     #[inline(always)]
     fn put_entry(&self, e: &Entry, out: &mut [u8], at: usize) {
-        match e.data_type {
+        match e.data_type() {
             DataType::U16 | DataType::I16 => {
-                put_word(out, at, e.object.read_raw(self.od, self.drive) as u16)
+                put_word(out, at, e.object().read_raw(self.od, self.drive) as u16)
             }
             DataType::U32 | DataType::I32 => {
-                let v = e.object.read_raw(self.od, self.drive);
+                let v = e.object().read_raw(self.od, self.drive);
                 let (first_word, second_word) = if self.od.word_order == 1 {
                     (v as u16, (v >> 16) as u16)
                 } else {
@@ -342,7 +342,7 @@ impl<D: DriveLayer> Registers<'_, D> {
                 put_word(out, at + 1, second_word);
             }
             DataType::Str => {
-                let s = e.object.string(self.identity).unwrap_or("");
+                let s = e.object().string(self.identity).unwrap_or("");
                 for (i, pair) in string_bytes(s).chunks_exact(2).enumerate() {
                     put_word(out, at + i, u16::from_be_bytes([pair[0], pair[1]]));
                 }
@@ -363,20 +363,20 @@ impl<D: DriveLayer> Registers<'_, D> {
         if e.words() > 1 {
             return Err(Exception::ByteCountMismatch); // step 5
         }
-        if !e.access.writable() {
+        if !e.access().writable() {
             return Err(Exception::WriteReadOnly);
         }
         let raw = u32::from(value);
-        if !e.object.accepts(raw) {
+        if !e.object().accepts(raw) {
             return Err(Exception::IllegalDataValue);
         }
         if self.busy {
             return Err(Exception::Busy);
         }
-        e.object.store_raw(self.od, raw);
+        e.object().store_raw(self.od, raw);
         self.notify(
-            (e.object == Object::ModeOfOperation).then_some(self.od.mode),
-            (e.object == Object::Controlword).then_some(self.od.controlword),
+            (e.object() == Object::ModeOfOperation).then_some(self.od.mode),
+            (e.object() == Object::Controlword).then_some(self.od.controlword),
         );
         Ok(())
     }
@@ -402,7 +402,7 @@ impl<D: DriveLayer> Registers<'_, D> {
                 // Ranged entries are one word each (table.rs): their word
                 // is found without decoding the others.
                 for (e, at) in span.ranged() {
-                    if !e.object.accepts(u32::from(word(data, at))) {
+                    if !e.object().accepts(u32::from(word(data, at))) {
                         return Err(Exception::IllegalDataValue);
                     }
                 }
@@ -423,7 +423,7 @@ impl<D: DriveLayer> Registers<'_, D> {
                     } else {
                         u32::from(first_word)
                     };
-                    e.object.store_raw(self.od, raw);
+                    e.object().store_raw(self.od, raw);
                 }
                 self.notify(
                     span.covers(Object::ModeOfOperation).then_some(self.od.mode),

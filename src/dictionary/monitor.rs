@@ -1,42 +1,78 @@
 //! The DP monitor of seed 001 at 0x0000..=0x0017 (SPEC §9): read-only
 //! 16-bit items, in the order of seed 001's table, from live drive state.
-//!
-//! | addr | item | value |
-//! |---|---|---|
-//! | 0x00 | DP-SPd | actual speed, r/min (0x606C), signed, saturated to i16 |
-//! | 0x01 | DP-PoS | actual position (0x6064), low word |
-//! | 0x02 | DP-PoS. | actual position, high word |
-//! | 0x03 | DP-CPo | command position: the target the profile runs to, low word |
-//! | 0x04 | DP-CPo. | command position, high word |
-//! | 0x05 | DP-EPo | following error (0x60F4), low word: 0 open loop (PA17 = 0) |
-//! | 0x06 | DP-EPo. | following error, high word |
-//! | 0x07 | DP-trq | torque: 0 (not measured) |
-//! | 0x08 | DP-I | motor current: 0 (not measured) |
-//! | 0x09 | DP-LSP | linear speed: 0 (no lead given) |
-//! | 0x0A | DP-Cnt | control mode: the mode in force (0x6061: 0, 1, 3, 6) |
-//! | 0x0B | DP-Frq | step frequency, units of 10 steps/s, unsigned, saturated |
-//! | 0x0C | DP-CS | speed command, r/min, signed (the profile's commanded speed) |
-//! | 0x0D | DP-Ct | torque command: 0 (no torque control) |
-//! | 0x0E | DP-APo | position within one revolution, 0..PA10-1 steps |
-//! | 0x0F | DP-In | inputs, active = 1: bit 0 CW limit, 1 CCW limit, 2 home |
-//! | 0x10 | DP-oUt | outputs: bit 0 power stage enabled, bit 1 brake released |
-//! | 0x11 | DP-Cod | encoder signals: 0 (no encoder) |
-//! | 0x12 | DP-m | load inertia ratio: 0 (not estimated) |
-//! | 0x13 | DP-Err | bits 0..7: 0x1001 error register; bit 8 defaults loaded (store blank); bit 9 defaults loaded (store unreadable); bit 10 last flash operation failed |
-//! | 0x14 | DP-tL | torque limit: 0 (none) |
-//! | 0x15 | DP-IA | phase A current: 0 (not measured) |
-//! | 0x16 | DP-IC | phase C current: 0 (not measured) |
-//! | 0x17 | DP-rES | why the chip last reset, as the glue reports it (docs/parameters.md): 0 power-on or brown-out, 1 reset pin, 2 independent watchdog, 3 software, 4 window watchdog, 5 low-power, 6 option-byte load, 7 none flagged |
+//! [`DP_ITEMS`] names each item once; [`dp_value`] computes it; the docs
+//! table (docs/generated/registers.md) is generated from [`DP_ITEMS`].
 //!
 //! Signed values are two's complement; 32-bit ones are split in address
 //! order low word, high word (seed 001 "DP-PoS / DP-PoS."), whatever 0x6000.
 
 use super::{DriveLayer, Params};
 
+/// One DP item: its seed 001 name, what this drive reports there, unit.
+/// Its address is [`DP_BASE`] + its place in [`DP_ITEMS`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DpItem {
+    name: &'static str,
+    what: &'static str,
+    unit: &'static str,
+}
+
+impl DpItem {
+    /// Seed 001's name, e.g. "DP-SPd".
+    pub const fn name(&self) -> &'static str {
+        self.name
+    }
+    /// What this drive reports there.
+    pub const fn what(&self) -> &'static str {
+        self.what
+    }
+    /// Its unit ("" for codes and flags).
+    pub const fn unit(&self) -> &'static str {
+        self.unit
+    }
+}
+
+const fn dp(name: &'static str, what: &'static str, unit: &'static str) -> DpItem {
+    DpItem { name, what, unit }
+}
+
+/// The items, by address from [`DP_BASE`].
+#[rustfmt::skip]
+pub const DP_ITEMS: [DpItem; 24] = [
+    dp("DP-SPd", "actual speed (0x606C), signed, saturated to i16", "r/min"),
+    dp("DP-PoS", "actual position (0x6064), low word", "steps"),
+    dp("DP-PoS.", "actual position, high word", "steps"),
+    dp("DP-CPo", "command position (target of the running or last move), low word", "steps"),
+    dp("DP-CPo.", "command position, high word", "steps"),
+    dp("DP-EPo", "following error (0x60F4), low word; 0 without an encoder (PA17 = 0)", "steps"),
+    dp("DP-EPo.", "following error, high word", "steps"),
+    dp("DP-trq", "torque: 0 (not measured)", ""),
+    dp("DP-I", "motor current: 0 (not measured)", ""),
+    dp("DP-LSP", "linear speed: 0 (no lead known)", ""),
+    dp("DP-Cnt", "control mode: the mode in force (0x6061: 0, 1, 3, 6)", ""),
+    dp("DP-Frq", "step frequency, unsigned, saturated at 65535", "10 steps/s"),
+    dp("DP-CS", "speed command (the profile's commanded speed), signed", "r/min"),
+    dp("DP-Ct", "torque command: 0 (no torque control)", ""),
+    dp("DP-APo", "position within one revolution, 0..PA10-1", "steps"),
+    dp("DP-In", "inputs, 1 = active after PA13: bit 0 CW limit, 1 CCW limit, 2 home", "bits"),
+    dp("DP-oUt", "outputs: bit 0 power stage enabled, bit 1 brake released", "bits"),
+    dp("DP-Cod", "encoder signals: 0", ""),
+    dp("DP-m", "load inertia ratio: 0 (not estimated)", ""),
+    dp("DP-Err", "bits 0..7: 0x1001 error register; bit 8 defaults in use (store blank at boot); \
+        bit 9 defaults in use (saved set unreadable); bit 10 last EE operation failed in the flash",
+        "bits"),
+    dp("DP-tL", "torque limit: 0 (none)", ""),
+    dp("DP-IA", "phase A current: 0 (not measured)", ""),
+    dp("DP-IC", "phase C current: 0 (not measured)", ""),
+    dp("DP-rES", "why the chip last reset, as the glue reports it: 0 power-on or brown-out, 1 reset pin, \
+        2 independent watchdog, 3 software, 4 window watchdog, 5 low-power, 6 option-byte load, \
+        7 none flagged; 0 on the virtual drive", ""),
+];
+
 /// First DP item.
 pub const DP_BASE: u16 = 0x0000;
-/// Last DP item (DP-rES).
-pub const DP_LAST: u16 = 0x0017;
+/// Last DP item.
+pub const DP_LAST: u16 = DP_BASE + DP_ITEMS.len() as u16 - 1;
 /// DP-Err's address.
 pub const DP_ERR: u16 = 0x0013;
 /// DP-rES's address: the reset cause.
@@ -114,10 +150,10 @@ pub fn dp_value<D: DriveLayer>(address: u16, drive: &D, pa: &Params, store: Stor
         0x10 => m.outputs,
         DP_ERR => (drive.error_register() & 0x00FF) | store.dp_err_bits(),
         DP_RES => store.reset_cause,
-        // 0x07 torque, 0x08 current, 0x09 linear
-        // speed, 0x0D torque command, 0x11 encoder, 0x12 inertia, 0x14
-        // torque limit, 0x15/0x16 phase currents: an
-        // open-loop step drive measures none of them (SPEC §9).
+        // 0x07 torque, 0x08 current, 0x09 linear speed, 0x0D torque
+        // command, 0x11 encoder, 0x12 inertia, 0x14 torque limit,
+        // 0x15/0x16 phase currents: an open-loop step drive measures none
+        // of them (SPEC §9).
         _ => 0,
     }
 }

@@ -1,4 +1,10 @@
-//! The entry table of SPEC §5, in table order (seed 000 chapter 8).
+//! The entry table of SPEC §5, in table order (seed 000 chapter 8): one
+//! line per object in `od_table!` holds every fact about it — address,
+//! type, access, where its value lives, range, default, name, unit and
+//! record slot. The enum [`Object`], [`TABLE`], [`position`], the value
+//! accessors and the factory [`OdValues`] are generated from that line;
+//! the saved record (`params/record.rs`), the page and the generated docs
+//! read [`TABLE`].
 //!
 //! [`Object`]'s discriminant is the entry's position in [`TABLE`], so a
 //! request walks the table by position; [`position`] maps a Modbus address
@@ -26,6 +32,14 @@ impl Access {
     pub const fn writable(self) -> bool {
         !matches!(self, Self::Ro)
     }
+    /// "RO", "RW" or "WO", as the docs and the page print it.
+    pub const fn label(self) -> &'static str {
+        match self {
+            Self::Ro => "RO",
+            Self::Rw => "RW",
+            Self::Wo => "WO",
+        }
+    }
 }
 
 /// Data type of an entry; fixes its width in 16-bit words.
@@ -48,6 +62,18 @@ impl DataType {
             Self::Str => STRING_WORDS,
         }
     }
+
+    /// The value behind raw bits (one word zero-extended, or both words
+    /// as one `u32`), signed types sign-extended; strings read 0.
+    pub const fn value(self, raw: u32) -> i64 {
+        match self {
+            Self::U16 => raw as u16 as i64,
+            Self::I16 => raw as u16 as i16 as i64,
+            Self::U32 => raw as i64,
+            Self::I32 => raw as i32 as i64,
+            Self::Str => 0,
+        }
+    }
 }
 
 /// Width of the string entries 0x1008 / 0x1009 / 0x100A.
@@ -55,100 +81,515 @@ pub const STRING_WORDS: u16 = 8;
 /// Bytes of a string entry.
 pub const STRING_BYTES: usize = 2 * STRING_WORDS as usize;
 
-/// The entries of SPEC §5; the discriminant is the position in [`TABLE`].
+/// The values a register accepts (§5.2 step 8, SPEC §7), on the wire and
+/// when a saved record is loaded: one check for both ([`Range::contains`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Object {
-    ErrorRegister,
-    DeviceName,
-    HardwareVersion,
-    SoftwareVersion,
-    WordOrder,
-    QuickStopOption,
-    Controlword,
-    ModeOfOperation,
-    ProfileVelocity,
-    Acceleration,
-    Deceleration,
-    QuickStopDeceleration,
-    TargetPosition,
-    HomeOffset,
-    HomingMethod,
-    HomingSpeed,
-    HomingAcceleration,
-    HomingZeroSpeed,
-    Statusword,
-    ModeDisplay,
-    ActualPosition,
-    ActualVelocity,
-    FollowingErrorWindow,
-    FollowingErrorTimeout,
-    FollowingErrorActual,
+pub enum Range {
+    /// Every value of the type.
+    Any,
+    /// `min..=max`.
+    Span(i32, i32),
+    /// 0 ("off"), or `min..=max`.
+    OffOr(i32, i32),
+    /// One of the listed values.
+    OneOf(&'static [i32]),
 }
 
-/// One entry of the table.
+impl Range {
+    /// Whether `v` is accepted. Inlined: with a constant range (as in
+    /// [`Object::accepts`]) it folds into one or two compares.
+    #[inline(always)]
+    pub const fn contains(self, v: i64) -> bool {
+        match self {
+            Self::Any => true,
+            Self::Span(min, max) => min as i64 <= v && v <= max as i64,
+            Self::OffOr(min, max) => v == 0 || (min as i64 <= v && v <= max as i64),
+            Self::OneOf(set) => {
+                let mut i = 0;
+                while i < set.len() {
+                    if set[i] as i64 == v {
+                        return true;
+                    }
+                    i += 1;
+                }
+                false
+            }
+        }
+    }
+
+    /// Smallest accepted value (`None`: the type's).
+    pub const fn min(self) -> Option<i32> {
+        match self {
+            Self::Any => None,
+            Self::Span(min, _) => Some(min),
+            Self::OffOr(..) => Some(0),
+            Self::OneOf(set) => {
+                let (mut m, mut i) = (i32::MAX, 0);
+                while i < set.len() {
+                    if set[i] < m {
+                        m = set[i];
+                    }
+                    i += 1;
+                }
+                Some(m)
+            }
+        }
+    }
+
+    /// Largest accepted value (`None`: the type's).
+    pub const fn max(self) -> Option<i32> {
+        match self {
+            Self::Any => None,
+            Self::Span(_, max) | Self::OffOr(_, max) => Some(max),
+            Self::OneOf(set) => {
+                let (mut m, mut i) = (i32::MIN, 0);
+                while i < set.len() {
+                    if set[i] > m {
+                        m = set[i];
+                    }
+                    i += 1;
+                }
+                Some(m)
+            }
+        }
+    }
+}
+
+impl core::fmt::Display for Range {
+    /// As the docs and the page print it: `any`, `1..=8`, `0, 100..=65535`,
+    /// `1, 3, 6`.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match *self {
+            Self::Any => f.write_str("any"),
+            Self::Span(min, max) if min == max => write!(f, "{min}"),
+            Self::Span(min, max) => write!(f, "{min}..={max}"),
+            Self::OffOr(min, max) => write!(f, "0, {min}..={max}"),
+            Self::OneOf(set) => {
+                for (i, v) in set.iter().enumerate() {
+                    if i > 0 {
+                        f.write_str(", ")?;
+                    }
+                    write!(f, "{v}")?;
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+/// One entry of the table. Fields are read through the accessors; what
+/// only hosts read (range as a value, name, unit, slot) comes from the
+/// same table line through [`Object`], so that the firmware links none of
+/// the text it does not use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Entry {
-    /// Its Modbus address.
-    pub index: u16,
-    pub object: Object,
-    pub access: Access,
-    pub data_type: DataType,
-    /// Value after power-up (numeric entries; strings come from [`Identity`]).
-    pub default: i32,
+    index: u16,
+    object: Object,
+    access: Access,
+    data_type: DataType,
+    default: i32,
 }
 
 impl Entry {
+    /// Its Modbus address.
+    pub const fn index(&self) -> u16 {
+        self.index
+    }
+    pub const fn object(&self) -> Object {
+        self.object
+    }
+    pub const fn access(&self) -> Access {
+        self.access
+    }
+    pub const fn data_type(&self) -> DataType {
+        self.data_type
+    }
     pub const fn words(&self) -> u16 {
         self.data_type.words()
     }
-}
+    /// The values a write may carry (§5.2 step 8).
+    pub const fn range(&self) -> Range {
+        self.object.range()
+    }
+    /// Value after power-up (numeric entries; strings come from [`Identity`]).
+    pub const fn default(&self) -> i32 {
+        self.default
+    }
+    /// What it is, in drive terms.
+    pub const fn name(&self) -> &'static str {
+        self.object.text().0
+    }
+    /// Its unit ("" for codes and flags).
+    pub const fn unit(&self) -> &'static str {
+        self.object.text().1
+    }
+    /// Its place among the saved entries of the parameter record (SPEC
+    /// §9), `None` if it is not saved.
+    pub const fn record_slot(&self) -> Option<u8> {
+        self.object.record_slot()
+    }
 
-const fn entry(index: u16, object: Object, access: Access, data_type: DataType) -> Entry {
-    Entry {
-        index,
-        object,
-        access,
-        data_type,
-        default: 0,
+    /// Whether a written value is in range (§5.2 step 8). `raw` holds the
+    /// value's bits: one word zero-extended, or both words as one `u32`.
+    #[inline]
+    pub const fn accepts(&self, raw: u32) -> bool {
+        self.object.accepts(raw)
+    }
+
+    /// Whether a saved value may be loaded: in range, or the default
+    /// (which a factory set saves even where the wire refuses it, e.g.
+    /// homing method 0 = none).
+    pub const fn loadable(&self, raw: u32) -> bool {
+        self.accepts(raw) || self.data_type.value(raw) == self.default as i64
     }
 }
 
-use Access::{Ro, Rw, Wo};
-use DataType::{Str, I16, I32, U16, U32};
+/// A value's bits as [`Object::read_raw`] and [`Object::store_raw`] pass
+/// them: one word zero-extended, or both words as one `u32`.
+trait Raw: Sized {
+    fn to_raw(self) -> u32;
+    fn from_raw(raw: u32) -> Self;
+}
 
-/// SPEC §5 and §8.8, in table order. Every default is 0 (strings
-/// excepted) but the following error window's, which is "check off".
-pub const TABLE: [Entry; 25] = [
-    entry(0x1001, Object::ErrorRegister, Ro, U16),
-    entry(0x1008, Object::DeviceName, Ro, Str),
-    entry(0x1009, Object::HardwareVersion, Ro, Str),
-    entry(0x100A, Object::SoftwareVersion, Ro, Str),
-    entry(0x6000, Object::WordOrder, Rw, U16),
-    entry(0x605A, Object::QuickStopOption, Rw, I16),
-    entry(0x6040, Object::Controlword, Wo, U16),
-    entry(0x6060, Object::ModeOfOperation, Wo, I16),
-    entry(0x6081, Object::ProfileVelocity, Rw, I32),
-    entry(0x6083, Object::Acceleration, Rw, U16),
-    entry(0x6084, Object::Deceleration, Rw, U16),
-    entry(0x6085, Object::QuickStopDeceleration, Rw, U16),
-    entry(0x607A, Object::TargetPosition, Rw, I32),
-    entry(0x607C, Object::HomeOffset, Rw, I32),
-    entry(0x6098, Object::HomingMethod, Rw, I16),
-    entry(0x6099, Object::HomingSpeed, Rw, U32),
-    entry(0x609A, Object::HomingAcceleration, Rw, U16),
-    entry(0x609B, Object::HomingZeroSpeed, Rw, U32),
-    entry(0x6041, Object::Statusword, Ro, U16),
-    entry(0x6061, Object::ModeDisplay, Ro, I16),
-    entry(0x6064, Object::ActualPosition, Ro, I32),
-    entry(0x606C, Object::ActualVelocity, Ro, I32),
-    Entry {
-        default: WINDOW_OFF as i32,
-        ..entry(0x6065, Object::FollowingErrorWindow, Rw, U32)
-    },
-    entry(0x6066, Object::FollowingErrorTimeout, Rw, U16),
-    entry(0x60F4, Object::FollowingErrorActual, Ro, I32),
-];
+impl Raw for u16 {
+    #[inline(always)]
+    fn to_raw(self) -> u32 {
+        u32::from(self)
+    }
+    #[inline(always)]
+    fn from_raw(raw: u32) -> Self {
+        raw as u16
+    }
+}
+
+impl Raw for i16 {
+    #[inline(always)]
+    fn to_raw(self) -> u32 {
+        u32::from(self as u16)
+    }
+    #[inline(always)]
+    fn from_raw(raw: u32) -> Self {
+        raw as u16 as i16
+    }
+}
+
+impl Raw for u32 {
+    #[inline(always)]
+    fn to_raw(self) -> u32 {
+        self
+    }
+    #[inline(always)]
+    fn from_raw(raw: u32) -> Self {
+        raw
+    }
+}
+
+impl Raw for i32 {
+    #[inline(always)]
+    fn to_raw(self) -> u32 {
+        self as u32
+    }
+    #[inline(always)]
+    fn from_raw(raw: u32) -> Self {
+        raw as i32
+    }
+}
+
+/// Where a value lives: `od(field)` in [`OdValues`], `live(method)` in
+/// the [`DriveLayer`], `text(field)` in the [`Identity`]; `zero(_)`: a
+/// read-only value this drive does not measure, read as 0.
+macro_rules! stored_raw {
+    (od, $f:tt, $od:ident) => {
+        Raw::to_raw($od.$f)
+    };
+    ($other:ident, $f:tt, $od:ident) => {
+        0
+    };
+}
+macro_rules! live_raw {
+    (live, $f:tt, $drive:ident) => {
+        Raw::to_raw($drive.$f())
+    };
+    ($other:ident, $f:tt, $drive:ident) => {
+        0
+    };
+}
+macro_rules! store {
+    (od, $f:tt, $od:ident, $raw:expr) => {
+        $od.$f = Raw::from_raw($raw)
+    };
+    ($other:ident, $f:tt, $od:ident, $raw:expr) => {{}};
+}
+macro_rules! text {
+    (text, $f:tt, $identity:ident) => {
+        Some($identity.$f)
+    };
+    ($other:ident, $f:tt, $identity:ident) => {
+        None
+    };
+}
+macro_rules! is_live {
+    (live) => {
+        true
+    };
+    (zero) => {
+        true
+    };
+    ($other:ident) => {
+        false
+    };
+}
+macro_rules! slot {
+    (-) => {
+        None
+    };
+    ($slot:literal) => {
+        Some($slot)
+    };
+}
+
+/// The table: one line per entry, in table order. Generates [`Object`],
+/// [`TABLE`], [`position`], the value accessors and `OdValues::default`.
+macro_rules! od_table {
+    ($(
+        $object:ident = $index:literal, $access:ident $ty:ident, $src:ident($f:tt),
+        range $range:expr, default $default:expr, $name:literal, $unit:literal, slot $slot:tt;
+    )*) => {
+        /// The entries of SPEC §5; the discriminant is the position in [`TABLE`].
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        pub enum Object {
+            $($object,)*
+        }
+
+        /// SPEC §5 and §8.8, in table order.
+        pub const TABLE: [Entry; [$(Object::$object),*].len()] = [$(
+            Entry {
+                index: $index,
+                object: Object::$object,
+                access: Access::$access,
+                data_type: DataType::$ty,
+                default: $default,
+            },
+        )*];
+
+        /// Position in [`TABLE`] of the entry whose index is `address`.
+        pub const fn position(address: u16) -> Option<usize> {
+            let object = match address {
+                $($index => Object::$object,)*
+                _ => return None,
+            };
+            Some(object as usize)
+        }
+
+        impl Object {
+            /// The values a write may carry (§5.2 step 8).
+            pub const fn range(self) -> Range {
+                match self {
+                    $(Self::$object => $range,)*
+                }
+            }
+
+            /// Whether a written value is in range (§5.2 step 8), see
+            /// [`Entry::accepts`]. One arm per entry with its range and
+            /// type as constants: the compiler folds each into a compare.
+            #[inline]
+            pub const fn accepts(self, raw: u32) -> bool {
+                match self {
+                    $(Self::$object => {
+                        const R: Range = $range;
+                        R.contains(DataType::$ty.value(raw))
+                    })*
+                }
+            }
+
+            /// Name and unit.
+            const fn text(self) -> (&'static str, &'static str) {
+                match self {
+                    $(Self::$object => ($name, $unit),)*
+                }
+            }
+
+            /// Place in the saved record, if saved.
+            pub const fn record_slot(self) -> Option<u8> {
+                match self {
+                    $(Self::$object => slot!($slot),)*
+                }
+            }
+
+            /// The value of an entry stored in [`OdValues`] (0 for others).
+            #[inline]
+            pub fn read_stored(self, od: &OdValues) -> u32 {
+                match self {
+                    $(Self::$object => stored_raw!($src, $f, od),)*
+                }
+            }
+
+            /// Whether the value lives in the drive layer.
+            const fn live(self) -> bool {
+                match self {
+                    $(Self::$object => is_live!($src),)*
+                }
+            }
+
+            /// The value of an entry that lives in the drive layer (0 for
+            /// others).
+            #[inline(never)]
+            fn read_live<D: DriveLayer>(self, drive: &D) -> u32 {
+                match self {
+                    $(Self::$object => live_raw!($src, $f, drive),)*
+                }
+            }
+
+            /// Stores a validated value of a writable entry; read-only ones
+            /// are never passed here (§5.2 step 7 ran before). Inlined into
+            /// the request walk: one store per entry.
+            #[inline]
+            pub fn store_raw(self, od: &mut OdValues, raw: u32) {
+                match self {
+                    $(Self::$object => store!($src, $f, od, raw),)*
+                }
+            }
+
+            /// The identity string behind a string entry.
+            pub const fn string(self, identity: &Identity) -> Option<&'static str> {
+                match self {
+                    $(Self::$object => text!($src, $f, identity),)*
+                }
+            }
+        }
+
+        impl Default for OdValues {
+            /// The defaults of [`TABLE`] (SPEC §5, §8.8).
+            fn default() -> Self {
+                let mut od = OdValues::ZERO;
+                $(store!($src, $f, od, ($default as u32));)*
+                od
+            }
+        }
+    };
+}
+
+use Range::{Any, OneOf, Span as Between};
+
+od_table! {
+    ErrorRegister = 0x1001, Ro U16, live(error_register),
+        range Any, default 0,
+        "error register (bit 0 generic, 4 communication, 5 following error)", "bits", slot -;
+    DeviceName = 0x1008, Ro Str, text(product),
+        range Any, default 0, "device name", "", slot -;
+    HardwareVersion = 0x1009, Ro Str, text(hardware),
+        range Any, default 0, "hardware version", "", slot -;
+    SoftwareVersion = 0x100A, Ro Str, text(software),
+        range Any, default 0, "software version", "", slot -;
+    WordOrder = 0x6000, Rw U16, od(word_order),
+        range Between(0, 1), default 0,
+        "word order of 32-bit values (0 high word first, 1 low word first)", "", slot 0;
+    // §8.3: negative option codes are refused.
+    QuickStopOption = 0x605A, Rw I16, od(quick_stop_option),
+        range Between(0, 32767), default 0,
+        "quick stop option (1 ramp 0x6084, 2 ramp 0x6085, else at once)", "", slot 1;
+    Controlword = 0x6040, Wo U16, od(controlword),
+        range Any, default 0, "controlword", "bits", slot -;
+    ModeOfOperation = 0x6060, Wo I16, od(mode),
+        range OneOf(&[1, 3, 6]), default 0,
+        "mode of operation (1 position, 3 velocity, 6 homing)", "", slot -;
+    ProfileVelocity = 0x6081, Rw I32, od(profile_velocity),
+        range Any, default 0, "profile velocity (signed in velocity mode)", "0.1 rev/s", slot 2;
+    Acceleration = 0x6083, Rw U16, od(acceleration),
+        range Any, default 0, "acceleration", "0.1 rev/s²", slot 3;
+    Deceleration = 0x6084, Rw U16, od(deceleration),
+        range Any, default 0, "deceleration", "0.1 rev/s²", slot 4;
+    QuickStopDeceleration = 0x6085, Rw U16, od(quick_stop_deceleration),
+        range Any, default 0, "quick stop deceleration", "0.1 rev/s²", slot 5;
+    TargetPosition = 0x607A, Rw I32, od(target_position),
+        range Any, default 0, "target position (not saved, SPEC §9)", "steps", slot -;
+    HomeOffset = 0x607C, Rw I32, od(home_offset),
+        range Any, default 0, "home offset", "steps", slot 6;
+    HomingMethod = 0x6098, Rw I16, od(homing_method),
+        range Between(1, 8), default 0, "homing method (0 = none yet)", "", slot 7;
+    // 0x6099 / 0x609B: any value is stored; above 100000 homing fails
+    // with bit 13 (§8.6), which needs the value to be accepted.
+    HomingSpeed = 0x6099, Rw U32, od(homing_speed),
+        range Any, default 0, "homing search speed (above 100000: homing error)", "0.1 rev/s",
+        slot 8;
+    HomingAcceleration = 0x609A, Rw U16, od(homing_acceleration),
+        range Any, default 0, "homing acceleration", "0.1 rev/s²", slot 9;
+    HomingZeroSpeed = 0x609B, Rw U32, od(homing_zero_speed),
+        range Any, default 0, "homing zero speed (above 100000: homing error)", "0.1 rev/s",
+        slot 10;
+    Statusword = 0x6041, Ro U16, live(statusword),
+        range Any, default 0, "statusword (SPEC §8.2)", "bits", slot -;
+    ModeDisplay = 0x6061, Ro I16, live(mode_display),
+        range Any, default 0, "mode in force (0 none, 1, 3, 6)", "", slot -;
+    ActualPosition = 0x6064, Ro I32, live(actual_position),
+        range Any, default 0, "actual position", "steps", slot -;
+    ActualVelocity = 0x606C, Ro I32, live(actual_velocity_rpm),
+        range Any, default 0, "actual velocity", "r/min", slot -;
+    FollowingErrorWindow = 0x6065, Rw U32, od(following_error_window),
+        range Any, default WINDOW_OFF as i32,
+        "following error window (0xFFFFFFFF = check off)", "steps", slot 11;
+    FollowingErrorTimeout = 0x6066, Rw U16, od(following_error_timeout),
+        range Any, default 0, "following error time out", "ms", slot 12;
+    FollowingErrorActual = 0x60F4, Ro I32, live(following_error),
+        range Any, default 0, "following error actual value (0 open loop)", "steps", slot -;
+}
+
+/// Checks the table once at compile time: the request walk reads one
+/// word for each ranged entry, write-only and read-only entries are not
+/// saved, saved entries sit in distinct slots `0..n`, and the access
+/// masks below fit their width. (A default may lie outside the range a
+/// write must meet, e.g. homing method 0 = none yet; a saved default
+/// still loads, [`Entry::loadable`].)
+const _: () = {
+    assert!(TABLE.len() <= MASK_BITS, "widen `Mask`");
+    let mut p = 0;
+    let mut slots = 0u64;
+    while p < TABLE.len() {
+        let e = &TABLE[p];
+        assert!(e.object as usize == p);
+        if !matches!(e.object.range(), Range::Any) {
+            assert!(e.words() == 1, "a ranged entry is one word");
+        }
+        if let Some(s) = e.object.record_slot() {
+            assert!(matches!(e.access, Access::Rw), "only RW entries are saved");
+            assert!(!e.object.live(), "a saved entry is stored in OdValues");
+            assert!(slots & (1 << s) == 0, "two entries in one record slot");
+            slots |= 1 << s;
+        }
+        p += 1;
+    }
+    assert!(
+        slots & (slots + 1) == 0,
+        "record slots are 0..n without a gap"
+    );
+};
+
+/// The number of saved entries ([`Entry::record_slot`] is below it).
+pub const SAVED_COUNT: usize = {
+    let mut n = 0;
+    let mut p = 0;
+    while p < TABLE.len() {
+        if TABLE[p].object.record_slot().is_some() {
+            n += 1;
+        }
+        p += 1;
+    }
+    n
+};
+
+/// The saved entries, by record slot.
+pub const SAVED: [Object; SAVED_COUNT] = {
+    let mut out = [Object::ErrorRegister; SAVED_COUNT];
+    let mut p = 0;
+    while p < TABLE.len() {
+        if let Some(s) = TABLE[p].object.record_slot() {
+            out[s as usize] = TABLE[p].object;
+        }
+        p += 1;
+    }
+    out
+};
 
 /// Words of the whole table, in table order.
 const TABLE_WORDS: usize = {
@@ -164,6 +605,7 @@ const TABLE_WORDS: usize = {
 /// `WORD_AT[p]`: words of the entries before position `p`
 /// (`WORD_AT[TABLE.len()]` is [`TABLE_WORDS`]).
 const WORD_AT: [u8; TABLE.len() + 1] = {
+    assert!(TABLE_WORDS < u8::MAX as usize, "widen WORD_AT");
     let mut at = [0u8; TABLE.len() + 1];
     let mut p = 0;
     while p < TABLE.len() {
@@ -188,6 +630,12 @@ const POSITION_AT_WORD: [u8; TABLE_WORDS + 1] = {
     pos
 };
 
+/// A set of table positions, one bit each.
+type Mask = u32;
+/// Positions a [`Mask`] holds; [`Span::new`] shifts by up to
+/// `TABLE.len()`, so the table must stay below it (checked above).
+const MASK_BITS: usize = Mask::BITS as usize - 1;
+
 /// What [`positions`] collects.
 #[derive(Clone, Copy)]
 enum Trait {
@@ -197,7 +645,7 @@ enum Trait {
 }
 
 /// Positions of the entries that have `t`, as bits.
-const fn positions(t: Trait) -> u32 {
+const fn positions(t: Trait) -> Mask {
     let mut mask = 0;
     let mut p = 0;
     while p < TABLE.len() {
@@ -226,7 +674,7 @@ pub struct Span {
     entries: &'static [Entry],
     first: usize,
     /// Bit `p` set for every position covered.
-    mask: u32,
+    mask: Mask,
 }
 
 impl Span {
@@ -241,8 +689,8 @@ impl Span {
         Some(Self {
             entries,
             first,
-            // end ≤ TABLE.len() < 32: no shift overflows
-            mask: ((1u32 << end) - 1) & !((1u32 << first) - 1),
+            // end ≤ TABLE.len() ≤ MASK_BITS (a const assert): no shift overflows
+            mask: ((1 << end) - 1) & !((1 << first) - 1),
         })
     }
 
@@ -253,13 +701,13 @@ impl Span {
 
     /// A read-only entry is covered (a write gets exception 5).
     pub fn any_read_only(self) -> bool {
-        const RO: u32 = positions(Trait::ReadOnly);
+        const RO: Mask = positions(Trait::ReadOnly);
         self.mask & RO != 0
     }
 
     /// A write-only entry is covered (a read gets exception 7).
     pub fn any_write_only(self) -> bool {
-        const WO: u32 = positions(Trait::WriteOnly);
+        const WO: Mask = positions(Trait::WriteOnly);
         self.mask & WO != 0
     }
 
@@ -271,7 +719,7 @@ impl Span {
     /// The covered entries whose values have a range (§5.2 step 8), each
     /// with the index of its first word in the request.
     pub fn ranged(self) -> impl Iterator<Item = (&'static Entry, usize)> {
-        const RANGED: u32 = positions(Trait::Ranged);
+        const RANGED: Mask = positions(Trait::Ranged);
         let base = WORD_AT[self.first];
         let mut left = self.mask & RANGED;
         core::iter::from_fn(move || {
@@ -283,154 +731,29 @@ impl Span {
     }
 }
 
-/// Position in [`TABLE`] of the entry whose index is `address`.
-pub const fn position(address: u16) -> Option<usize> {
-    let object = match address {
-        0x1001 => Object::ErrorRegister,
-        0x1008 => Object::DeviceName,
-        0x1009 => Object::HardwareVersion,
-        0x100A => Object::SoftwareVersion,
-        0x6000 => Object::WordOrder,
-        0x605A => Object::QuickStopOption,
-        0x6040 => Object::Controlword,
-        0x6060 => Object::ModeOfOperation,
-        0x6081 => Object::ProfileVelocity,
-        0x6083 => Object::Acceleration,
-        0x6084 => Object::Deceleration,
-        0x6085 => Object::QuickStopDeceleration,
-        0x607A => Object::TargetPosition,
-        0x607C => Object::HomeOffset,
-        0x6098 => Object::HomingMethod,
-        0x6099 => Object::HomingSpeed,
-        0x609A => Object::HomingAcceleration,
-        0x609B => Object::HomingZeroSpeed,
-        0x6041 => Object::Statusword,
-        0x6061 => Object::ModeDisplay,
-        0x6064 => Object::ActualPosition,
-        0x606C => Object::ActualVelocity,
-        0x6065 => Object::FollowingErrorWindow,
-        0x6066 => Object::FollowingErrorTimeout,
-        0x60F4 => Object::FollowingErrorActual,
-        _ => return None,
-    };
-    Some(object as usize)
-}
-
 impl Object {
-    /// Whether [`Object::accepts`] refuses some value.
-    pub const fn ranged(self) -> bool {
-        matches!(
-            self,
-            Self::WordOrder | Self::QuickStopOption | Self::ModeOfOperation | Self::HomingMethod
-        )
+    /// Its entry in [`TABLE`].
+    pub const fn entry(self) -> &'static Entry {
+        &TABLE[self as usize]
     }
 
-    /// Whether a written value is in range (§5.2 step 8). `raw` holds the
-    /// value's bits: one word zero-extended, or both words as one `u32`.
-    #[inline]
-    pub const fn accepts(self, raw: u32) -> bool {
-        match self {
-            Self::WordOrder => raw <= 1,
-            // §8.3: negative option codes are refused.
-            Self::QuickStopOption => (raw as u16 as i16) >= 0,
-            Self::ModeOfOperation => matches!(raw as u16 as i16, 1 | 3 | 6),
-            Self::HomingMethod => matches!(raw as u16 as i16, 1..=8),
-            // 0x6099 / 0x609B: any value is stored; above 100000 homing fails
-            // with bit 13 (§8.6), which needs the value to be accepted.
-            _ => true,
-        }
+    /// Whether [`Object::accepts`] refuses some value.
+    pub const fn ranged(self) -> bool {
+        !matches!(self.range(), Range::Any)
     }
 
     /// The value of a numeric entry as raw bits (see [`Object::accepts`]).
     /// Strings read 0 here; [`string_bytes`] serves them.
     ///
     /// A stored value is one load, inlined into the request walk; the live
-    /// entries go through the drive layer in [`Object::read_live`], kept
-    /// out of line so that its size does not weigh on every read.
+    /// entries go through the drive layer in `read_live`, kept out of line
+    /// so that its size does not weigh on every read.
     #[inline]
     pub fn read_raw<D: DriveLayer>(self, od: &OdValues, drive: &D) -> u32 {
-        match self {
-            Self::DeviceName | Self::HardwareVersion | Self::SoftwareVersion => 0,
-            Self::WordOrder => u32::from(od.word_order),
-            Self::QuickStopOption => u32::from(od.quick_stop_option as u16),
-            Self::Controlword => u32::from(od.controlword),
-            Self::ModeOfOperation => u32::from(od.mode as u16),
-            Self::ProfileVelocity => od.profile_velocity as u32,
-            Self::Acceleration => u32::from(od.acceleration),
-            Self::Deceleration => u32::from(od.deceleration),
-            Self::QuickStopDeceleration => u32::from(od.quick_stop_deceleration),
-            Self::TargetPosition => od.target_position as u32,
-            Self::HomeOffset => od.home_offset as u32,
-            Self::HomingMethod => u32::from(od.homing_method as u16),
-            Self::HomingSpeed => od.homing_speed,
-            Self::HomingAcceleration => u32::from(od.homing_acceleration),
-            Self::HomingZeroSpeed => od.homing_zero_speed,
-            Self::FollowingErrorWindow => od.following_error_window,
-            Self::FollowingErrorTimeout => u32::from(od.following_error_timeout),
-            Self::ErrorRegister
-            | Self::Statusword
-            | Self::ModeDisplay
-            | Self::ActualPosition
-            | Self::ActualVelocity
-            | Self::FollowingErrorActual => self.read_live(drive),
-        }
-    }
-
-    /// The value of an entry that lives in the drive layer (0 for others).
-    #[inline(never)]
-    fn read_live<D: DriveLayer>(self, drive: &D) -> u32 {
-        match self {
-            Self::ErrorRegister => u32::from(drive.error_register()),
-            Self::Statusword => u32::from(drive.statusword()),
-            Self::ModeDisplay => u32::from(drive.mode_display() as u16),
-            Self::ActualPosition => drive.actual_position() as u32,
-            Self::ActualVelocity => drive.actual_velocity_rpm() as u32,
-            Self::FollowingErrorActual => drive.following_error() as u32,
-            _ => 0,
-        }
-    }
-
-    /// Stores a validated value of a writable entry; read-only ones are
-    /// never passed here (§5.2 step 7 ran before). Inlined into the
-    /// request walk: one store per entry.
-    #[inline]
-    pub fn store_raw(self, od: &mut OdValues, raw: u32) {
-        match self {
-            Self::WordOrder => od.word_order = raw as u16,
-            Self::QuickStopOption => od.quick_stop_option = raw as u16 as i16,
-            Self::Controlword => od.controlword = raw as u16,
-            Self::ModeOfOperation => od.mode = raw as u16 as i16,
-            Self::ProfileVelocity => od.profile_velocity = raw as i32,
-            Self::Acceleration => od.acceleration = raw as u16,
-            Self::Deceleration => od.deceleration = raw as u16,
-            Self::QuickStopDeceleration => od.quick_stop_deceleration = raw as u16,
-            Self::TargetPosition => od.target_position = raw as i32,
-            Self::HomeOffset => od.home_offset = raw as i32,
-            Self::HomingMethod => od.homing_method = raw as u16 as i16,
-            Self::HomingSpeed => od.homing_speed = raw,
-            Self::HomingAcceleration => od.homing_acceleration = raw as u16,
-            Self::HomingZeroSpeed => od.homing_zero_speed = raw,
-            Self::FollowingErrorWindow => od.following_error_window = raw,
-            Self::FollowingErrorTimeout => od.following_error_timeout = raw as u16,
-            Self::ErrorRegister
-            | Self::DeviceName
-            | Self::HardwareVersion
-            | Self::SoftwareVersion
-            | Self::Statusword
-            | Self::ModeDisplay
-            | Self::ActualPosition
-            | Self::ActualVelocity
-            | Self::FollowingErrorActual => {}
-        }
-    }
-
-    /// The identity string behind a string entry.
-    pub const fn string(self, identity: &Identity) -> Option<&'static str> {
-        match self {
-            Self::DeviceName => Some(identity.product),
-            Self::HardwareVersion => Some(identity.hardware),
-            Self::SoftwareVersion => Some(identity.software),
-            _ => None,
+        if self.live() {
+            self.read_live(drive)
+        } else {
+            self.read_stored(od)
         }
     }
 }

@@ -33,8 +33,9 @@ use super::fault::{self, Watchdog};
 use super::steps;
 use super::switches;
 
-/// Control loop period: 1 kHz.
-pub const CONTROL_PERIOD: Duration = Duration::from_micros(1000);
+/// Control loop period: the core's (`Device::poll_at` comes one period
+/// after each call, so a ticker at this period is never late).
+pub const CONTROL_PERIOD: Duration = Duration::from_micros(modbus_drive::device::CONTROL_PERIOD_US);
 
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;

@@ -1,12 +1,12 @@
 //! Step output: a 16-bit timer whose channel 1 makes the STEP pulses in
 //! hardware; its update interrupt consumes the core's step schedule.
 //!
-//! [`SCHEDULE`] is the core's lock-free `StepSchedule` (src/motion/
-//! schedule.rs): the control loop fills it through `Device::control`, this
+//! [`SCHEDULE`] is the core's lock-free `StepSchedule`
+//! (src/motion/schedule/mod.rs): the control loop fills it through `Device::control`, this
 //! interrupt owns the `StepSource` that empties it, and the limit-switch
 //! interrupt writes the active limits into it (`set_limits`), so a limit
 //! brakes the motion here, at the next step, with 0x6085 (SPEC §8.7; the
-//! "Limit brake" docs in schedule.rs).
+//! "Limit brake" docs in motion/schedule/mod.rs).
 //!
 //! The channel runs in PWM mode 2 with ARR and CCR1 preloaded: each period
 //! ends with a pulse of the STEP width (rising at CCR1, falling at the update

@@ -10,7 +10,7 @@
 //! and hands the enabled limits (PA14) to the step schedule
 //! (`StepSchedule::set_limits`): the step interrupt then brakes any motion
 //! towards an active limit with 0x6085 at its next step, without waiting
-//! for the control loop (schedule.rs "Limit brake"; disarmed in homing,
+//! for the control loop (motion/schedule/mod.rs "Limit brake"; disarmed in homing,
 //! where the core's sequencer decides). The control loop reads the pins
 //! every millisecond too ([`sample`], which also re-sends the limits, so a
 //! change of PA13/PA14 or a missed edge is caught within 1 ms) and

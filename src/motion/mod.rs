@@ -13,7 +13,7 @@ pub mod planner;
 pub mod profile;
 pub mod schedule;
 // it reports exact step times, which the schedule keeps only with the
-// feature (schedule.rs module docs)
+// feature (schedule/mod.rs module docs)
 #[cfg(feature = "sim")]
 pub mod sim;
 

@@ -12,7 +12,7 @@
 //! flash did what the operation needs; on an error (→ exception 4) the
 //! working set is as before and the flash holds the old or the new set
 //! (storage.rs). How the frames reach this and how the deferred reply is
-//! produced: `Device::poll_storage` (device.rs).
+//! produced: [`crate::Device::poll_storage`].
 
 use embedded_storage::nor_flash::NorFlash;
 

@@ -1,8 +1,8 @@
 //! The stored form of one parameter set (SPEC §9 "what is saved"): PA0..PA59
-//! and the RW entries of SPEC §5 except 0x607A, in a compact, versioned
-//! record with its own length and CRC so that garbage is never loaded.
+//! and the saved entries of SPEC §5, in a compact, versioned record with its
+//! own length and CRC so that garbage is never loaded.
 //!
-//! Layout (little endian, [`RECORD_LEN`] bytes):
+//! Layout (little endian):
 //!
 //! | bytes | field |
 //! |---|---|
@@ -10,32 +10,63 @@
 //! | 2 | format version, [`RECORD_VERSION`] |
 //! | 3 | number of PA values that follow (60) |
 //! | 4..124 | PA0..PA59, u16 each |
-//! | 124..154 | 0x6000, 0x605A, 0x6081, 0x6083, 0x6084, 0x6085, 0x607C, 0x6098, 0x6099, 0x609A, 0x609B in their §5 widths |
-//! | 154..160 | 0x6065, 0x6066 (SPEC §8.8) |
-//! | 160..162 | CRC-16/MODBUS of bytes 0..160 |
+//! | 124.. | the saved entries of [`crate::dictionary::TABLE`] in record-slot order ([`SAVED`]), each in its §5 width |
+//! | last 2 | CRC-16/MODBUS of the bytes before it |
 //!
-//! A record of format version 1 (before the closed loop: no bytes
-//! 154..160, its CRC at 154) is still loaded, with the following-error
-//! entries at their defaults, so that an update keeps the saved set.
+//! Which entries a version holds is [`LAYOUTS`]: a version holds the
+//! slots below its count, so a newer firmware loads an older record with
+//! the later entries at their defaults and an update keeps the saved set.
+//! A new saved entry takes the next slot and a new line in [`LAYOUTS`].
+//! The generated table (docs/generated/registers.md) lists the slots.
 //!
-//! The write-only 0x6040 / 0x6060 and the target position 0x607A are not
-//! saved (SPEC §9); a loaded set leaves them as they are in the working set.
+//! The entries without a slot (0x6040, 0x6060, 0x607A: SPEC §9) are not
+//! saved; a loaded set leaves them as they are in the working set.
 
-use crate::dictionary::{OdValues, Params, PA_COUNT};
+use crate::dictionary::{OdValues, Params, PA_COUNT, SAVED, SAVED_COUNT};
 use crate::rtu::crc16;
 
-/// Format version written into every record; a record of another version is
-/// not loaded (the store then reports it unreadable and defaults apply).
-pub const RECORD_VERSION: u8 = 2;
+/// The record versions this firmware writes (the last) and loads: each
+/// with the number of saved entries it holds (slots `0..n`). Version 1 is
+/// the set before the closed loop (no 0x6065 / 0x6066).
+pub const LAYOUTS: [(u8, usize); 2] = [(1, 11), (2, 13)];
+
+/// Format version written into every record; a record of a version not in
+/// [`LAYOUTS`] is not loaded (the store then reports it unreadable and
+/// defaults apply).
+pub const RECORD_VERSION: u8 = LAYOUTS[LAYOUTS.len() - 1].0;
 /// Size of one encoded record.
-pub const RECORD_LEN: usize = HEADER_LEN + 2 * PA_COUNT + OD_LEN + 2;
+pub const RECORD_LEN: usize = record_len(SAVED_COUNT);
+
+const _: () = {
+    assert!(
+        LAYOUTS[LAYOUTS.len() - 1].1 == SAVED_COUNT,
+        "a new saved entry needs a new record version in LAYOUTS"
+    );
+    let mut i = 1;
+    while i < LAYOUTS.len() {
+        assert!(LAYOUTS[i].0 > LAYOUTS[i - 1].0 && LAYOUTS[i].1 > LAYOUTS[i - 1].1);
+        i += 1;
+    }
+};
 
 const MAGIC: [u8; 2] = *b"PS";
 const HEADER_LEN: usize = 4;
-const OD_LEN: usize = 36;
-/// The version before the following-error entries, and its length.
-const RECORD_VERSION_1: u8 = 1;
-const RECORD_LEN_1: usize = RECORD_LEN - 6;
+
+/// Length of a record that holds slots `0..saved`.
+const fn record_len(saved: usize) -> usize {
+    let mut n = HEADER_LEN + 2 * PA_COUNT + 2;
+    let mut s = 0;
+    while s < saved {
+        n += 2 * SAVED[s].entry().words() as usize;
+        s += 1;
+    }
+    n
+}
+
+/// Slots a record of `version` holds, if it is one this firmware loads.
+fn saved_in(version: u8) -> Option<usize> {
+    LAYOUTS.iter().find(|l| l.0 == version).map(|l| l.1)
+}
 
 /// Why a record was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -78,9 +109,9 @@ impl ParamSet {
     /// fields; 0x6040, 0x6060 and 0x607A keep their working values.
     pub fn apply_to(&self, pa: &mut Params, od: &mut OdValues) {
         *pa = self.pa.clone();
-        let keep = (od.controlword, od.mode, od.target_position);
-        *od = self.od.clone();
-        (od.controlword, od.mode, od.target_position) = keep;
+        for object in SAVED {
+            object.store_raw(od, object.read_stored(&self.od));
+        }
     }
 
     /// Whether the saved parts of two sets are equal.
@@ -100,20 +131,14 @@ impl ParamSet {
         for &v in self.pa.as_array() {
             w.bytes(&v.to_le_bytes());
         }
-        let od = &self.od;
-        w.bytes(&od.word_order.to_le_bytes());
-        w.bytes(&od.quick_stop_option.to_le_bytes());
-        w.bytes(&od.profile_velocity.to_le_bytes());
-        w.bytes(&od.acceleration.to_le_bytes());
-        w.bytes(&od.deceleration.to_le_bytes());
-        w.bytes(&od.quick_stop_deceleration.to_le_bytes());
-        w.bytes(&od.home_offset.to_le_bytes());
-        w.bytes(&od.homing_method.to_le_bytes());
-        w.bytes(&od.homing_speed.to_le_bytes());
-        w.bytes(&od.homing_acceleration.to_le_bytes());
-        w.bytes(&od.homing_zero_speed.to_le_bytes());
-        w.bytes(&od.following_error_window.to_le_bytes());
-        w.bytes(&od.following_error_timeout.to_le_bytes());
+        for object in SAVED {
+            let raw = object.read_stored(&self.od);
+            if object.entry().words() == 1 {
+                w.bytes(&(raw as u16).to_le_bytes());
+            } else {
+                w.bytes(&raw.to_le_bytes());
+            }
+        }
         let crc = crc16(&w.buf[..w.at]);
         w.bytes(&crc.to_le_bytes());
         debug_assert_eq!(w.at, RECORD_LEN);
@@ -127,11 +152,8 @@ impl ParamSet {
         if bytes.len() < 4 || bytes[..2] != MAGIC {
             return Err(RecordError::Malformed);
         }
-        let len = match bytes[2] {
-            RECORD_VERSION => RECORD_LEN,
-            RECORD_VERSION_1 => RECORD_LEN_1,
-            v => return Err(RecordError::Version(v)),
-        };
+        let saved = saved_in(bytes[2]).ok_or(RecordError::Version(bytes[2]))?;
+        let len = record_len(saved);
         if bytes.len() != len || usize::from(bytes[3]) != PA_COUNT {
             return Err(RecordError::Malformed);
         }
@@ -146,37 +168,21 @@ impl ParamSet {
         }
         let mut pa = Params::defaults();
         let mut fixed = pa.load(&raw);
-        let defaults = OdValues::default();
-        let mut od = OdValues {
-            word_order: r.u16(),
-            quick_stop_option: r.u16() as i16,
-            profile_velocity: r.u32() as i32,
-            acceleration: r.u16(),
-            deceleration: r.u16(),
-            quick_stop_deceleration: r.u16(),
-            home_offset: r.u32() as i32,
-            homing_method: r.u16() as i16,
-            homing_speed: r.u32(),
-            homing_acceleration: r.u16(),
-            homing_zero_speed: r.u32(),
-            ..defaults.clone()
-        };
-        if bytes[2] == RECORD_VERSION {
-            od.following_error_window = r.u32();
-            od.following_error_timeout = r.u16();
-        }
-        // The §5.2 step-8 ranges of the saved entries with a restricted range.
-        if od.word_order > 1 {
-            od.word_order = defaults.word_order;
-            fixed += 1;
-        }
-        if od.quick_stop_option < 0 {
-            od.quick_stop_option = defaults.quick_stop_option;
-            fixed += 1;
-        }
-        if !(0..=8).contains(&od.homing_method) {
-            od.homing_method = defaults.homing_method;
-            fixed += 1;
+        // Slots beyond the record's version keep their defaults; a value
+        // out of its entry's range (an older firmware's) falls back to it.
+        let mut od = OdValues::default();
+        for object in &SAVED[..saved] {
+            let e = object.entry();
+            let raw = if e.words() == 1 {
+                u32::from(r.u16())
+            } else {
+                r.u32()
+            };
+            if e.loadable(raw) {
+                object.store_raw(&mut od, raw);
+            } else {
+                fixed += 1;
+            }
         }
         Ok((Self { pa, od }, fixed))
     }
@@ -263,6 +269,26 @@ mod tests {
     }
 
     #[test]
+    fn the_layout_is_the_one_saved_sets_have() {
+        // Saved sets in the field must keep loading: the byte offsets of
+        // version 2 (SPEC §9) do not move when the table is reordered.
+        let b = sample().encode();
+        assert_eq!((RECORD_LEN, RECORD_VERSION), (162, 2));
+        assert_eq!(&b[..4], &[b'P', b'S', 2, 60]);
+        assert_eq!(u16::from_le_bytes([b[4 + 2 * 10], b[5 + 2 * 10]]), 3200);
+        let at = |o: usize, n: usize| &b[o..o + n];
+        assert_eq!(at(124, 2), &1u16.to_le_bytes()); // 0x6000
+        assert_eq!(at(128, 4), &(-1234i32).to_le_bytes()); // 0x6081
+        assert_eq!(at(138, 4), &i32::MIN.to_le_bytes()); // 0x607C
+        assert_eq!(at(142, 2), &8i16.to_le_bytes()); // 0x6098
+        assert_eq!(at(144, 4), &100_000u32.to_le_bytes()); // 0x6099
+        assert_eq!(at(150, 4), &u32::MAX.to_le_bytes()); // 0x609B
+        assert_eq!(at(154, 4), &500u32.to_le_bytes()); // 0x6065
+        assert_eq!(at(158, 2), &20u16.to_le_bytes()); // 0x6066
+        assert_eq!(at(160, 2), &crc16(&b[..160]).to_le_bytes());
+    }
+
+    #[test]
     fn any_single_bit_flip_is_refused() {
         let good = sample().encode();
         for bit in 0..RECORD_LEN * 8 {
@@ -288,18 +314,23 @@ mod tests {
         assert_eq!(ParamSet::decode(&v3), Err(RecordError::Version(3)));
         // a version-2 body under a version-1 header has the wrong length
         let mut v1 = good;
-        v1[2] = RECORD_VERSION_1;
+        v1[2] = 1;
         assert_eq!(ParamSet::decode(&v1), Err(RecordError::Malformed));
     }
 
     #[test]
     fn a_version_1_record_loads_with_the_following_error_check_off() {
         // The layout before the closed loop: bytes 0..154, then its CRC.
+        const RECORD_LEN_1: usize = 156;
+        assert_eq!(
+            record_len(saved_in(1).expect("version 1 loads")),
+            RECORD_LEN_1
+        );
         let s = sample();
         let v2 = s.encode();
         let mut v1 = [0u8; RECORD_LEN_1];
         v1[..RECORD_LEN_1 - 2].copy_from_slice(&v2[..RECORD_LEN_1 - 2]);
-        v1[2] = RECORD_VERSION_1;
+        v1[2] = 1;
         let crc = crc16(&v1[..RECORD_LEN_1 - 2]);
         v1[RECORD_LEN_1 - 2..].copy_from_slice(&crc.to_le_bytes());
         let (d, fixed) = ParamSet::decode(&v1).expect("a version-1 record loads");

@@ -376,7 +376,7 @@ impl VirtualDrive {
     fn next_deadline(&self, now: u64) -> u64 {
         let mut at = now + IDLE_WAKE_US;
         for d in &self.drives {
-            at = at.min(d.next_control_us);
+            at = at.min(d.device.poll_at());
         }
         for line in &self.lines {
             if let Some(p) = line.pending.front() {

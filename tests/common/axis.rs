@@ -4,6 +4,8 @@
 #![allow(dead_code)]
 
 use modbus_drive::closed_loop::sim::SimEncoder;
+use modbus_drive::device::sim::SimHost;
+use modbus_drive::device::CONTROL_PERIOD_US;
 use modbus_drive::motion::sim::{RunStop, SimAxis, StepRecord};
 use modbus_drive::motion::{Fill, Goal, Planner, PlannerConfig, StepSchedule};
 
@@ -32,7 +34,7 @@ impl PlannerRun {
             horizon_us: (2 * period_us + 1000) as u32,
             // the shipped segment length: the exactness bounds hold for
             // what the drive runs (segments end on the fit's error bound
-            // or this time, profile.rs `segment_len`)
+            // or this time, profile/length.rs `segment_len`)
             max_segment_us: PlannerConfig::default().max_segment_us,
             ..PlannerConfig::default()
         };
@@ -516,7 +518,7 @@ impl Rig {
             axis,
             steps: Vec::new(),
             now_us: 0,
-            period_us: 1000,
+            period_us: CONTROL_PERIOD_US,
             tick_hz,
             encoder: None,
         };
@@ -524,22 +526,21 @@ impl Rig {
         rig
     }
 
-    /// The glue's control step at the current time, then start the idle
-    /// step interrupt.
-    pub fn control(&mut self) {
-        if let Some(e) = self.encoder.as_mut() {
-            let pa = self.bus.device.params();
-            e.set_scale(
-                pa.encoder_counts_per_rev(),
-                pa.steps_per_rev(),
-                pa.encoder_inverted(),
-            );
-            let raw = e.update(self.axis.position(), self.axis.is_running());
-            self.bus.device.set_encoder_count(raw);
+    /// The simulation host over this rig's device, axis, schedule and
+    /// encoder (the loop the virtual drive and the fuzz harness run too).
+    fn host(&mut self) -> SimHost<'_> {
+        let host = SimHost::new(&mut self.bus.device, &mut self.axis, &self.sched);
+        match self.encoder.as_mut() {
+            Some(e) => host.with_encoder(e, true),
+            None => host,
         }
-        let sw = self.axis.switches();
-        self.bus.device.control(self.now_us, sw, &self.sched);
-        self.axis.kick(&self.sched);
+    }
+
+    /// The glue's control step at the current time: the encoder read, the
+    /// control call, then the idle step interrupt started.
+    pub fn control(&mut self) {
+        let now_us = self.now_us;
+        self.host().control(now_us);
     }
 
     /// Sends a frame (hex) and returns the reply; the control loop runs
@@ -594,21 +595,13 @@ impl Rig {
     }
 
     /// Runs the control loop for `us`, stopping at every switch change to
-    /// call it at that exact step.
+    /// call it at that exact step, and calls it at the end.
     pub fn run_us(&mut self, us: u64) {
         let end = self.now_us + us;
-        while self.now_us < end {
-            let next = (self.now_us + self.period_us).min(end);
-            let until = self.axis.us_to_ticks(next);
-            let steps = &mut self.steps;
-            if self.axis.run_until(&self.sched, until, |s| steps.push(s)) == RunStop::SwitchChanged
-            {
-                self.now_us = self.axis.now_us().max(self.now_us);
-            } else {
-                self.now_us = next;
-            }
-            self.control();
-        }
+        let mut steps = std::mem::take(&mut self.steps);
+        self.host().control_at(end, |s| steps.push(s));
+        self.steps = steps;
+        self.now_us = end;
     }
 
     /// Runs until `done(rig)` holds (checked every control period), at most

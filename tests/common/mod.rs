@@ -228,7 +228,7 @@ impl Bus {
         }
     }
 
-    /// The glue's storage step (device.rs): runs a waiting EE operation on
+    /// The glue's storage step (`Device::poll_storage`): runs a waiting EE operation on
     /// `store` and sends its deferred reply like any other; returns it.
     pub fn poll_storage<F: embedded_storage::nor_flash::NorFlash>(
         &mut self,

@@ -5,8 +5,8 @@ use super::*;
 #[test]
 fn object_discriminants_are_table_positions_and_lookup_agrees() {
     for (i, e) in TABLE.iter().enumerate() {
-        assert_eq!(e.object as usize, i);
-        assert_eq!(position(e.index), Some(i));
+        assert_eq!(e.object() as usize, i);
+        assert_eq!(position(e.index()), Some(i));
     }
     // SPEC §5: 0x6090 and the legacy addresses are not entries.
     for a in [
@@ -58,7 +58,7 @@ fn defaults_are_what_a_fresh_dictionary_reads() {
     }
     let od = OdValues::default();
     for e in TABLE {
-        assert_eq!(e.object.read_raw(&od, &Idle) as i32, e.default, "{e:?}");
+        assert_eq!(e.object().read_raw(&od, &Idle) as i32, e.default(), "{e:?}");
     }
 }
 
@@ -89,24 +89,27 @@ fn spans_agree_with_a_walk_of_the_table() {
             assert_eq!(span.entries(), entries);
             assert_eq!(
                 span.any_read_only(),
-                entries.iter().any(|e| e.access == Access::Ro)
+                entries.iter().any(|e| e.access() == Access::Ro)
             );
             assert_eq!(
                 span.any_write_only(),
-                entries.iter().any(|e| e.access == Access::Wo)
+                entries.iter().any(|e| e.access() == Access::Wo)
             );
             for e in TABLE {
-                assert_eq!(span.covers(e.object), range.contains(&(e.object as usize)));
+                assert_eq!(
+                    span.covers(e.object()),
+                    range.contains(&(e.object() as usize))
+                );
             }
             let mut word = 0;
             let mut ranged = std::vec::Vec::new();
             for e in entries {
-                if e.object.ranged() {
-                    ranged.push((e.object, word));
+                if e.object().ranged() {
+                    ranged.push((e.object(), word));
                 }
                 word += usize::from(e.words());
             }
-            let found: std::vec::Vec<_> = span.ranged().map(|(e, w)| (e.object, w)).collect();
+            let found: std::vec::Vec<_> = span.ranged().map(|(e, w)| (e.object(), w)).collect();
             assert_eq!(found, ranged, "first {first} quantity {quantity}");
         }
     }
@@ -117,11 +120,11 @@ fn only_ranged_one_word_entries_refuse_values() {
     // `Registers::write` checks §5.2 step 8 on the ranged entries only,
     // reading one word for each.
     for e in TABLE {
-        if e.object.ranged() {
+        if e.object().ranged() {
             assert_eq!(e.words(), 1, "{e:?}");
         } else {
             for raw in [0, 1, 0x7FFF, 0x8000, 0xFFFF, 0x1_0000, u32::MAX] {
-                assert!(e.object.accepts(raw), "{e:?} {raw:#x}");
+                assert!(e.object().accepts(raw), "{e:?} {raw:#x}");
             }
         }
     }

@@ -7,7 +7,7 @@ use crate::motion::StepSchedule;
 impl Planner {
     /// Converts µs of the control clock to Q32.32 ticks (wrapping): one
     /// multiplication, the tick being a whole number of MHz
-    /// ([`PlannerConfig::tick_hz`]).
+    /// ([`PlannerConfig::tick_hz`](super::PlannerConfig::tick_hz)).
     pub(super) fn ticks_q(&self, us: u64) -> u64 {
         us.wrapping_mul(self.tick_per_us)
     }

@@ -58,7 +58,7 @@ impl Planner {
         self.cut = None;
         self.s_join = 0;
         if sched.is_running() || !sched.is_empty() || sched.limit_brake().is_some() {
-            // also after the interrupt's limit brake (schedule.rs): wait
+            // also after the interrupt's limit brake (motion/schedule/mod.rs): wait
             // for its end, then take the position back and release it
             sched.request_flush();
             self.flushing = true;

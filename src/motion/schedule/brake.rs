@@ -86,6 +86,6 @@ pub struct LimitBrake {
     /// CCW limit).
     pub forward: bool,
     /// The motor is at rest; the schedule stays latched (empty) until
-    /// [`StepSchedule::release_brake`].
+    /// [`StepSchedule::release_brake`](super::StepSchedule::release_brake).
     pub done: bool,
 }

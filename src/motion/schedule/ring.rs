@@ -182,7 +182,7 @@ impl StepSchedule {
     /// only): the queue then ends before `at`, and the next push starts
     /// there, carrying the fraction `frac` (that of the step before `at`,
     /// [`Segment::advance_until`]). The planner cuts a segment pushed
-    /// whole this way when a new goal arrives (planner.rs `drop_pending`).
+    /// whole this way when a new goal arrives (planner/segment.rs `drop_pending`).
     ///
     /// False, and nothing taken back, unless `at` is inside the queue and
     /// not behind the interrupt's next read.
@@ -284,7 +284,7 @@ impl StepSchedule {
         }
     }
 
-    /// Arms the limit brake with a [`brake_rate`], or disarms it (`None`:
+    /// Arms the limit brake with a [`brake_rate`](super::brake::brake_rate), or disarms it (`None`:
     /// homing, where the sequencer decides at the limits, SPEC §8.6).
     pub fn set_brake_rate(&self, rate: Option<u32>) {
         let rate = rate.unwrap_or(0);

@@ -18,10 +18,10 @@ pub struct Segment {
     pub add2: i64,
     /// Added to `add2` after every step, and `add4` to it: the intervals
     /// are a quartic in the step number (the planner's quintic fit of the
-    /// step times, planner.rs `fit_segment`).
+    /// step times, planner/segment.rs `fit_segment`).
     pub add3: i64,
     pub add4: i64,
-    /// Steps, at least 1 and at most what [`StepSchedule::free`] allows.
+    /// Steps, at least 1 and at most what [`StepSchedule::free`](super::StepSchedule::free) allows.
     pub count: u32,
     /// Positive direction (position counts up).
     pub forward: bool,
@@ -33,7 +33,7 @@ impl Segment {
     /// whose exact time reaches `until` (Q32.32 ticks, from the previous
     /// step); `frac` is the fraction carried in and comes out carried on.
     /// Returns the steps and their exact time, the same numbers a push
-    /// gives (planner.rs `drop_pending` finds with it where to cut a
+    /// gives (planner/segment.rs `drop_pending` finds with it where to cut a
     /// segment pushed whole). Writes no entry.
     pub fn advance_until(&mut self, frac: &mut u32, until: u64, max: u32) -> (u32, u64) {
         let mut x = Expansion::of(self, (*frac, 0));

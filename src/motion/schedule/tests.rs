@@ -260,7 +260,7 @@ fn a_dropped_marker_does_not_lose_the_direction() {
     assert_eq!(sched.position(), -1);
 }
 
-/// A cut (planner.rs `drop_pending`): the entries from the cut on are
+/// A cut (planner/segment.rs `drop_pending`): the entries from the cut on are
 /// taken back, the next push continues there with the fraction carried
 /// to the cut, and `advance_until` finds the same steps and time as
 /// the push made; a cut behind the interrupt's next read, or outside

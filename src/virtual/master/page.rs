@@ -76,7 +76,7 @@ impl RemoteDrive {
             TABLE
                 .iter()
                 .enumerate()
-                .filter(|(_, e)| e.access.readable() && e.data_type != DataType::Str)
+                .filter(|(_, e)| e.access().readable() && e.data_type() != DataType::Str)
                 .map(|(i, _)| Refresh::Entry(i)),
         );
         Self {
@@ -88,7 +88,7 @@ impl RemoteDrive {
             pas: vec![None; PA_COUNT],
             od: TABLE
                 .iter()
-                .map(|e| match (e.access, e.data_type) {
+                .map(|e| match (e.access(), e.data_type()) {
                     (Access::Wo, _) => Some(OdValue::Text("write-only".into())),
                     (_, DataType::Str) => Some(OdValue::Text("(read with 0x2B/0x0E)".into())),
                     _ => None,
@@ -218,8 +218,8 @@ impl RemoteDrive {
             }
             Refresh::Entry(i) => {
                 let e = &TABLE[i];
-                let wide = matches!(e.data_type, DataType::U32 | DataType::I32);
-                if let Ok(w) = self.read(e.index, if wide { 2 } else { 1 }) {
+                let wide = matches!(e.data_type(), DataType::U32 | DataType::I32);
+                if let Ok(w) = self.read(e.index(), if wide { 2 } else { 1 }) {
                     let raw = if wide {
                         let (hi, lo) = if self.low_first {
                             (w[1], w[0])
@@ -230,12 +230,12 @@ impl RemoteDrive {
                     } else {
                         u32::from(w[0])
                     };
-                    let v = match e.data_type {
+                    let v = match e.data_type() {
                         DataType::I16 => i64::from(raw as u16 as i16),
                         DataType::I32 => i64::from(raw as i32),
                         _ => i64::from(raw),
                     };
-                    if e.index == WORD_ORDER {
+                    if e.index() == WORD_ORDER {
                         self.low_first = v == 1;
                     }
                     self.od[i] = Some(OdValue::Number(v));

@@ -61,14 +61,14 @@ pub fn save(o: Params) -> Result<(), String> {
 fn refusal(n: usize, v: i64, current: u16) -> Option<String> {
     let def = pa_def(n)?;
     let (name, _) = pa_meta(n);
-    if def.read_only {
+    if def.read_only() {
         return (v != i64::from(current))
             .then(|| format!("PA{n} ({name}) is read-only: {v} cannot replace {current}"));
     }
-    if !(i64::from(def.min)..=i64::from(def.max)).contains(&v) {
+    if !u16::try_from(v).is_ok_and(|v| def.contains(v)) {
         return Some(format!(
-            "PA{n} ({name}) = {v} is out of its range {}..={}",
-            def.min, def.max
+            "PA{n} ({name}) = {v} is out of its range {}",
+            def.range()
         ));
     }
     None
@@ -196,7 +196,7 @@ mod tests {
     use crate::virtual_drive::registers::{PA, PA_COUNT};
 
     fn defaults() -> Vec<u16> {
-        PA.iter().map(|d| d.default).collect()
+        PA.iter().map(|d| d.default()).collect()
     }
 
     fn file(pairs: &[(usize, i64)]) -> ParamFile {

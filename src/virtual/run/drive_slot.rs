@@ -6,11 +6,12 @@ use std::path::Path;
 
 use modbus_drive::boards::Board;
 use modbus_drive::closed_loop::sim::SimEncoder;
-use modbus_drive::device::{Identity, Line, Polled};
+use modbus_drive::device::sim::SimHost;
+use modbus_drive::device::{Identity, Line, Polled, CONTROL_PERIOD_US};
 use modbus_drive::dictionary::DriveLayer;
 use modbus_drive::drive::DriveEvent;
 use modbus_drive::event::{Event, FrameError};
-use modbus_drive::motion::sim::{RunStop, SimAxis};
+use modbus_drive::motion::sim::SimAxis;
 use modbus_drive::motion::{PlannerConfig, StepSchedule};
 use modbus_drive::params::{BootOutcome, ParamStore};
 use modbus_drive::Device;
@@ -22,13 +23,9 @@ use super::super::web::{self, ExceptionLog, Forced};
 use super::encoder;
 use super::serve::SimStorage;
 
-/// Control loop period, as on the firmware (SPEC §8; within the planner's
-/// 3 ms horizon).
-pub(super) const CONTROL_PERIOD_US: u64 = 1_000;
-
 /// Control periods made up at once after the process was held up longer
 /// (suspended, debugger); beyond that simulated time skips ahead.
-pub(super) const CATCH_UP_PERIODS_MAX: u64 = 5_000;
+const CATCH_UP_PERIODS_MAX: u64 = 5_000;
 
 /// One simulated drive.
 pub(super) struct DriveSlot {
@@ -42,8 +39,6 @@ pub(super) struct DriveSlot {
     /// The encoder on the motor (`--encoder`, or PA17 > 0).
     pub(super) encoder: SimEncoder,
     pub(super) encoder_wired: bool,
-    /// Time of the next periodic control call, µs.
-    pub(super) next_control_us: u64,
     pub(super) last_statusword: u16,
     pub(super) last_mode: i16,
     /// Switches forced from the page (`--web`).
@@ -92,7 +87,6 @@ impl DriveSlot {
             axis: sim_axis(layout, board.step_tick_hz()),
             encoder: encoder::sim_encoder(layout.encoder),
             encoder_wired: layout.encoder.on,
-            next_control_us: 0,
             last_statusword,
             last_mode,
             forced: Forced::default(),
@@ -100,41 +94,34 @@ impl DriveSlot {
         })
     }
 
+    /// The simulation host over this drive's axis, encoder and forced
+    /// switches.
+    fn host(&mut self) -> SimHost<'_> {
+        SimHost::new(&mut self.device, &mut self.axis, &self.schedule)
+            .with_encoder(&mut self.encoder, self.encoder_wired)
+            .with_switches(&self.forced)
+    }
+
     /// Runs the axis and the control loop up to `now_us`: every control
-    /// period in turn, in simulated time, so a late wake-up of the process
-    /// never starves the step schedule. A step that changes a switch stops
-    /// the axis there and the drive sees the new states at that instant
-    /// (SPEC §8.6: the origin is the step where the edge was seen).
+    /// call the drive asks for in turn (`Device::poll_at`), in simulated
+    /// time, so a late wake-up of the process never starves the step
+    /// schedule. A step that changes a switch stops the axis there and the
+    /// drive sees the new states at that instant (SPEC §8.6: the origin is
+    /// the step where the edge was seen).
     pub(super) fn advance(&mut self, now_us: u64) {
-        if now_us.saturating_sub(self.next_control_us) > CATCH_UP_PERIODS_MAX * CONTROL_PERIOD_US {
+        let late = now_us.saturating_sub(self.device.poll_at());
+        if late > CATCH_UP_PERIODS_MAX * CONTROL_PERIOD_US {
             // Held up for seconds: time jumps (the axis idles through it).
-            self.next_control_us = now_us;
-        }
-        while self.next_control_us <= now_us {
-            let t = self.next_control_us;
-            self.control_at(t);
-            self.next_control_us = t + CONTROL_PERIOD_US;
+            self.host().resume_at(now_us, |_| {});
+        } else {
+            self.host().run_to(now_us, |_| {});
         }
     }
 
-    /// One control call at `t_us` (not earlier than the last one), after
-    /// the axis made every step up to then.
+    /// The axis and control loop up to `t_us`, then a control call at
+    /// `t_us` (after a handled frame).
     pub(super) fn control_at(&mut self, t_us: u64) {
-        let until = self.axis.us_to_ticks(t_us);
-        // the simulated limit-switch interrupt applies PA14 as the board's
-        self.axis
-            .set_limit_enable(self.device.params().limit_enable());
-        while self.axis.run_until(&self.schedule, until, |_| {}) == RunStop::SwitchChanged {
-            let at = self.axis.now_us();
-            self.read_encoder();
-            let switches = self.forced.apply(self.axis.switches());
-            self.device.control(at, switches, &self.schedule);
-            self.axis.kick(&self.schedule);
-        }
-        self.read_encoder();
-        let switches = self.forced.apply(self.axis.switches());
-        self.device.control(t_us, switches, &self.schedule);
-        self.axis.kick(&self.schedule);
+        self.host().control_at(t_us, |_| {});
     }
 
     pub(super) fn label(&self) -> String {

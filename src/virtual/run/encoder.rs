@@ -1,11 +1,11 @@
-//! The simulated encoder on each drive's motor (SPEC §8.8): what the
-//! firmware's encoder timer does, from the simulated motor, with the
-//! `--stall-at` / `--slip` / `--encoder-noise` faults (docs/closed-loop.md).
+//! The simulated encoder on each drive's motor (SPEC §8.8), built from the
+//! `--encoder` / `--stall-at` / `--slip` / `--encoder-noise` options
+//! (docs/closed-loop.md); the simulation host (`SimHost`) reads it before
+//! each control call, as the firmware's encoder timer is read.
 
 use modbus_drive::closed_loop::sim::SimEncoder;
 use modbus_drive::Device;
 
-use super::drive_slot::DriveSlot;
 use crate::virtual_drive::cli::EncoderFaults;
 
 /// PA17 that `--encoder` sets when the drive has none: a 1000-line
@@ -31,26 +31,4 @@ pub(super) fn sim_encoder(f: EncoderFaults) -> SimEncoder {
         e = e.with_slip(i64::from(steps), i64::from(at));
     }
     e
-}
-
-impl DriveSlot {
-    /// What the firmware's encoder timer does before a control call: the
-    /// counter, here from the simulated motor, scaled as the drive's PA17 /
-    /// PA10 / PA18 say (a wired encoder matches them). Nothing while no
-    /// encoder is wired and PA17 = 0: the drive stays open loop.
-    pub(super) fn read_encoder(&mut self) {
-        let pa = self.device.params();
-        if !self.encoder_wired && pa.encoder_counts_per_rev() == 0 {
-            return;
-        }
-        self.encoder.set_scale(
-            pa.encoder_counts_per_rev(),
-            pa.steps_per_rev(),
-            pa.encoder_inverted(),
-        );
-        let raw = self
-            .encoder
-            .update(self.axis.position(), self.axis.is_running());
-        self.device.set_encoder_count(raw);
-    }
 }

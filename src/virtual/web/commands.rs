@@ -225,7 +225,7 @@ pub fn requests(cmd: &Command, ctx: Ctx) -> Result<Vec<Step>, String> {
 /// refuses as it refuses a master's.
 fn write(index: u16, value: i64, low_first: bool) -> Result<Step, String> {
     let data_type = match position(index) {
-        Some(p) => TABLE[p].data_type,
+        Some(p) => TABLE[p].data_type(),
         None => DataType::U16,
     };
     let fits = |lo: i64, hi: i64| {

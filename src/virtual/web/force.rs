@@ -3,6 +3,7 @@
 //! does. A forced switch replaces the state the axis position gives
 //! (`--cw-limit`, `--ccw-limit`, `--home-switch`) until it is released.
 
+use modbus_drive::device::sim::SwitchView;
 use modbus_drive::motion::Switches;
 
 /// One of the three switch inputs (SPEC §8.6, §8.7).
@@ -60,6 +61,13 @@ impl Forced {
             ccw_limit: self.ccw.unwrap_or(axis.ccw_limit),
             home: self.home.unwrap_or(axis.home),
         }
+    }
+}
+
+/// The simulation host hands the drive the forced states.
+impl SwitchView for Forced {
+    fn seen(&self, axis: Switches) -> Switches {
+        self.apply(axis)
     }
 }
 

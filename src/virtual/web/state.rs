@@ -4,7 +4,7 @@
 
 use std::fmt::Write;
 
-use modbus_drive::dictionary::{Access, DriveLayer, Object};
+use modbus_drive::dictionary::{DriveLayer, Object};
 use modbus_drive::motion::Switches;
 use modbus_drive::slave::{Counters, Slave};
 use modbus_drive::Device;
@@ -29,8 +29,8 @@ pub struct View<'a> {
 /// (signed types sign-extended); `None` for strings.
 pub fn entry_value(device: &Device, index: u16) -> Option<i64> {
     let e = &TABLE[position(index)?];
-    let raw = e.object.read_raw(device.od(), device.drive());
-    Some(match e.data_type {
+    let raw = e.object().read_raw(device.od(), device.drive());
+    Some(match e.data_type() {
         DataType::U16 => i64::from(raw as u16),
         DataType::I16 => i64::from(raw as u16 as i16),
         DataType::U32 => i64::from(raw),
@@ -69,14 +69,6 @@ fn counters(c: &Counters) -> String {
         c.busy,
         c.overruns
     )
-}
-
-fn access(a: Access) -> &'static str {
-    match a {
-        Access::Ro => "RO",
-        Access::Rw => "RW",
-        Access::Wo => "WO",
-    }
 }
 
 fn opt_bool(v: Option<bool>) -> &'static str {
@@ -132,12 +124,12 @@ pub fn drive_json(v: &View<'_>) -> String {
     let od = TABLE
         .iter()
         .map(|e| {
-            Some(match e.object.string(d.identity()) {
+            Some(match e.object().string(d.identity()) {
                 Some(text) => OdValue::Text(text.into()),
-                None if e.access.readable() => {
-                    OdValue::Number(entry_value(d, e.index).unwrap_or(0))
+                None if e.access().readable() => {
+                    OdValue::Number(entry_value(d, e.index()).unwrap_or(0))
                 }
-                None => OdValue::Written(written(e.object, d)),
+                None => OdValue::Written(written(e.object(), d)),
             })
         })
         .collect();
@@ -226,7 +218,7 @@ pub fn snapshot_json(v: &Snapshot<'_>) -> String {
     }
     s.push_str("],\"od\":[");
     for (i, e) in TABLE.iter().enumerate() {
-        let (unit, range) = od_meta(e.index);
+        let (unit, range) = od_meta(e.index());
         let value = match v.od.get(i).and_then(Option::as_ref) {
             Some(OdValue::Number(n)) => n.to_string(),
             Some(OdValue::Text(t)) => quote(t),
@@ -238,12 +230,12 @@ pub fn snapshot_json(v: &Snapshot<'_>) -> String {
             "{}{{\"index\":{},\"name\":{},\"access\":\"{}\",\"type\":\"{:?}\",\
              \"unit\":{},\"range\":{},\"value\":{}}}",
             if i > 0 { "," } else { "" },
-            e.index,
-            quote(&format!("{:?}", e.object)),
-            access(e.access),
-            e.data_type,
+            e.index(),
+            quote(&format!("{:?}", e.object())),
+            e.access().label(),
+            e.data_type(),
             quote(unit),
-            quote(range),
+            quote(&range),
             value
         );
     }
@@ -257,10 +249,10 @@ pub fn snapshot_json(v: &Snapshot<'_>) -> String {
             if n > 0 { "," } else { "" },
             quote(name),
             quote(unit),
-            def.min,
-            def.max,
-            def.default,
-            if def.read_only { "RO" } else { "RW" },
+            def.min(),
+            def.max(),
+            def.default(),
+            if def.read_only() { "RO" } else { "RW" },
             opt(v.pa.get(n).copied().flatten(), |x| x.to_string())
         );
     }
