@@ -11,7 +11,8 @@
 //! * page state: the first and the last `READ_SIZE` bytes of a page are
 //!   markers, "marked" when at least four of their bits are 0. Neither
 //!   marked = open (erased), first only = partial open (being filled), both
-//!   = closed (full);
+//!   = closed (full); the last only is an erase a cut left unfinished, which
+//!   the crate's repair finishes (its items were moved before): open;
 //! * items from `page + word` to `page end − word`: an 8-byte header
 //!   (CRC-32 of the data, data length u16, CRC-16 of the length), the data
 //!   at `header + 8` rounded up to a word, the next header after the data
@@ -49,8 +50,6 @@ enum State {
     Open,
     Partial,
     Closed,
-    /// Last marker without the first: an interrupted erase.
-    Broken,
 }
 
 /// Reads the old map on `range` of `flash` (the journal's region).
@@ -65,11 +64,12 @@ pub(super) fn read_old<F: NorFlash>(
         let at = range.start + p * page;
         let first = marked(flash, at)?;
         let last = marked(flash, at + page - F::READ_SIZE as u32)?;
+        // The last marker without the first is an erase the power cut
+        // short; the crate finishes it, its items having been moved.
         states[p as usize] = match (first, last) {
-            (false, false) => State::Open,
+            (false, _) => State::Open,
             (true, false) => State::Partial,
             (true, true) => State::Closed,
-            (false, true) => State::Broken,
         };
     }
     let next = |p: u32| (p + 1) % pages;
