@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # fw-sim stage: both boards' unmodified release images (cargo fw, cargo
-# fw-f103) run on the emulated STM32 of fw-sim/ (docs/fw-sim.md) and are
+# fw-f103; the development images, cargo fw-dev, for the one test that reads
+# an info log line) run on the emulated STM32 of fw-sim/ (docs/fw-sim.md) and are
 # driven over the emulated USART by the pytest tests in tests/fw_sim (seed
 # 000 frames byte for byte, exceptions, addressing, a position move counted
 # in step pulses, one at the acceleration limit, DE around every reply and
@@ -34,12 +35,17 @@ target_of() {
 
 cargo fw
 cargo fw-f103
+# the development images (defmt info): the step-latency log line
+cargo fw-dev
+cargo fw-dev-f103
 # the core's step schedule for the same moves, to compare the pulses with
 cargo build --example step_schedule
 ( cd fw-sim && cargo fmt -- --check && cargo clippy --release -- -D warnings && cargo build --release )
 fw_target=$(target_of)
 export FW_SIM_ELF_G431="$fw_target/thumbv7em-none-eabihf/fw/modbus-drive"
 export FW_SIM_ELF_F103="$fw_target/thumbv7m-none-eabi/fw/modbus-drive"
+export FW_SIM_ELF_DEV_G431="$fw_target/thumbv7em-none-eabihf/fw-dev/modbus-drive"
+export FW_SIM_ELF_DEV_F103="$fw_target/thumbv7m-none-eabi/fw-dev/modbus-drive"
 export FW_SIM_SCHEDULE_BIN="$fw_target/debug/examples/step_schedule"
 export FW_SIM_BIN="$(target_of --manifest-path fw-sim/Cargo.toml)/release/fw-sim"
 

@@ -88,7 +88,8 @@ def test_a_write_protected_flash_answers_exception_4(start_fw, board, tmp_path):
     stays as it was, and nothing reached the flash: after a restart without
     the protection the default is back, and a save then works."""
     state = tmp_path / f"{board}.flash"
-    fw = start_fw(board, "--state", str(state), "--write-protect")
+    # the development image: it logs the core's events (info)
+    fw = start_fw(board, "--state", str(state), "--write-protect", dev=True)
     with Bus(fw) as bus:
         bus.write(PA12, 1500)
         new_set = with_crc(hexb("01 10 00 3A 00 01 02 00 01"))
