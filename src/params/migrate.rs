@@ -63,7 +63,7 @@ pub(super) fn read_old<F: NorFlash>(
     for p in 0..pages.min(MAX_PAGES as u32) {
         let at = range.start + p * page;
         let first = marked(flash, at)?;
-        let last = marked(flash, at + page - F::READ_SIZE as u32)?;
+        let last = marked(flash, at + page - 1)?;
         // The last marker without the first is an erase the power cut
         // short; the crate finishes it, its items having been moved.
         states[p as usize] = match (first, last) {
@@ -114,11 +114,11 @@ pub(super) fn read_old<F: NorFlash>(
 /// Regions up to this many pages are read (the boards have 2 and 4).
 const MAX_PAGES: usize = 8;
 
+/// The store works with a `READ_SIZE` of 1 only, so a marker is one byte.
 fn marked<F: NorFlash>(flash: &mut F, at: u32) -> Result<bool, F::Error> {
-    let mut b = [0u8; 32];
-    let b = &mut b[..F::READ_SIZE];
-    flash.read(at, b)?;
-    Ok(b.iter().map(|v| v.count_zeros()).sum::<u32>() >= 4)
+    let mut b = [0u8];
+    flash.read(at, &mut b)?;
+    Ok(b[0].count_zeros() >= 4)
 }
 
 /// Every item of one page, in order; a later one of a key replaces the

@@ -182,7 +182,7 @@ impl EntryBuf {
         b[2..4].copy_from_slice(&(n as u16).to_le_bytes());
         b[4..8].copy_from_slice(&seq.to_le_bytes());
         let body = ENTRY_HEADER + n;
-        let crc = crc16(&b[..body]);
+        let crc = crc(&b[..body]);
         b[body..body + 2].copy_from_slice(&crc.to_le_bytes());
         entry_size(n)
     }
@@ -315,8 +315,8 @@ impl<F: NorFlash> ParamStore<F> {
     fn generation(&mut self, page: u32) -> Result<Option<u32>, StorageError> {
         let mut h = [0u8; PAGE_HEADER as usize];
         self.read(self.page_start(page), &mut h)?;
-        let valid = h[..2] == PAGE_MAGIC && crc16(&h[..6]).to_le_bytes() == h[6..];
-        Ok(valid.then(|| u32::from_le_bytes([h[2], h[3], h[4], h[5]])))
+        let generation = u32::from_le_bytes([h[2], h[3], h[4], h[5]]);
+        Ok((h == page_header(generation)).then_some(generation))
     }
 
     /// Finds the current page and reads its entries.
@@ -378,7 +378,7 @@ impl<F: NorFlash> ParamStore<F> {
         }
         self.read(at + ENTRY_HEADER as u32, &mut b[ENTRY_HEADER..size])?;
         let body = ENTRY_HEADER + len;
-        if crc16(&b[..body]).to_le_bytes() != b[body..body + 2] {
+        if crc(&b[..body]).to_le_bytes() != b[body..body + 2] {
             return Ok(None);
         }
         let seq = u32::from_le_bytes([b[4], b[5], b[6], b[7]]);
@@ -403,16 +403,7 @@ impl<F: NorFlash> ParamStore<F> {
             at += copy.len() as u32;
         }
         self.write(at, new)?;
-        self.write_header(start, generation.wrapping_add(1))
-    }
-
-    fn write_header(&mut self, start: u32, generation: u32) -> Result<(), StorageError> {
-        let mut h = [0u8; PAGE_HEADER as usize];
-        h[..2].copy_from_slice(&PAGE_MAGIC);
-        h[2..6].copy_from_slice(&generation.to_le_bytes());
-        let crc = crc16(&h[..6]);
-        h[6..].copy_from_slice(&crc.to_le_bytes());
-        self.write(start, &h)
+        self.write(start, &page_header(generation.wrapping_add(1)))
     }
 
     /// A region without a journal page but with sets of the layout before
@@ -443,8 +434,25 @@ impl<F: NorFlash> ParamStore<F> {
             self.write(at, &buf.0[..size])?;
             at += size as u32;
         }
-        self.write_header(start, 1)
+        self.write(start, &page_header(1))
     }
+}
+
+/// The header of a page of `generation`.
+fn page_header(generation: u32) -> [u8; PAGE_HEADER as usize] {
+    let mut h = [0u8; PAGE_HEADER as usize];
+    h[..2].copy_from_slice(&PAGE_MAGIC);
+    h[2..6].copy_from_slice(&generation.to_le_bytes());
+    let crc = crc(&h[..6]);
+    h[6..].copy_from_slice(&crc.to_le_bytes());
+    h
+}
+
+/// The Modbus CRC, called rather than inlined at each of the store's uses
+/// (flash: none of them is on a hot path).
+#[inline(never)]
+fn crc(bytes: &[u8]) -> u16 {
+    crc16(bytes)
 }
 
 fn flash_error<E: NorFlashError>(e: E) -> StorageError {
