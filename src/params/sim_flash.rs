@@ -9,9 +9,10 @@
 //!   each only once between erases (a second write is refused, as the
 //!   STM32's PROGERR does), and can only clear bits — except that an
 //!   all-zero word may be written over anything, as RM0440 §3.3.8 allows on
-//!   the STM32G4 (sequential-storage relies on it to finish a page marker
-//!   that a cut left half written; [`SimFlash::set_zero_overwrite`] turns it
-//!   off for the strict `NorFlash` contract);
+//!   the STM32G4 (the sequential-storage map of the firmware before the
+//!   journal relied on it to finish a page marker that a cut left half
+//!   written; [`SimFlash::set_zero_overwrite`] turns it off for the strict
+//!   `NorFlash` contract);
 //! - [`SimFlash::cut_power_after`]`(n)`: operations (one word write or one
 //!   page erase each) number `n` and beyond fail; operation `n` itself is
 //!   left half done — a word with only some of its bits programmed, or a
