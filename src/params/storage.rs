@@ -60,9 +60,12 @@
 //!
 //! # Power-loss argument
 //!
-//! A cut inside an append leaves an entry whose CRC fails (or whose header
-//! reads erased): the reader stops before it and finds the previous entry of
-//! the slot, the writer turns to a new page at the next save. A cut inside
+//! A cut inside an append leaves an entry whose CRC fails, whose header
+//! reads erased, or which the flash refuses to read (the G431's ECC error
+//! on a double word left half programmed): the reader stops before it and
+//! finds the previous entry of the slot, the writer turns to a new page at
+//! the next save. (A page header the flash refuses to read makes the
+//! region unreadable: the firmware then erases that page, `flash.rs`.) A cut inside
 //! a page turn (erase, copies, header) leaves a page without a valid header
 //! (the header is programmed last and has its own CRC): it does not count,
 //! the previous current page is untouched, and the next save erases and
@@ -341,12 +344,17 @@ impl<F: NorFlash> ParamStore<F> {
         let mut at = self.page_start(page) + PAGE_HEADER;
         let mut buf = EntryBuf::new();
         while at + ENTRY_HEADER as u32 <= end {
+            // An entry the flash cannot read (the G431's ECC error on a
+            // double word a power cut left half programmed) is one that
+            // does not check: the entries before it still count.
             let h = &mut buf.0[..ENTRY_HEADER];
-            self.read(at, h)?;
+            if self.read(at, h).is_err() {
+                return Ok(j);
+            }
             if h.iter().all(|&b| b == 0xFF) {
                 break;
             }
-            let Some(e) = self.entry(at, end, &mut buf)? else {
+            let Some(e) = self.entry(at, end, &mut buf) else {
                 return Ok(j);
             };
             let slot = usize::from(buf.0[1]);
@@ -360,29 +368,26 @@ impl<F: NorFlash> ParamStore<F> {
         Ok(j)
     }
 
-    /// The entry at `at` whose header is in `buf`, if it is whole.
-    fn entry(
-        &mut self,
-        at: u32,
-        end: u32,
-        buf: &mut EntryBuf,
-    ) -> Result<Option<Entry>, StorageError> {
+    /// The entry at `at` whose header is in `buf`, if it is whole and
+    /// readable.
+    fn entry(&mut self, at: u32, end: u32, buf: &mut EntryBuf) -> Option<Entry> {
         let b = &mut buf.0;
         let len = usize::from(u16::from_le_bytes([b[2], b[3]]));
         let size = entry_size(len);
         if b[0] != ENTRY_MAGIC || b[1] > 1 || !(4..=RECORD_LEN).contains(&len) {
-            return Ok(None);
+            return None;
         }
         if at + size as u32 > end {
-            return Ok(None);
+            return None;
         }
-        self.read(at + ENTRY_HEADER as u32, &mut b[ENTRY_HEADER..size])?;
+        self.read(at + ENTRY_HEADER as u32, &mut b[ENTRY_HEADER..size])
+            .ok()?;
         let body = ENTRY_HEADER + len;
         if crc(&b[..body]).to_le_bytes() != b[body..body + 2] {
-            return Ok(None);
+            return None;
         }
         let seq = u32::from_le_bytes([b[4], b[5], b[6], b[7]]);
-        Ok(Some(Entry { at, len, seq }))
+        Some(Entry { at, len, seq })
     }
 
     /// Takes the next page of the ring into use with the other slot's set
