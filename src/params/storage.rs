@@ -74,10 +74,10 @@
 //! slot is untouched. The tests in `tests/params_power_loss.rs` cut an
 //! EE-Set, EE-rS and EE-dEF at every word write and page erase to show it.
 //!
-//! Wear: an entry is 176 bytes for today's record, a 2 KiB page takes 11 (5
-//! on the F103's 1 KiB pages, which has four of them), one of them the copy
-//! of the other set: 10,000 saves cost about 1,000 erases spread over the
-//! ring (STM32G4: 10,000 cycles guaranteed).
+//! Wear: a page is erased once per page of entries, one of which is the
+//! copy of the other set, and the ring spreads the erases over every page;
+//! `tests/params_power_loss.rs` holds 10,000 saves to the flash's erase
+//! budget on both boards' geometries.
 //!
 //! # The layout before this one
 //!
