@@ -34,8 +34,6 @@ use core::ops::Range;
 
 use embedded_storage::nor_flash::NorFlash;
 
-use super::record::RECORD_LEN as RECORD_MAX;
-
 /// Where the sets of an old region are, and which page the journal may
 /// take first without losing any of them.
 pub(super) struct OldSets {
@@ -52,10 +50,12 @@ enum State {
     Closed,
 }
 
-/// Reads the old map on `range` of `flash` (the journal's region).
+/// Reads the old map on `range` of `flash` (the journal's region). An item
+/// is read into `scratch`: one longer than it (key and record) is not a set.
 pub(super) fn read_old<F: NorFlash>(
     flash: &mut F,
     range: &Range<u32>,
+    scratch: &mut [u8],
 ) -> Result<OldSets, F::Error> {
     let page = F::ERASE_SIZE as u32;
     let pages = (range.end - range.start) / page;
@@ -103,7 +103,7 @@ pub(super) fn read_old<F: NorFlash>(
     }
     let mut p = oldest;
     loop {
-        read_page(flash, range.start + p * page, page, &mut out.sets)?;
+        read_page(flash, range.start + p * page, page, scratch, &mut out.sets)?;
         if p == newest {
             return Ok(out);
         }
@@ -127,6 +127,7 @@ fn read_page<F: NorFlash>(
     flash: &mut F,
     start: u32,
     page: u32,
+    buf: &mut [u8],
     sets: &mut [Option<(u32, usize)>; 2],
 ) -> Result<(), F::Error> {
     let word = F::READ_SIZE.max(F::WRITE_SIZE) as u32;
@@ -148,8 +149,7 @@ fn read_page<F: NorFlash>(
         }
         let crc = u32::from_le_bytes([h[0], h[1], h[2], h[3]]);
         let len = usize::from(len);
-        if crc != 0 && (2..=1 + RECORD_MAX).contains(&len) {
-            let mut buf = [0u8; 1 + RECORD_MAX];
+        if crc != 0 && (2..=buf.len()).contains(&len) {
             flash.read(data, &mut buf[..len])?;
             let key = usize::from(buf[0]);
             if key < 2 && crc32(&buf[..len]) == crc {

@@ -44,7 +44,7 @@
 //! | 4..8 | sequence number (u32, one more than the highest in the page) |
 //! | 8..8+n | the record (`record.rs`: own magic, version and CRC) |
 //! | 8+n..10+n | CRC-16/MODBUS of bytes 0..8+n |
-//! | then | 0xFF up to the next multiple of 8 |
+//! | then | 0x00 up to the next multiple of 8 |
 //!
 //! Reading: the entries of the current page in order, up to the first
 //! erased header or the first entry that does not check; of each slot the
@@ -165,7 +165,13 @@ const ENTRY_HEADER: usize = 8;
 const fn entry_size(n: usize) -> usize {
     (ENTRY_HEADER + n + 2).next_multiple_of(8)
 }
-const ENTRY_MAX: usize = entry_size(RECORD_LEN);
+/// Longest record an entry may hold: room for records of other versions
+/// than this firmware's (older ones are shorter, a later one may be
+/// longer), so that the store keeps and copies them and `record.rs`
+/// decides what it can read.
+const RECORD_MAX: usize = 246;
+const _: () = assert!(RECORD_LEN <= RECORD_MAX);
+const ENTRY_MAX: usize = entry_size(RECORD_MAX);
 
 /// One entry; word aligned for flash drivers that need aligned sources.
 #[repr(align(8))]
@@ -173,7 +179,7 @@ struct EntryBuf([u8; ENTRY_MAX]);
 
 impl EntryBuf {
     fn new() -> Self {
-        Self([0xFF; ENTRY_MAX])
+        Self([0; ENTRY_MAX])
     }
 
     /// Header and CRC around the `n` record bytes already at 8..8+n; the
@@ -243,17 +249,17 @@ impl<F: NorFlash> ParamStore<F> {
     /// Reads one set: `Ok(None)` if it was never written.
     pub fn load(&mut self, slot: Slot) -> Result<Option<(ParamSet, usize)>, StorageError> {
         let journal = self.journal()?;
+        let mut buf = EntryBuf::new();
         let found = if journal.page.is_some() {
             journal.sets[slot as usize].map(|e| (e.at + ENTRY_HEADER as u32, e.len))
         } else {
-            read_old(&mut self.flash, &self.range)
+            read_old(&mut self.flash, &self.range, &mut buf.0[..1 + RECORD_MAX])
                 .map_err(flash_error)?
                 .sets[slot as usize]
         };
         let Some((at, len)) = found else {
             return Ok(None);
         };
-        let mut buf = EntryBuf::new();
         let record = &mut buf.0[..len];
         self.read(at, record)?;
         ParamSet::decode(record)
@@ -374,7 +380,7 @@ impl<F: NorFlash> ParamStore<F> {
         let b = &mut buf.0;
         let len = usize::from(u16::from_le_bytes([b[2], b[3]]));
         let size = entry_size(len);
-        if b[0] != ENTRY_MAGIC || b[1] > 1 || !(4..=RECORD_LEN).contains(&len) {
+        if b[0] != ENTRY_MAGIC || b[1] > 1 || !(4..=RECORD_MAX).contains(&len) {
             return None;
         }
         if at + size as u32 > end {
@@ -420,7 +426,13 @@ impl<F: NorFlash> ParamStore<F> {
                 return Ok(());
             }
         }
-        let old = read_old(&mut self.flash, &self.range).map_err(flash_error)?;
+        let mut scratch = EntryBuf::new();
+        let old = read_old(
+            &mut self.flash,
+            &self.range,
+            &mut scratch.0[..1 + RECORD_MAX],
+        )
+        .map_err(flash_error)?;
         if old.sets == [None, None] {
             return Ok(());
         }
@@ -552,6 +564,27 @@ mod tests {
         assert_eq!(boot.set, ParamSet::defaults());
     }
     const RECORD_VERSION_NEXT: u8 = super::super::RECORD_VERSION + 1;
+
+    #[test]
+    fn a_longer_record_of_a_later_firmware_is_kept_through_page_turns() {
+        // a downgrade must not lose the other set: its entry is copied as is
+        let mut store = ParamStore::new(SimFlash::<2>::new(), 0..4096).unwrap();
+        let n = RECORD_MAX;
+        let mut buf = EntryBuf::new();
+        buf.0[ENTRY_HEADER..ENTRY_HEADER + n].fill(0x33);
+        buf.0[ENTRY_HEADER..ENTRY_HEADER + 3].copy_from_slice(&[b'P', b'S', 9]);
+        let size = buf.seal(Slot::Backup as usize, n, 1);
+        let journal = store.journal().unwrap();
+        store.turn_page(&journal, 1, &buf.0[..size]).unwrap();
+        for i in 0..30 {
+            store.save(Slot::Saved, &set_with(200 + i)).unwrap();
+        }
+        assert_eq!(store.load(Slot::Saved).unwrap(), Some((set_with(229), 0)));
+        assert_eq!(
+            store.load(Slot::Backup),
+            Err(StorageError::Record(RecordError::Version(9)))
+        );
+    }
 
     #[test]
     fn a_bad_region_is_refused() {

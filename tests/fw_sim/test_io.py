@@ -90,8 +90,7 @@ def last_flash_operation_of_a_first_save(start_fw, board, tmp_path) -> int:
     """A first EE-Set on blank pages is one erase and one program per
     written word (G431 double words, F103 half-words); the words it leaves
     not erased are the entry and the page header, so the count of those plus
-    the erase is the number of an operation inside the header (the F103's
-    last two entry half-words are padding, written as erased)."""
+    the erase is the number of the header's last operation."""
     state = tmp_path / f"{board}-count.flash"
     fw = start_fw(board, "--state", str(state))
     m = Master(fw.client())
