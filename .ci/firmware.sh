@@ -37,6 +37,11 @@ bad=0
 check STM32G431CB stm32g431cb thumbv7em-none-eabihf board-g431 || bad=1
 check STM32F103C8 stm32f103c8 thumbv7m-none-eabi board-f103 || bad=1
 [ $bad = 0 ] || exit 1
+# the release images log warn and error only (the development image, cargo
+# fw-dev, logs info: docs/firmware.md)
+python3 .ci/log_levels.py \
+  target/thumbv7em-none-eabihf/fw/modbus-drive \
+  target/thumbv7m-none-eabi/fw/modbus-drive
 # flash / static RAM of both images against their budgets (the budgets and
 # what is counted live in the script), with the breakdown per crate and
 # per function written to the generated file

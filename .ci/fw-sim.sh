@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # fw-sim stage: both boards' unmodified release images (cargo fw, cargo
-# fw-f103) run on the emulated STM32 of fw-sim/ (docs/fw-sim.md) and are
+# fw-f103; the development images, cargo fw-dev, for the one test that reads
+# an info log line) run on the emulated STM32 of fw-sim/ (docs/fw-sim.md) and are
 # driven over the emulated USART by the pytest tests in tests/fw_sim (seed
 # 000 frames byte for byte, exceptions, addressing, a position move counted
 # in step pulses, one at the acceleration limit, DE around every reply and
@@ -37,5 +38,11 @@ cargo build --example step_schedule
 export FW_SIM_SCHEDULE_BIN="$(target_of)/debug/examples/step_schedule"
 # the master tools (commission, scan, params) drive the images over the pty
 release_binary fw-sim
+# the development images (defmt info): the step-latency log line
+cargo fw-dev
+cargo fw-dev-f103
+fw_target=$(target_of)
+export FW_SIM_ELF_DEV_G431="$fw_target/thumbv7em-none-eabihf/fw-dev/modbus-drive"
+export FW_SIM_ELF_DEV_F103="$fw_target/thumbv7m-none-eabi/fw-dev/modbus-drive"
 
 run_pytest fw-sim "$venv" tests/fw_sim "$@"

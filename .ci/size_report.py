@@ -30,12 +30,15 @@ FLASH = (0x0800_0000, 0x0810_0000)
 RAM = (0x2000_0000, 0x2010_0000)
 TOP_FUNCTIONS = 40
 # board: (flash budget, static RAM budget) in bytes; the firmware stage fails
-# above either. These guard against growth only: the targets (F103 48 KiB,
-# G431 52 KiB) are not met yet (docs/firmware-size.md). The F103's is one
-# KiB short of its parameter pages.
+# above either. Each flash budget is the image's size when it was last set
+# plus ROOM, so that growth fails CI (docs/firmware-size.md): after a change
+# that is meant to grow an image (or a merge), set the size part to the new
+# size from the generated file, keeping ROOM. The targets (F103 ≤ 52 KiB,
+# G431 ≤ 56 KiB) are the limits the size part must stay under.
+ROOM = 4 * 1024
 BUDGETS = {
-    "STM32G431CB": (64 * 1024, 16 * 1024),
-    "STM32F103C8": (59 * 1024, 12 * 1024),
+    "STM32G431CB": (54188 + ROOM, 16 * 1024),
+    "STM32F103C8": (52876 + ROOM, 12 * 1024),
 }
 UNNAMED = "unnamed constants in .rodata (literals, switch and lookup tables)"
 PADDING = "alignment padding, unsized symbols"
@@ -188,10 +191,13 @@ def by_source(elf):
         [tool("llvm-objdump"), "-d", "-l", "--no-show-raw-insn", elf], text=True)
     package_src = os.path.abspath("src") + "/"
     per, cur, prev = defaultdict(int), "no line information", None
+    # the same per async task (embassy's TaskStorage::poll, by address)
+    tasks, task = defaultdict(lambda: defaultdict(int)), None
     user = None
     for line in out.splitlines():
         if FUNC.match(line):
             cur, user = "no line information", None
+            task = line.split()[0] if TASK_POLL in line else None
             continue
         m = SOURCE_LINE.match(line)
         if m:
@@ -206,8 +212,15 @@ def by_source(elf):
             addr = int(m.group(1), 16)
             if prev is not None and 0 < addr - prev[0] <= 8:
                 per[prev[1]] += addr - prev[0]
-            prev = (addr, cur)
-    return per
+                if prev[2]:
+                    tasks[prev[2]][prev[1]] += addr - prev[0]
+            prev = (addr, cur, task)
+    return per, tasks
+
+
+# embassy's poll of one task, mangled: holds that task's async fn body
+TASK_POLL = "TaskStorage$LT$F$GT$4poll"
+TASK_ROWS = 12
 
 
 def board_report(elf):
@@ -277,8 +290,19 @@ def main():
                   "was not inlined). The last instruction of each function is not "
                   "counted:", "",
                   "| source | B |", "|---|---:|"]
-        for src, size in sorted(by_source(elf).items(), key=lambda kv: (-kv[1], kv[0])):
+        per_source, tasks = by_source(elf)
+        for src, size in sorted(per_source.items(), key=lambda kv: (-kv[1], kv[0])):
             lines.append(f"| {src} | {size} |")
+        for task in sorted(tasks, key=lambda t: -sum(tasks[t].values())):
+            srcs = sorted(tasks[task].items(), key=lambda kv: (-kv[1], kv[0]))
+            # a task is named by the firmware file its async fn is in
+            own = next((s for s, _ in srcs if s.startswith("src/firmware/")), "?")
+            lines += ["", f"The async task in `{own}` (embassy `TaskStorage::poll` at "
+                      f"0x{task}, {sum(tasks[task].values())} B): its state machine and "
+                      f"what it inlined, by source, the largest {TASK_ROWS}:", "",
+                      "| source | B |", "|---|---:|"]
+            for src, size in srcs[:TASK_ROWS]:
+                lines.append(f"| {src} | {size} |")
         lines += ["", f"Largest {TOP_FUNCTIONS} symbols (code `t`/`T`, tables `r`/`R`, "
                   ".data `d`); inlined functions count in their caller:", "",
                   "| B | kind | symbol |", "|---:|---|---|"]

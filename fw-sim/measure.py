@@ -263,7 +263,8 @@ def entry_latency(board: str, rate: int, work: Path) -> tuple[int, int, int, int
     back while `read_flood` runs. (distance, reads answered, worst latency
     ns from the firmware's log, update events with UIF still set or None)."""
     st = work / f"{board}-latency.stats"
-    fw = c.Firmware(work, board, ["--stats", str(st)])
+    # the development image, which logs the latency line (info)
+    fw = c.Firmware(work, board, ["--stats", str(st)], dev=True)
     distance = int(rate * LATENCY_MOVE_S) + rate * rate // MAX_ACCEL
     answered = [0]
     try:

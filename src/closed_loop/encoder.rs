@@ -1,5 +1,7 @@
 //! Quadrature encoder position from a 16-bit timer counter in encoder mode.
 
+use crate::arith::div_u64;
+
 /// Fewest counts per revolution (after ×4 decoding) PA17 accepts besides 0
 /// (no encoder).
 pub const COUNTS_PER_REV_MIN: u16 = 100;
@@ -72,24 +74,34 @@ impl CountsToSteps {
     /// The position in steps of `counts`, rounded towards −∞ so that a
     /// position moves by the same steps in both directions across 0.
     ///
-    /// Whole revolutions and the remainder are scaled apart, so the
-    /// arithmetic stays in `i64` and exact wherever the result fits; a
-    /// result beyond `i64` (more steps than counts, near the ends of the
-    /// count's range) saturates.
+    /// Whole revolutions and the remainder are scaled apart, so the result
+    /// is exact wherever it fits in `i64`; a result beyond `i64` (more steps
+    /// than counts, near the ends of the count's range) saturates. The
+    /// count is split by a 64-by-16-bit division ([`div_u64`]: the 32-bit
+    /// hardware divide, not the software `i64` one), and the remainder
+    /// part, below 2^16 · 2^16, is scaled in `u32`.
     pub fn steps(&self, counts: i64) -> i64 {
-        let cpr = i64::from(self.counts_per_rev);
-        let spr = i64::from(self.steps_per_rev);
+        let cpr = u32::from(self.counts_per_rev);
+        let spr = u32::from(self.steps_per_rev);
+        let magnitude = counts.unsigned_abs();
         // whole revolutions towards 0, so their steps are never more than
-        // the result; the part revolution rounded down
-        let revs = counts / cpr;
-        let rest = counts % cpr;
-        (revs.saturating_mul(spr)).saturating_add((rest * spr).div_euclid(cpr))
+        // the result; below 2^63 / 100, so they fit in i64
+        let revs = div_u64(magnitude, u64::from(cpr));
+        let part = (magnitude - revs * u64::from(cpr)) as u32 * spr;
+        // the part revolution rounded down: towards 0 above 0, away below
+        let (revs, part) = if counts < 0 {
+            (-(revs as i64), -i64::from(part.div_ceil(cpr)))
+        } else {
+            (revs as i64, i64::from(part / cpr))
+        };
+        revs.saturating_mul(i64::from(spr)).saturating_add(part)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::strategy::Just;
 
     #[test]
     fn the_count_follows_the_counter_across_its_wrap_both_ways() {
@@ -142,6 +154,32 @@ mod tests {
         assert_eq!(s.steps(i64::MAX), i64::MAX);
         assert_eq!(s.steps(i64::MIN), i64::MIN);
         assert_eq!(s.steps(-big), -big * 600);
+    }
+
+    /// The `i64` arithmetic the scaling had before it was narrowed: the
+    /// reference of the range proof below.
+    fn steps_i64(cpr: u16, spr: u16, counts: i64) -> i64 {
+        let (cpr, spr) = (i64::from(cpr), i64::from(spr));
+        let (revs, rest) = (counts / cpr, counts % cpr);
+        (revs.saturating_mul(spr)).saturating_add((rest * spr).div_euclid(cpr))
+    }
+
+    proptest::proptest! {
+        /// Over every count and every accepted PA17 / PA10 pair, the narrow
+        /// arithmetic gives what the `i64` arithmetic gave.
+        #[test]
+        fn narrow_scaling_equals_the_i64_one(
+            cpr in COUNTS_PER_REV_MIN..=u16::MAX,
+            spr in 1..=u16::MAX,
+            counts in proptest::prop_oneof![
+                proptest::num::i64::ANY,
+                -1_000_000i64..1_000_000,
+                proptest::prop_oneof![Just(i64::MIN), Just(i64::MAX), Just(0)],
+            ],
+        ) {
+            let s = CountsToSteps::new(cpr, spr).unwrap();
+            proptest::prop_assert_eq!(s.steps(counts), steps_i64(cpr, spr, counts));
+        }
     }
 
     #[test]

@@ -90,14 +90,21 @@ async fn main(spawner: Spawner) {
         #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
         let mut boot = store.boot();
         // A page the G431 cannot read (flash ECC after a power cut, fault.rs)
-        // is erased and the store read again, before the step timer runs.
+        // is erased and the store read again, before the step timer runs —
+        // when the store could not read around it: an unreadable entry is
+        // one the journal skips, keeping the sets before it.
         #[cfg(feature = "board-g431")]
-        if let Ok(Some(page)) = store.flash().erase_faulted_page() {
-            defmt::warn!(
-                "parameter page at offset {:#x} unreadable (flash ECC): erased",
-                page
-            );
-            boot = store.boot();
+        if matches!(
+            boot.outcome,
+            modbus_drive::params::BootOutcome::Unreadable(_)
+        ) {
+            if let Ok(Some(page)) = store.flash().erase_faulted_page() {
+                defmt::warn!(
+                    "parameter page at offset {:#x} unreadable (flash ECC): erased",
+                    page
+                );
+                boot = store.boot();
+            }
         }
         device.apply_boot(&boot);
         let at = (

@@ -3,6 +3,7 @@
 //! [`crate::dictionary`]; they are re-exported here under their old paths.
 
 pub mod ee;
+mod migrate;
 mod record;
 #[cfg(feature = "sim")]
 mod sim_flash;

@@ -1,5 +1,6 @@
-//! A RAM NOR flash with STM32G4 geometry that can lose power after any number
-//! of word writes or page erases: the test double of the power-loss tests
+//! A RAM NOR flash with STM32G4 geometry (or another: page and program word
+//! sizes are parameters, the STM32F1's are 1 KiB and 2 bytes) that can lose
+//! power after any number of word writes or page erases: the test double of the power-loss tests
 //! (SPEC §9) and the virtual drive's flash when it keeps no state file.
 //!
 //! NOR semantics as the storage must expect them:
@@ -8,9 +9,10 @@
 //!   each only once between erases (a second write is refused, as the
 //!   STM32's PROGERR does), and can only clear bits — except that an
 //!   all-zero word may be written over anything, as RM0440 §3.3.8 allows on
-//!   the STM32G4 (sequential-storage relies on it to finish a page marker
-//!   that a cut left half written; [`SimFlash::set_zero_overwrite`] turns it
-//!   off for the strict `NorFlash` contract);
+//!   the STM32G4 (the sequential-storage map of the firmware before the
+//!   journal relied on it to finish a page marker that a cut left half
+//!   written; [`SimFlash::set_zero_overwrite`] turns it off for the strict
+//!   `NorFlash` contract);
 //! - [`SimFlash::cut_power_after`]`(n)`: operations (one word write or one
 //!   page erase each) number `n` and beyond fail; operation `n` itself is
 //!   left half done — a word with only some of its bits programmed, or a
@@ -25,7 +27,6 @@ use embedded_storage::nor_flash::{
 pub const SIM_PAGE_SIZE: usize = 2048;
 /// STM32G4 double word (program unit).
 pub const SIM_WORD_SIZE: usize = 8;
-const WORDS_PER_PAGE: usize = SIM_PAGE_SIZE / SIM_WORD_SIZE;
 
 /// Why an operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -52,17 +53,23 @@ impl NorFlashError for SimFlashError {
 }
 
 #[derive(Clone)]
-struct Page {
-    bytes: [u8; SIM_PAGE_SIZE],
-    /// Word programmed since the last erase (or left undefined by a cut).
-    programmed: [bool; WORDS_PER_PAGE],
+struct Page<const PAGE: usize> {
+    bytes: [u8; PAGE],
+    /// Word (by index, the tail unused) programmed since the last erase (or
+    /// left undefined by a cut).
+    programmed: [bool; PAGE],
     erases: u32,
 }
 
-/// `PAGES` pages of simulated NOR flash, addressed from 0.
+/// `PAGES` pages of `PAGE` bytes of simulated NOR flash, addressed from 0,
+/// programmed in words of `WORD` bytes.
 #[derive(Clone)]
-pub struct SimFlash<const PAGES: usize> {
-    pages: [Page; PAGES],
+pub struct SimFlash<
+    const PAGES: usize,
+    const PAGE: usize = SIM_PAGE_SIZE,
+    const WORD: usize = SIM_WORD_SIZE,
+> {
+    pages: [Page<PAGE>; PAGES],
     /// Operations (word writes + page erases) done since power-up.
     ops: u32,
     cut_at: Option<u32>,
@@ -71,19 +78,21 @@ pub struct SimFlash<const PAGES: usize> {
     zero_overwrite: bool,
 }
 
-impl<const PAGES: usize> Default for SimFlash<PAGES> {
+impl<const PAGES: usize, const PAGE: usize, const WORD: usize> Default
+    for SimFlash<PAGES, PAGE, WORD>
+{
     fn default() -> Self {
         Self::new()
     }
 }
 
-impl<const PAGES: usize> SimFlash<PAGES> {
+impl<const PAGES: usize, const PAGE: usize, const WORD: usize> SimFlash<PAGES, PAGE, WORD> {
     /// Erased flash.
     pub fn new() -> Self {
         Self {
             pages: core::array::from_fn(|_| Page {
-                bytes: [0xFF; SIM_PAGE_SIZE],
-                programmed: [false; WORDS_PER_PAGE],
+                bytes: [0xFF; PAGE],
+                programmed: [false; PAGE],
                 erases: 0,
             }),
             ops: 0,
@@ -141,26 +150,26 @@ impl<const PAGES: usize> SimFlash<PAGES> {
     pub fn from_image(image: &[u8]) -> Self {
         let mut f = Self::new();
         for (p, page) in f.pages.iter_mut().enumerate() {
-            let start = (p * SIM_PAGE_SIZE).min(image.len());
-            let end = ((p + 1) * SIM_PAGE_SIZE).min(image.len());
+            let start = (p * PAGE).min(image.len());
+            let end = ((p + 1) * PAGE).min(image.len());
             page.bytes[..end - start].copy_from_slice(&image[start..end]);
-            for (w, programmed) in page.programmed.iter_mut().enumerate() {
-                let word = &page.bytes[w * SIM_WORD_SIZE..(w + 1) * SIM_WORD_SIZE];
+            for (w, programmed) in page.programmed.iter_mut().take(PAGE / WORD).enumerate() {
+                let word = &page.bytes[w * WORD..(w + 1) * WORD];
                 *programmed = word.iter().any(|&b| b != 0xFF);
             }
         }
         f
     }
 
-    /// The whole contents, `PAGES * SIM_PAGE_SIZE` bytes: what the virtual
+    /// The whole contents, `PAGES * PAGE` bytes: what the virtual
     /// drive writes to its state file.
     pub fn image(&self) -> impl Iterator<Item = u8> + '_ {
-        self.bytes(0, PAGES * SIM_PAGE_SIZE)
+        self.bytes(0, PAGES * PAGE)
     }
 
     /// Raw bytes from `offset`.
     pub fn bytes(&self, offset: usize, len: usize) -> impl Iterator<Item = u8> + '_ {
-        (offset..offset + len).map(|a| self.pages[a / SIM_PAGE_SIZE].bytes[a % SIM_PAGE_SIZE])
+        (offset..offset + len).map(|a| self.pages[a / PAGE].bytes[a % PAGE])
     }
 
     /// Counts one operation; `Ok(true)` if it is the one the power dies in.
@@ -193,18 +202,22 @@ impl<const PAGES: usize> SimFlash<PAGES> {
         if !off.is_multiple_of(align) || !len.is_multiple_of(align) {
             return Err(SimFlashError::NotAligned);
         }
-        if off + len > PAGES * SIM_PAGE_SIZE {
+        if off + len > PAGES * PAGE {
             return Err(SimFlashError::OutOfBounds);
         }
         Ok(())
     }
 }
 
-impl<const PAGES: usize> ErrorType for SimFlash<PAGES> {
+impl<const PAGES: usize, const PAGE: usize, const WORD: usize> ErrorType
+    for SimFlash<PAGES, PAGE, WORD>
+{
     type Error = SimFlashError;
 }
 
-impl<const PAGES: usize> ReadNorFlash for SimFlash<PAGES> {
+impl<const PAGES: usize, const PAGE: usize, const WORD: usize> ReadNorFlash
+    for SimFlash<PAGES, PAGE, WORD>
+{
     const READ_SIZE: usize = 1;
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
@@ -220,20 +233,22 @@ impl<const PAGES: usize> ReadNorFlash for SimFlash<PAGES> {
     }
 
     fn capacity(&self) -> usize {
-        PAGES * SIM_PAGE_SIZE
+        PAGES * PAGE
     }
 }
 
-impl<const PAGES: usize> NorFlash for SimFlash<PAGES> {
-    const WRITE_SIZE: usize = SIM_WORD_SIZE;
-    const ERASE_SIZE: usize = SIM_PAGE_SIZE;
+impl<const PAGES: usize, const PAGE: usize, const WORD: usize> NorFlash
+    for SimFlash<PAGES, PAGE, WORD>
+{
+    const WRITE_SIZE: usize = WORD;
+    const ERASE_SIZE: usize = PAGE;
 
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
         if to < from {
             return Err(SimFlashError::OutOfBounds);
         }
-        Self::check(from, (to - from) as usize, SIM_PAGE_SIZE)?;
-        for p in from as usize / SIM_PAGE_SIZE..to as usize / SIM_PAGE_SIZE {
+        Self::check(from, (to - from) as usize, PAGE)?;
+        for p in from as usize / PAGE..to as usize / PAGE {
             let cut = self.begin_op()?;
             let noise = self.noise(p as u32);
             let page = &mut self.pages[p];
@@ -242,11 +257,11 @@ impl<const PAGES: usize> NorFlash for SimFlash<PAGES> {
                 // Erased part-way: a prefix is 0xFF, one byte has mixed bits,
                 // the rest keeps its old contents; every word of the page is
                 // in an undefined state for programming.
-                let upto = usize::from(noise) * SIM_PAGE_SIZE / 256;
+                let upto = usize::from(noise) * PAGE / 256;
                 page.bytes[..upto].fill(0xFF);
                 page.bytes[upto] |= noise | 0x01;
-                for (w, programmed) in page.programmed.iter_mut().enumerate() {
-                    *programmed = (w + 1) * SIM_WORD_SIZE > upto;
+                for (w, programmed) in page.programmed.iter_mut().take(PAGE / WORD).enumerate() {
+                    *programmed = (w + 1) * WORD > upto;
                 }
                 return Err(SimFlashError::PowerLost);
             }
@@ -257,13 +272,13 @@ impl<const PAGES: usize> NorFlash for SimFlash<PAGES> {
     }
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        Self::check(offset, bytes.len(), SIM_WORD_SIZE)?;
-        for (i, word) in bytes.chunks_exact(SIM_WORD_SIZE).enumerate() {
-            let addr = offset as usize + i * SIM_WORD_SIZE;
-            let (p, at) = (addr / SIM_PAGE_SIZE, addr % SIM_PAGE_SIZE);
+        Self::check(offset, bytes.len(), WORD)?;
+        for (i, word) in bytes.chunks_exact(WORD).enumerate() {
+            let addr = offset as usize + i * WORD;
+            let (p, at) = (addr / PAGE, addr % PAGE);
             let zeros = word.iter().all(|&b| b == 0);
             if self.powered
-                && self.pages[p].programmed[at / SIM_WORD_SIZE]
+                && self.pages[p].programmed[at / WORD]
                 && !(zeros && self.zero_overwrite)
             {
                 return Err(SimFlashError::AlreadyProgrammed);
@@ -271,12 +286,8 @@ impl<const PAGES: usize> NorFlash for SimFlash<PAGES> {
             let cut = self.begin_op()?;
             let noise = self.noise(addr as u32);
             let page = &mut self.pages[p];
-            page.programmed[at / SIM_WORD_SIZE] = true;
-            for (k, (cell, &v)) in page.bytes[at..at + SIM_WORD_SIZE]
-                .iter_mut()
-                .zip(word)
-                .enumerate()
-            {
+            page.programmed[at / WORD] = true;
+            for (k, (cell, &v)) in page.bytes[at..at + WORD].iter_mut().zip(word).enumerate() {
                 // A cut programs the first bytes fully and some bits of the
                 // next ones: only bits that were to be cleared get cleared.
                 let keep_ones = match (cut, k) {

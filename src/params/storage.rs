@@ -1,5 +1,6 @@
 //! Power-loss-safe parameter storage over `embedded-storage`'s blocking
-//! [`NorFlash`] (SPEC §9).
+//! [`NorFlash`] (SPEC §9): a journal of whole records over the pages of a
+//! region.
 //!
 //! # API for the glue (firmware flash region, virtual drive `--state FILE`)
 //!
@@ -10,13 +11,13 @@
 //! log(boot.outcome);                     // Loaded / Blank / Unreadable(why)
 //! // …then per frame: device.handle_rx(…); device.poll_storage(&mut store, …)
 //! ```
-
 //!
 //! * `flash` is anything implementing `embedded_storage::nor_flash::NorFlash`
-//!   (also `&mut F`). The range is in the flash's own offsets, page aligned,
-//!   at least two erase pages. Only this range is ever read, written or
-//!   erased. Any `WRITE_SIZE` up to 32 bytes works; erase pages must hold at
-//!   least one record (~190 bytes), 2 KiB pages hold ten.
+//!   (also `&mut F`) with a `READ_SIZE` of 1 and a `WRITE_SIZE` that divides
+//!   8 (the STM32s: 8 on the G4, 2 on the F1). The range is in the flash's
+//!   own offsets, page aligned, at least two erase pages, each page large
+//!   enough for its header and two entries. Only this range is ever read,
+//!   written or erased.
 //! * [`ParamStore::load`] / [`ParamStore::save`] read and write one of the
 //!   two sets, [`Slot::Saved`] (EE-Set / EE-rd) and [`Slot::Backup`]
 //!   (EE-bA / EE-rS). The EE operations are [`super::execute`], which
@@ -26,42 +27,74 @@
 //!   write [`super::SimFlash::image`] back after each EE operation (write a
 //!   temporary file and rename it, so the file itself is replaced atomically).
 //!
-//! # Layout and power-loss argument
+//! # Layout
 //!
-//! The region is a [`sequential_storage`] map with two keys, 0 = saved set and
-//! 1 = backup set; each value is one [`ParamSet`] record ([`RECORD_LEN`] bytes, own
-//! version, length and CRC-16, `record.rs`). A save *appends* a new item: the
-//! crate writes the item header (length with its CRC-16, data CRC-32) and
-//! then the data; a fetch returns the last item of the key whose header and
-//! data CRCs check, so an item cut short is skipped and the previous one is
-//! found. When a page is full the crate moves the live items to the next page
-//! before it erases the old page, and it marks page states in the first/last
-//! word of each page so that an interrupted move is redone at the next
-//! operation (its "repair"). Either way one set is one item, so a cut at any
-//! instant leaves the complete old or the complete new set — never a mix —
-//! and our own record CRC refuses anything else as garbage. The tests in
-//! `tests/params_power_loss.rs` cut an EE-Set, EE-rS and EE-dEF at every word
-//! write and page erase to show it.
+//! The pages of the region form a ring; one of them, the *current* page, is
+//! the journal. A page starts with an 8-byte header, written last when the
+//! page is taken into use: magic `7E 4A`, generation (u32, one more than
+//! the page before), CRC-16/MODBUS of those 6 bytes. The current page is
+//! the one with the highest generation whose header checks. Entries follow
+//! the header, each 8-byte aligned:
 //!
-//! Wear: each save writes ~200 bytes; a 2 KiB page takes 10 before it is
-//! erased, so 10,000 saves cost ~1,000 erases over a two-page region, ~500 per
-//! page (STM32G4: 10,000 cycles guaranteed).
+//! | bytes | field |
+//! |---|---|
+//! | 0 | `'E'` |
+//! | 1 | slot: 0 saved, 1 backup |
+//! | 2..4 | record length n (u16) |
+//! | 4..8 | sequence number (u32, one more than the highest in the page) |
+//! | 8..8+n | the record (`record.rs`: own magic, version and CRC) |
+//! | 8+n..10+n | CRC-16/MODBUS of bytes 0..8+n |
+//! | then | 0x00 up to the next multiple of 8 |
 //!
-//! `sequential-storage` 8 is async-only; the flash here is blocking, so
-//! [`Blocking`] presents it as `embedded-storage-async` and [`block_on`] polls
-//! the future, which is ready on its first poll (nothing in it waits).
+//! Reading: the entries of the current page in order, up to the first
+//! erased header or the first entry that does not check; of each slot the
+//! valid entry with the highest sequence number is the set.
+//!
+//! Saving appends an entry after the last one of the current page. When it
+//! does not fit (or the page holds an entry that does not check, or the
+//! write fails), the next page of the ring is erased, the other slot's
+//! entry is copied into it, the new entry written after it, and last the
+//! page header with the next generation: only then does that page count.
+//! Erasing is therefore only done on a page that is not current, whose sets
+//! all have newer copies in the current page.
+//!
+//! # Power-loss argument
+//!
+//! A cut inside an append leaves an entry whose CRC fails, whose header
+//! reads erased, or which the flash refuses to read (the G431's ECC error
+//! on a double word left half programmed): the reader stops before it and
+//! finds the previous entry of the slot, the writer turns to a new page at
+//! the next save. (A page header the flash refuses to read makes the
+//! region unreadable: the firmware then erases that page, `flash.rs`.) A cut inside
+//! a page turn (erase, copies, header) leaves a page without a valid header
+//! (the header is programmed last and has its own CRC): it does not count,
+//! the previous current page is untouched, and the next save erases and
+//! fills it again. Either way one set is one entry, so after a cut at any
+//! instant the complete old or the complete new set is loaded, and the other
+//! slot is untouched. The tests in `tests/params_power_loss.rs` cut an
+//! EE-Set, EE-rS and EE-dEF at every word write and page erase to show it.
+//!
+//! Wear: a page is erased once per page of entries, one of which is the
+//! copy of the other set, and the ring spreads the erases over every page;
+//! `tests/params_power_loss.rs` holds 10,000 saves to the flash's erase
+//! budget on both boards' geometries.
+//!
+//! # The layout before this one
+//!
+//! Firmware before the journal kept the same records in a
+//! `sequential-storage` map (`migrate.rs` reads it). A region with no journal
+//! page but such a map is taken over once, at boot or at the first save:
+//! its two sets are written into the page the map kept free, and only when
+//! that page's header is written does the journal count; a cut before leaves
+//! the map as it was, read again at the next boot.
 
-use core::future::Future;
 use core::ops::Range;
-use core::pin::pin;
-use core::task::{Context, Poll, Waker};
 
 use embedded_storage::nor_flash::{NorFlash, NorFlashError, NorFlashErrorKind};
-use embedded_storage_async::nor_flash as async_flash;
-use sequential_storage::cache::Cache;
-use sequential_storage::map::{MapConfig, MapStorage};
 
+use super::migrate::read_old;
 use super::record::{ParamSet, RecordError, RECORD_LEN};
+use crate::rtu::crc16;
 
 /// Which stored set.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -88,14 +121,10 @@ pub enum FlashFault {
 pub enum StorageError {
     /// The flash driver reported an error (or the power went).
     Flash(FlashFault),
-    /// The region's layout is broken beyond the crate's repair.
-    Corrupted,
-    /// No room left (cannot happen with two sets in ≥ 2 pages of ≥ 512 B).
-    Full,
-    /// An item was found but is not a valid record of this firmware.
+    /// An entry was found but is not a valid record of this firmware.
     Record(RecordError),
-    /// The region is not page aligned, smaller than two pages, or the
-    /// pages are too small; or the crate reported a logic error.
+    /// The region is not page aligned, smaller than two pages, the pages
+    /// are too small, or the flash's word sizes do not fit (module docs).
     Config,
 }
 
@@ -125,19 +154,83 @@ pub struct ParamStore<F> {
     range: Range<u32>,
 }
 
-/// Working buffer of the map: key (1 byte) + record, rounded up to the
-/// largest word size the crate supports; word aligned for flash drivers
-/// that need aligned source buffers.
-#[repr(align(32))]
-struct ItemBuffer([u8; ITEM_BUFFER]);
-const ITEM_BUFFER: usize = 192;
-const _: () = assert!((1 + RECORD_LEN).next_multiple_of(32) <= ITEM_BUFFER);
+/// Page header: magic, generation, CRC. The first magic byte has fewer than
+/// four 0 bits, so a header programmed part-way never looks like a page
+/// marker of the old layout, whatever bits the cut left.
+const PAGE_MAGIC: [u8; 2] = [0x7E, 0x4A];
+const PAGE_HEADER: u32 = 8;
+const ENTRY_MAGIC: u8 = b'E';
+const ENTRY_HEADER: usize = 8;
+/// The flash room an entry of an `n`-byte record takes.
+const fn entry_size(n: usize) -> usize {
+    (ENTRY_HEADER + n + 2).next_multiple_of(8)
+}
+/// Longest record an entry may hold: room for records of other versions
+/// than this firmware's (older ones are shorter, a later one may be
+/// longer), so that the store keeps and copies them and `record.rs`
+/// decides what it can read.
+const RECORD_MAX: usize = 246;
+const _: () = assert!(RECORD_LEN <= RECORD_MAX);
+const ENTRY_MAX: usize = entry_size(RECORD_MAX);
+
+/// One entry; word aligned for flash drivers that need aligned sources.
+#[repr(align(8))]
+struct EntryBuf([u8; ENTRY_MAX]);
+
+impl EntryBuf {
+    fn new() -> Self {
+        Self([0; ENTRY_MAX])
+    }
+
+    /// Header and CRC around the `n` record bytes already at 8..8+n; the
+    /// room size.
+    fn seal(&mut self, slot: usize, n: usize, seq: u32) -> usize {
+        let b = &mut self.0;
+        b[0] = ENTRY_MAGIC;
+        b[1] = slot as u8;
+        b[2..4].copy_from_slice(&(n as u16).to_le_bytes());
+        b[4..8].copy_from_slice(&seq.to_le_bytes());
+        let body = ENTRY_HEADER + n;
+        let crc = crc(&b[..body]);
+        b[body..body + 2].copy_from_slice(&crc.to_le_bytes());
+        entry_size(n)
+    }
+}
+
+/// A valid entry in flash.
+#[derive(Clone, Copy)]
+struct Entry {
+    at: u32,
+    len: usize,
+    seq: u32,
+}
+
+/// The current page as a save or load finds it.
+struct Journal {
+    /// Page index in the region and its generation; `None`: no page yet.
+    page: Option<(u32, u32)>,
+    /// The newest valid entry of each slot.
+    sets: [Option<Entry>; 2],
+    /// Where the next entry goes; `None` after an entry that does not check.
+    free: Option<u32>,
+    /// Highest sequence number in the page.
+    seq: u32,
+}
 
 impl<F: NorFlash> ParamStore<F> {
+    const PAGE: u32 = F::ERASE_SIZE as u32;
+
     /// A store on `range` (page aligned, ≥ 2 erase pages) of `flash`.
     pub fn new(flash: F, range: Range<u32>) -> Result<Self, StorageError> {
-        MapConfig::<Blocking<'_, F>>::try_new(range.clone()).map_err(|_| StorageError::Config)?;
-        if F::ERASE_SIZE < 2 * ITEM_BUFFER {
+        let page = Self::PAGE;
+        let fits = range.start.is_multiple_of(page)
+            && range.end.is_multiple_of(page)
+            && range.end >= range.start.saturating_add(2 * page)
+            && range.end as usize <= flash.capacity()
+            && F::ERASE_SIZE >= PAGE_HEADER as usize + 2 * ENTRY_MAX
+            && F::READ_SIZE == 1
+            && 8 % F::WRITE_SIZE == 0;
+        if !fits {
             return Err(StorageError::Config);
         }
         Ok(Self { flash, range })
@@ -155,37 +248,46 @@ impl<F: NorFlash> ParamStore<F> {
 
     /// Reads one set: `Ok(None)` if it was never written.
     pub fn load(&mut self, slot: Slot) -> Result<Option<(ParamSet, usize)>, StorageError> {
-        let range = self.range.clone();
-        let mut buf = ItemBuffer([0; ITEM_BUFFER]);
-        let found = block_on(async {
-            let mut map = map(&mut self.flash, range);
-            map.fetch_item::<&[u8]>(&mut buf.0, &(slot as u8)).await
-        })
-        .map_err(StorageError::from)?;
-        match found {
-            None => Ok(None),
-            Some(bytes) => ParamSet::decode(bytes)
-                .map(Some)
-                .map_err(StorageError::Record),
-        }
+        let journal = self.journal()?;
+        let mut buf = EntryBuf::new();
+        let found = if journal.page.is_some() {
+            journal.sets[slot as usize].map(|e| (e.at + ENTRY_HEADER as u32, e.len))
+        } else {
+            read_old(&mut self.flash, &self.range, &mut buf.0[..1 + RECORD_MAX])
+                .map_err(flash_error)?
+                .sets[slot as usize]
+        };
+        let Some((at, len)) = found else {
+            return Ok(None);
+        };
+        let record = &mut buf.0[..len];
+        self.read(at, record)?;
+        ParamSet::decode(record)
+            .map(Some)
+            .map_err(StorageError::Record)
     }
 
     /// Writes one set; after a power cut at any point inside, [`Self::load`]
     /// returns the complete previous set or the complete new one.
     pub fn save(&mut self, slot: Slot, set: &ParamSet) -> Result<(), StorageError> {
-        let range = self.range.clone();
-        let record = set.encode();
-        let mut buf = ItemBuffer([0; ITEM_BUFFER]);
-        block_on(async {
-            let mut map = map(&mut self.flash, range);
-            map.store_item(&mut buf.0, &(slot as u8), &&record[..])
-                .await
-        })
-        .map_err(StorageError::from)
+        self.take_over_old()?;
+        let journal = self.journal()?;
+        let mut new = EntryBuf::new();
+        new.0[ENTRY_HEADER..ENTRY_HEADER + RECORD_LEN].copy_from_slice(&set.encode());
+        let size = new.seal(slot as usize, RECORD_LEN, journal.seq.wrapping_add(1));
+        if let (Some((page, _)), Some(free)) = (journal.page, journal.free) {
+            let end = self.page_start(page) + Self::PAGE;
+            if free + size as u32 <= end && self.flash.write(free, &new.0[..size]).is_ok() {
+                return Ok(());
+            }
+        }
+        self.turn_page(&journal, slot as usize, &new.0[..size])
     }
 
     /// At power-up: the saved set, or the defaults and why (SPEC §9).
     pub fn boot(&mut self) -> Boot {
+        // If the take-over fails, the old layout is still there and read.
+        let _ = self.take_over_old();
         match self.load(Slot::Saved) {
             Ok(Some((set, fixed))) => Boot {
                 set,
@@ -201,83 +303,181 @@ impl<F: NorFlash> ParamStore<F> {
             },
         }
     }
-}
 
-type Map<'f, F> = MapStorage<u8, Blocking<'f, F>, Cache<Uncached, Uncached, Uncached, u8>>;
-use sequential_storage::cache::Uncached;
+    fn pages(&self) -> u32 {
+        (self.range.end - self.range.start) / Self::PAGE
+    }
 
-/// A map over the region. Uncached: all state is in flash, so a map made
-/// for each operation is always consistent with it (and a reboot is no
-/// different from the next operation).
-fn map<F: NorFlash>(flash: &mut F, range: Range<u32>) -> Map<'_, F> {
-    // `new` checked the range, so the fallback is never taken.
-    let config = match MapConfig::try_new(range.clone()) {
-        Ok(c) => c,
-        Err(_) => MapConfig::new(0..0),
-    };
-    MapStorage::new(Blocking(flash), config, Cache::new_uncached())
-}
+    fn page_start(&self, page: u32) -> u32 {
+        self.range.start + page * Self::PAGE
+    }
 
-impl<E: NorFlashError> From<sequential_storage::Error<E>> for StorageError {
-    fn from(e: sequential_storage::Error<E>) -> Self {
-        use sequential_storage::Error as S;
-        match e {
-            S::Storage { value, .. } => Self::Flash(match value.kind() {
-                NorFlashErrorKind::NotAligned => FlashFault::NotAligned,
-                NorFlashErrorKind::OutOfBounds => FlashFault::OutOfBounds,
-                _ => FlashFault::Other,
-            }),
-            S::FullStorage | S::ItemTooBig => Self::Full,
-            S::Corrupted { .. } => Self::Corrupted,
-            S::SerializationError(_) => Self::Record(RecordError::Malformed),
-            _ => Self::Config,
+    fn read(&mut self, at: u32, buf: &mut [u8]) -> Result<(), StorageError> {
+        self.flash.read(at, buf).map_err(flash_error)
+    }
+
+    fn write(&mut self, at: u32, buf: &[u8]) -> Result<(), StorageError> {
+        self.flash.write(at, buf).map_err(flash_error)
+    }
+
+    /// The page's generation, if its header is complete.
+    fn generation(&mut self, page: u32) -> Result<Option<u32>, StorageError> {
+        let mut h = [0u8; PAGE_HEADER as usize];
+        self.read(self.page_start(page), &mut h)?;
+        let generation = u32::from_le_bytes([h[2], h[3], h[4], h[5]]);
+        Ok((h == page_header(generation)).then_some(generation))
+    }
+
+    /// Finds the current page and reads its entries.
+    fn journal(&mut self) -> Result<Journal, StorageError> {
+        let mut j = Journal {
+            page: None,
+            sets: [None, None],
+            free: None,
+            seq: 0,
+        };
+        for p in 0..self.pages() {
+            if let Some(g) = self.generation(p)? {
+                if j.page.is_none_or(|(_, best)| g > best) {
+                    j.page = Some((p, g));
+                }
+            }
         }
-    }
-}
-
-/// A blocking [`NorFlash`] seen as an `embedded-storage-async` one: every
-/// future it returns is ready at once.
-pub struct Blocking<'f, F>(&'f mut F);
-
-impl<F: NorFlash> async_flash::ErrorType for Blocking<'_, F> {
-    type Error = F::Error;
-}
-
-impl<F: NorFlash> async_flash::ReadNorFlash for Blocking<'_, F> {
-    const READ_SIZE: usize = F::READ_SIZE;
-
-    async fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
-        self.0.read(offset, bytes)
-    }
-
-    fn capacity(&self) -> usize {
-        self.0.capacity()
-    }
-}
-
-impl<F: NorFlash> async_flash::NorFlash for Blocking<'_, F> {
-    const WRITE_SIZE: usize = F::WRITE_SIZE;
-    const ERASE_SIZE: usize = F::ERASE_SIZE;
-
-    async fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
-        self.0.erase(from, to)
-    }
-
-    async fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
-        self.0.write(offset, bytes)
-    }
-}
-
-/// Runs a future to completion by polling it (no_std, no executor). The
-/// futures of this module never wait, so the first poll finishes them.
-pub fn block_on<T>(fut: impl Future<Output = T>) -> T {
-    let mut fut = pin!(fut);
-    let mut cx = Context::from_waker(Waker::noop());
-    loop {
-        if let Poll::Ready(v) = fut.as_mut().poll(&mut cx) {
-            return v;
+        let Some((page, _)) = j.page else {
+            return Ok(j);
+        };
+        let end = self.page_start(page) + Self::PAGE;
+        let mut at = self.page_start(page) + PAGE_HEADER;
+        let mut buf = EntryBuf::new();
+        while at + ENTRY_HEADER as u32 <= end {
+            // An entry the flash cannot read (the G431's ECC error on a
+            // double word a power cut left half programmed) is one that
+            // does not check: the entries before it still count.
+            let h = &mut buf.0[..ENTRY_HEADER];
+            if self.read(at, h).is_err() {
+                return Ok(j);
+            }
+            if h.iter().all(|&b| b == 0xFF) {
+                break;
+            }
+            let Some(e) = self.entry(at, end, &mut buf) else {
+                return Ok(j);
+            };
+            let slot = usize::from(buf.0[1]);
+            if j.sets[slot].is_none_or(|old| e.seq > old.seq) {
+                j.sets[slot] = Some(e);
+            }
+            j.seq = j.seq.max(e.seq);
+            at += entry_size(e.len) as u32;
         }
+        j.free = Some(at);
+        Ok(j)
     }
+
+    /// The entry at `at` whose header is in `buf`, if it is whole and
+    /// readable.
+    fn entry(&mut self, at: u32, end: u32, buf: &mut EntryBuf) -> Option<Entry> {
+        let b = &mut buf.0;
+        let len = usize::from(u16::from_le_bytes([b[2], b[3]]));
+        let size = entry_size(len);
+        if b[0] != ENTRY_MAGIC || b[1] > 1 || !(4..=RECORD_MAX).contains(&len) {
+            return None;
+        }
+        if at + size as u32 > end {
+            return None;
+        }
+        self.read(at + ENTRY_HEADER as u32, &mut b[ENTRY_HEADER..size])
+            .ok()?;
+        let body = ENTRY_HEADER + len;
+        if crc(&b[..body]).to_le_bytes() != b[body..body + 2] {
+            return None;
+        }
+        let seq = u32::from_le_bytes([b[4], b[5], b[6], b[7]]);
+        Some(Entry { at, len, seq })
+    }
+
+    /// Takes the next page of the ring into use with the other slot's set
+    /// and `new` (a sealed entry of `slot`).
+    fn turn_page(&mut self, j: &Journal, slot: usize, new: &[u8]) -> Result<(), StorageError> {
+        let (page, generation) = j.page.unwrap_or((self.pages() - 1, 0));
+        let target = (page + 1) % self.pages();
+        let start = self.page_start(target);
+        self.flash
+            .erase(start, start + Self::PAGE)
+            .map_err(flash_error)?;
+        let mut at = start + PAGE_HEADER;
+        if let Some(e) = j.sets[1 - slot] {
+            let mut buf = EntryBuf::new();
+            let copy = &mut buf.0[..entry_size(e.len)];
+            self.read(e.at, copy)?;
+            self.write(at, copy)?;
+            at += copy.len() as u32;
+        }
+        self.write(at, new)?;
+        self.write(start, &page_header(generation.wrapping_add(1)))
+    }
+
+    /// A region without a journal page but with sets of the layout before
+    /// it: copies them into the page that layout left free and makes it the
+    /// first journal page. Does nothing on a journal or a blank region.
+    fn take_over_old(&mut self) -> Result<(), StorageError> {
+        for p in 0..self.pages() {
+            if self.generation(p)?.is_some() {
+                return Ok(());
+            }
+        }
+        let mut scratch = EntryBuf::new();
+        let old = read_old(
+            &mut self.flash,
+            &self.range,
+            &mut scratch.0[..1 + RECORD_MAX],
+        )
+        .map_err(flash_error)?;
+        if old.sets == [None, None] {
+            return Ok(());
+        }
+        let start = self.page_start(old.free_page);
+        self.flash
+            .erase(start, start + Self::PAGE)
+            .map_err(flash_error)?;
+        let mut at = start + PAGE_HEADER;
+        for (slot, found) in old.sets.into_iter().enumerate() {
+            let Some((from, len)) = found else {
+                continue;
+            };
+            let mut buf = EntryBuf::new();
+            self.read(from, &mut buf.0[ENTRY_HEADER..ENTRY_HEADER + len])?;
+            let size = buf.seal(slot, len, slot as u32 + 1);
+            self.write(at, &buf.0[..size])?;
+            at += size as u32;
+        }
+        self.write(start, &page_header(1))
+    }
+}
+
+/// The header of a page of `generation`.
+fn page_header(generation: u32) -> [u8; PAGE_HEADER as usize] {
+    let mut h = [0u8; PAGE_HEADER as usize];
+    h[..2].copy_from_slice(&PAGE_MAGIC);
+    h[2..6].copy_from_slice(&generation.to_le_bytes());
+    let crc = crc(&h[..6]);
+    h[6..].copy_from_slice(&crc.to_le_bytes());
+    h
+}
+
+/// The Modbus CRC, called rather than inlined at each of the store's uses
+/// (flash: none of them is on a hot path).
+#[inline(never)]
+fn crc(bytes: &[u8]) -> u16 {
+    crc16(bytes)
+}
+
+fn flash_error<E: NorFlashError>(e: E) -> StorageError {
+    StorageError::Flash(match e.kind() {
+        NorFlashErrorKind::NotAligned => FlashFault::NotAligned,
+        NorFlashErrorKind::OutOfBounds => FlashFault::OutOfBounds,
+        _ => FlashFault::Other,
+    })
 }
 
 #[cfg(all(test, feature = "sim"))]
@@ -349,13 +549,11 @@ mod tests {
         let mut store = ParamStore::new(SimFlash::<2>::new(), 0..4096).unwrap();
         let mut record = set_with(999).encode();
         record[2] = RECORD_VERSION_NEXT;
-        let mut buf = ItemBuffer([0; ITEM_BUFFER]);
-        block_on(map(store.flash(), 0..4096).store_item(
-            &mut buf.0,
-            &(Slot::Saved as u8),
-            &&record[..],
-        ))
-        .unwrap();
+        let mut buf = EntryBuf::new();
+        buf.0[ENTRY_HEADER..ENTRY_HEADER + RECORD_LEN].copy_from_slice(&record);
+        let size = buf.seal(Slot::Saved as usize, RECORD_LEN, 1);
+        let journal = store.journal().unwrap();
+        store.turn_page(&journal, 0, &buf.0[..size]).unwrap();
         let boot = store.boot();
         assert_eq!(
             boot.outcome,
@@ -366,6 +564,27 @@ mod tests {
         assert_eq!(boot.set, ParamSet::defaults());
     }
     const RECORD_VERSION_NEXT: u8 = super::super::RECORD_VERSION + 1;
+
+    #[test]
+    fn a_longer_record_of_a_later_firmware_is_kept_through_page_turns() {
+        // a downgrade must not lose the other set: its entry is copied as is
+        let mut store = ParamStore::new(SimFlash::<2>::new(), 0..4096).unwrap();
+        let n = RECORD_MAX;
+        let mut buf = EntryBuf::new();
+        buf.0[ENTRY_HEADER..ENTRY_HEADER + n].fill(0x33);
+        buf.0[ENTRY_HEADER..ENTRY_HEADER + 3].copy_from_slice(&[b'P', b'S', 9]);
+        let size = buf.seal(Slot::Backup as usize, n, 1);
+        let journal = store.journal().unwrap();
+        store.turn_page(&journal, 1, &buf.0[..size]).unwrap();
+        for i in 0..30 {
+            store.save(Slot::Saved, &set_with(200 + i)).unwrap();
+        }
+        assert_eq!(store.load(Slot::Saved).unwrap(), Some((set_with(229), 0)));
+        assert_eq!(
+            store.load(Slot::Backup),
+            Err(StorageError::Record(RecordError::Version(9)))
+        );
+    }
 
     #[test]
     fn a_bad_region_is_refused() {

@@ -1,5 +1,6 @@
 """Harness for the firmware-in-the-loop tests: each board's release image
-run by fw-sim (docs/fw-sim.md), talked to over raw RTU-over-TCP exactly as
+(or, with `dev=True`, its development image, which also logs `info`) run
+by fw-sim (docs/fw-sim.md), talked to over raw RTU-over-TCP exactly as
 tests/e2e talks to the virtual drive. The frames, exception table and
 client helpers are the e2e tests' own (imported, not copied). A runner that
 stopped on a fault fails the test that used it, with its message."""
@@ -29,6 +30,14 @@ ELF = {
                  or ROOT / "target" / "thumbv7em-none-eabihf" / "fw" / "modbus-drive"),
     "f103": Path(os.environ.get("FW_SIM_ELF_F103")
                  or ROOT / "target" / "thumbv7m-none-eabi" / "fw" / "modbus-drive"),
+}
+# the development image (cargo fw-dev): the same code with defmt at info,
+# for the tests that read an info log line (docs/firmware.md)
+ELF_DEV = {
+    "g431": Path(os.environ.get("FW_SIM_ELF_DEV_G431")
+                 or ROOT / "target" / "thumbv7em-none-eabihf" / "fw-dev" / "modbus-drive"),
+    "f103": Path(os.environ.get("FW_SIM_ELF_DEV_F103")
+                 or ROOT / "target" / "thumbv7m-none-eabi" / "fw-dev" / "modbus-drive"),
 }
 BOARDS = ["g431", "f103"]
 READY_TIMEOUT_S = 30.0
@@ -99,12 +108,13 @@ def free_port() -> int:
 class Firmware:
     """One fw-sim process running one board's image."""
 
-    def __init__(self, workdir: Path, board: str, flags: list[str]):
+    def __init__(self, workdir: Path, board: str, flags: list[str], dev: bool = False):
         self.board = board
         self.port = free_port()
         self.workdir = workdir
         self.err_path = workdir / f"fw-sim-{board}-{self.port}.stderr"
-        cmd = [str(SIM), "--board", board, "--elf", str(ELF[board]),
+        elf = (ELF_DEV if dev else ELF)[board]
+        cmd = [str(SIM), "--board", board, "--elf", str(elf),
                "--tcp", f"127.0.0.1:{self.port}", *flags]
         self.err = open(self.err_path, "wb")
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=self.err)
@@ -147,8 +157,8 @@ class Firmware:
         self.err.close()
         return rc
 
-    def client(self) -> ModbusTcpClient:
-        c = ModbusTcpClient("127.0.0.1", port=self.port, framer=FramerType.RTU, timeout=1.0,
+    def client(self, timeout: float = 1.0) -> ModbusTcpClient:
+        c = ModbusTcpClient("127.0.0.1", port=self.port, framer=FramerType.RTU, timeout=timeout,
                             retries=0)
         assert c.connect()
         return c
@@ -203,8 +213,8 @@ def start_fw(tmp_path):
     test, and one that had stopped on a fault fails it."""
     started: list[Firmware] = []
 
-    def start(board: str, *flags: str) -> Firmware:
-        fw = Firmware(tmp_path, board, list(flags))
+    def start(board: str, *flags: str, dev: bool = False) -> Firmware:
+        fw = Firmware(tmp_path, board, list(flags), dev)
         started.append(fw)
         return fw
 

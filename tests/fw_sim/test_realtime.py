@@ -80,7 +80,8 @@ def flood(port: int, line_csv: Path, stop: threading.Event):
 def test_every_pulse_is_kept_at_the_top_rate_while_frames_flood_the_bus(start_fw, board,
                                                                         tmp_path):
     steps, line = tmp_path / "steps.csv", tmp_path / "line.csv"
-    fw = start_fw(board, "--trace-steps", str(steps), "--trace-line", str(line))
+    # the development image: the latency line below is logged at info
+    fw = start_fw(board, "--trace-steps", str(steps), "--trace-line", str(line), dev=True)
     m = Master(fw.client())
     m.enable()
     start_move(m, DISTANCE, TOP_VELOCITY[board])
@@ -156,7 +157,9 @@ def test_an_ee_save_mid_move_is_refused_and_the_move_completes(start_fw, board, 
     pulses = read_csv(steps)
     assert len(pulses) == distance, f"{board}: {len(pulses)} pulses for {distance} steps"
     # at rest the same request is carried out: the refusal was the motion's
-    r = ee_set(m)
+    # (a save that turns a journal page erases it: 22 ms on the chip, more
+    # than a second of wall time under emulation, hence the longer timeout)
+    r = ee_set(Master(fw.client(timeout=5.0)))
     assert not r.isError(), f"{board}: {r}"
 
 

@@ -10,12 +10,15 @@ Every frame goes over one raw connection per runner: the runner hands the
 line's replies to every connected master, so a second client would find
 these replies in its buffer."""
 
+import shutil
 import struct
+from pathlib import Path
 
 from conftest import PA_BASE, hexb, with_crc
 
 PA12 = PA_BASE + 12  # max speed, r/min
 DEFAULT_PA12 = 3000  # SPEC §7
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
 
 
 def old_ee(k: int) -> bytes:
@@ -85,7 +88,8 @@ def test_a_write_protected_flash_answers_exception_4(start_fw, board, tmp_path):
     stays as it was, and nothing reached the flash: after a restart without
     the protection the default is back, and a save then works."""
     state = tmp_path / f"{board}.flash"
-    fw = start_fw(board, "--state", str(state), "--write-protect")
+    # the development image: it logs the core's events (info)
+    fw = start_fw(board, "--state", str(state), "--write-protect", dev=True)
     with Bus(fw) as bus:
         bus.write(PA12, 1500)
         new_set = with_crc(hexb("01 10 00 3A 00 01 02 00 01"))
@@ -111,3 +115,30 @@ def test_ee_rs_without_a_backup_answers_exception_4(start_fw, board, tmp_path):
         bus.write(PA12, 1500)
         assert bus.ee(4) == with_crc(hexb("01 86 04")), board
         assert bus.read(PA12) == 1500
+
+
+def test_parameters_saved_by_the_firmware_before_the_journal_are_kept(start_fw, board, tmp_path):
+    """A board flashed with the firmware that kept its parameters in a
+    sequential-storage map (fixtures/make_old_flash.py: PA12 = 1211 saved
+    after twelve saves, 1500 in the backup) boots this image: the saved set
+    is loaded, the backup is still there for EE-rS, and what EE-rS saves
+    (now in the journal) is what the next restart loads."""
+    state = tmp_path / f"{board}.flash"
+    shutil.copy(FIXTURES / f"{board}-map.flash", state)
+    fw = start_fw(board, "--state", str(state))
+    with Bus(fw) as bus:
+        assert bus.read(PA12) == 1211, f"{board}: the saved set of the old layout"
+        assert bus.ee(4) == old_ee(4), f"{board}: EE-rS from the old layout's backup"
+        assert bus.read(PA12) == 1500, f"{board}: the backup"
+    assert fw.stop() is None
+
+    fw = start_fw(board, "--state", str(state))
+    with Bus(fw) as bus:
+        assert bus.read(PA12) == 1500, f"{board}: EE-rS saved the backup"
+        bus.write(PA12, 1300)
+        assert bus.ee(1) == old_ee(1), f"{board}: EE-Set"
+    assert fw.stop() is None
+
+    fw = start_fw(board, "--state", str(state))
+    with Bus(fw) as bus:
+        assert bus.read(PA12) == 1300, f"{board}: the journal's saved set"
