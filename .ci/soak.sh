@@ -4,4 +4,5 @@
 # `tests/soak/run.sh` (100,000 frames, ~15 min).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+bash .ci/deps.sh base
 tests/soak/run.sh --frames "${SOAK_FRAMES:-10000}"
