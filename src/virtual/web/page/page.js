@@ -175,6 +175,17 @@ function renderStatus(d) {
     `<td class="exc">${e.code} ${EXCEPTIONS[e.code] || ""}${e.answered ? "" : " (not answered)"}</td></tr>`).join("");
 }
 
+// The Modbus TCP server's connection counters (absent without --modbus-tcp).
+function renderModbusTcp(m) {
+  const p = $("modbus-tcp");
+  p.hidden = !m;
+  if (!m) return;
+  const idle = m.idle_timeout_s === null ? "never" : `${m.idle_timeout_s} s`;
+  p.textContent = `Modbus TCP: ${m.connections} connected, ${m.requests} requests, ` +
+    `${m.bad_adus} bad ADUs; closed idle (${idle}): ${m.idle_closed}, ` +
+    `closed to admit a new client: ${m.evicted}, refused: ${m.refused}`;
+}
+
 // ---- dictionary and PA tables ------------------------------------------
 
 function rowHtml(key, cells, writable) {
@@ -240,6 +251,7 @@ async function pollState() {
     if (first || $("od").tBodies[0].rows.length !== d.od.length) buildTables();
     renderStatus(d);
     renderTables(d);
+    renderModbusTcp(s.modbus_tcp);
   } catch (e) {
     // The drive stopped or is restarting: keep trying.
   }
