@@ -59,7 +59,10 @@ in_root "ls /usr/lib/llvm-*/lib/libclang.so"
 
 if [ $build = 1 ]; then
   say "rustup and the fw-sim build (unicorn-engine-sys: cmake + bindgen)"
-  in_root "command -v rustup >/dev/null || curl -sSf https://sh.rustup.rs | sh -s -- -y --profile minimal --default-toolchain none"
+  # rustup-init itself (what sh.rustup.rs fetches)
+  in_root "command -v rustup >/dev/null || { curl -sSfo /tmp/rustup-init \
+    https://static.rust-lang.org/rustup/dist/x86_64-unknown-linux-gnu/rustup-init &&
+    chmod +x /tmp/rustup-init && /tmp/rustup-init -y --profile minimal --default-toolchain none; }"
   in_root "cd /src && rustup show active-toolchain && cd fw-sim && cargo build --release 2>&1 | tail -n 5"
   in_root "cd /src/fw-sim && ls -l target/release/fw-sim"
 fi
