@@ -5,14 +5,20 @@
 # the committed tree in and runs `.ci/deps.sh all` inside, then checks each
 # package by name, and that libclang.so (what bindgen loads) is there.
 # With --build it also installs rustup and builds fw-sim (unicorn-engine-sys
-# runs cmake and bindgen: the step a fresh clone failed) inside.
+# runs cmake and bindgen: the step a fresh clone failed) inside. Where the
+# chroot cannot reach static.rust-lang.org and crates.io, --build-host-rust
+# builds fw-sim offline with this machine's Rust toolchain and crate cache
+# mounted read-only: the C build and bindgen still see only the chroot's
+# Debian packages.
 # Not a stage of .ci/run: it downloads ~1 GB and takes long. Needs root.
-#   sudo bash .ci/clean-install.sh /var/tmp/ci-root [--build]
+#   sudo bash .ci/clean-install.sh /var/tmp/ci-root [--build|--build-host-rust]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=${1:?usage: .ci/clean-install.sh DIR [--build]}
 build=0
 [ "${2:-}" = --build ] && build=1
+host_rust=0
+[ "${2:-}" = --build-host-rust ] && host_rust=1
 mirror=${DEBIAN_MIRROR:-http://deb.debian.org/debian}
 
 say() { printf '\n---- %s\n' "$*"; }
@@ -64,6 +70,21 @@ if [ $build = 1 ]; then
     https://static.rust-lang.org/rustup/dist/x86_64-unknown-linux-gnu/rustup-init &&
     chmod +x /tmp/rustup-init && /tmp/rustup-init -y --profile minimal --default-toolchain none; }"
   in_root "cd /src && rustup show active-toolchain && cd fw-sim && cargo build --release 2>&1 | tail -n 5"
+  in_root "cd /src/fw-sim && ls -l target/release/fw-sim"
+fi
+if [ $host_rust = 1 ]; then
+  say "fw-sim built offline with the host's toolchain (unicorn-engine-sys: cmake + bindgen)"
+  home=${RUSTUP_HOME:-$HOME/.rustup}
+  cargo_home=${CARGO_HOME:-$HOME/.cargo}
+  mkdir -p "$root/root/.rustup" "$root/root/.cargo/bin" "$root/root/.cargo/registry"
+  for m in "$home:/root/.rustup" "$cargo_home/bin:/root/.cargo/bin" \
+    "$cargo_home/registry:/root/.cargo/registry"; do
+    mountpoint -q "$root${m#*:}" || {
+      mount --bind "${m%%:*}" "$root${m#*:}" && mount -o remount,bind,ro "$root${m#*:}"
+      mounted+=("$root${m#*:}")
+    }
+  done
+  in_root "cd /src/fw-sim && rm -rf target && cargo build --offline --release 2>&1 | tail -n 5"
   in_root "cd /src/fw-sim && ls -l target/release/fw-sim"
 fi
 say "clean install: OK"
