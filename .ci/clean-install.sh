@@ -69,7 +69,7 @@ if [ $build = 1 ]; then
   in_root "command -v rustup >/dev/null || { curl -sSfo /tmp/rustup-init \
     https://static.rust-lang.org/rustup/dist/x86_64-unknown-linux-gnu/rustup-init &&
     chmod +x /tmp/rustup-init && /tmp/rustup-init -y --profile minimal --default-toolchain none; }"
-  in_root "cd /src && rustup show active-toolchain && cd fw-sim && cargo build --release 2>&1 | tail -n 5"
+  in_root "cd /src && rustup show active-toolchain && cd fw-sim && cargo build --release 2>&1 | tail -n 40"
   in_root "cd /src/fw-sim && ls -l target/release/fw-sim"
 fi
 if [ $host_rust = 1 ]; then
@@ -84,7 +84,7 @@ if [ $host_rust = 1 ]; then
       mounted+=("$root${m#*:}")
     }
   done
-  in_root "cd /src/fw-sim && rm -rf target && cargo build --offline --release 2>&1 | tail -n 5"
+  in_root "cd /src/fw-sim && rm -rf target && cargo build --offline --release 2>&1 | tail -n 40"
   in_root "cd /src/fw-sim && ls -l target/release/fw-sim"
 fi
 say "clean install: OK"
