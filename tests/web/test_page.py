@@ -355,9 +355,13 @@ def test_the_scope_pauses_zooms_and_downloads_csv(browser, downloads):
     click(browser, "pause")
     assert browser.find_element(By.ID, "pause").text == "Resume"
     frozen = browser.execute_script("return window.scope.frozen.length")
+    frozen_end = browser.execute_script("return window.scope.frozen.at(-1)[0]")
     time.sleep(0.5)
     assert browser.execute_script("return window.scope.frozen.length") == frozen
-    assert browser.execute_script("return window.scope.buf[0].length") > frozen
+    # live data keeps coming in behind the copy: newer samples (not more:
+    # a buffer holding its full 10 s drops one old sample for each new one)
+    wait(browser, lambda: browser.execute_script("return window.scope.buf[0].at(-1)[0]") > frozen_end,
+         "live samples behind the frozen copy")
     # The window: buttons, then the wheel (zoom in by 0.8 a notch).
     browser.find_element(By.CSS_SELECTOR, 'button.span[data-span="1"]').click()
     assert browser.execute_script("return window.scope.span") == 1

@@ -151,6 +151,12 @@ function renderStatus(d) {
   $("state").textContent = d.state.replace(/([a-z])([A-Z])/g, "$1 $2");
   $("mode").textContent = `${MODES[d.mode] ?? d.mode} (${d.mode})`;
   $("address").textContent = d.address;
+  // The readouts come from the same snapshot as the state and the
+  // statusword bits, so that they never disagree (the scope's stream runs
+  // on its own and may lag behind under load).
+  $("pos-readout").textContent = d.position;
+  $("vel-readout").textContent = d.velocity;
+  if (d.following_error !== null) $("fe-readout").textContent = d.following_error;
   $("sw-hex").textContent = hex4(d.statusword);
   $("er-hex").textContent = hex4(d.error_register);
   const names = SW_BITS.slice();
@@ -286,13 +292,6 @@ function connectEvents() {
       let n = 0;
       while (n < b.length && b[n][0] < cut) n++;
       if (n) b.splice(0, n);
-    }
-    const b = scope.buf[drive];
-    if (b && b.length) {
-      const last = b[b.length - 1];
-      $("pos-readout").textContent = last[1];
-      $("vel-readout").textContent = last[2];
-      if (last[3] !== null) $("fe-readout").textContent = last[3];
     }
   };
 }
