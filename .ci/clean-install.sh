@@ -45,6 +45,8 @@ in_root() { chroot "$root" env -i HOME=/root PATH=/root/.cargo/bin:/usr/sbin:/us
   DEBIAN_FRONTEND=noninteractive bash -c "$1"; }
 
 say "the trap: libclang-cpp14 without libclang-dev"
+# a root reused from an earlier run has libclang-dev: take it away again
+in_root "apt-get purge -y -qq libclang-dev libclang-14-dev >/dev/null 2>&1 || true"
 in_root "apt-get update -qq && apt-get install -y -qq --no-install-recommends libclang-cpp14 >/dev/null"
 in_root "dpkg-query -W -f='\${Package} \${db:Status-Status}\n' libclang-cpp14 libclang-dev 2>&1 || true"
 if in_root "ldconfig -p | grep -q libclang"; then
