@@ -300,6 +300,10 @@ def test_scope_streams_at_least_50_samples_per_second(browser):
     for name in ["bus messages", "bus errors", "exceptions", "slave messages",
                  "no response", "busy", "overruns"]:
         assert name in counters
+    # the Modbus TCP server's connection counters (--modbus-tcp is on)
+    mt = text(browser, "#modbus-tcp")
+    assert re.match(r"Modbus TCP: \d+ connected, \d+ requests, \d+ bad ADUs; closed idle "
+                    r"\(60 s\): 0, closed to admit a new client: 0, refused: 0$", mt), mt
 
 
 def test_enable_move_with_two_masters_at_the_same_time(browser, drive):
