@@ -174,7 +174,10 @@ fn work<H: Fn(Request)>(rx: &Mutex<Receiver<Request>>, handler: &H) {
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .recv();
         match next {
-            Ok(request) => handler(request),
+            // a handler that panics loses its request, not the worker
+            Ok(request) => {
+                let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| handler(request)));
+            }
             Err(_) => return,
         }
     }
