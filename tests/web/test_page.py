@@ -604,8 +604,11 @@ def test_a_page_opened_later_gets_the_last_10_s_of_scope(browser, drive):
     # By now the drive has run for more than 10 s.
     browser.get(drive.url)
     wait(browser, lambda: browser.find_element(By.ID, "link").text == "live", "event stream")
-    wait(browser, lambda: browser.execute_script("return (window.scope.buf[0] || []).length")
-         >= 900, "the kept samples")
-    span = browser.execute_script(
-        "const b = window.scope.buf[0]; return b.at(-1)[0] - b[0][0]")
-    assert 9.0 <= span <= 10.0, span
+    # At once: 9 s of history within 5 s of going live (live samples alone
+    # would span less). Counted by time, not by samples: a drive process
+    # starved of CPU samples less often than every 10 ms, and the samples
+    # say when they were taken (the stream test asks >= 50 a second).
+    span = "const b = window.scope.buf[0] || []; return b.length ? b.at(-1)[0] - b[0][0] : 0"
+    wait(browser, lambda: browser.execute_script(span) >= 9.0, "the kept samples", timeout=5)
+    assert 9.0 <= browser.execute_script(span) <= 10.0
+    assert browser.execute_script("return window.scope.buf[0].length") >= 450
