@@ -9,9 +9,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 enforce="${BENCH_ENFORCE:-0}"
 
-if ! command -v qemu-system-arm >/dev/null; then
-  apt-get update -qq && apt-get install -y -qq qemu-system-arm >/dev/null
-fi
+bash .ci/deps.sh base bench
 command -v gungraun-runner >/dev/null ||
   cargo install gungraun-runner --version 0.20.0 --locked --quiet --debug # fast to build, runs as well
 

@@ -6,18 +6,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-missing=()
-command -v mbpoll >/dev/null || missing+=(mbpoll)
-command -v socat >/dev/null || missing+=(socat)
-# Node modbus-serial, the Node-RED / Node HMI client (tests/e2e/node)
-command -v node >/dev/null || missing+=(nodejs)
-command -v npm >/dev/null || missing+=(npm)
-if [ ${#missing[@]} -gt 0 ]; then
-  sudo=""
-  [ "$(id -u)" -ne 0 ] && sudo="sudo"
-  $sudo apt-get update
-  $sudo apt-get install -y "${missing[@]}"
-fi
+# mbpoll, socat, and Node for modbus-serial, the Node-RED / Node HMI
+# client (tests/e2e/node): .ci/packages.txt
+bash .ci/deps.sh base e2e
 
 source .ci/lib.sh
 venv=.venv/e2e

@@ -14,17 +14,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # unicorn-engine builds its C core with cmake; bindgen needs libclang
-missing=()
-command -v cmake >/dev/null || missing+=(cmake)
-command -v mbpoll >/dev/null || missing+=(mbpoll)
-ldconfig -p 2>/dev/null | grep -q libclang || missing+=(libclang-dev)
+# (.ci/packages.txt, asked for by package name)
+bash .ci/deps.sh base fw-sim
 command -v flip-link >/dev/null || cargo install flip-link --locked
-if [ ${#missing[@]} -gt 0 ]; then
-  sudo=""
-  [ "$(id -u)" -ne 0 ] && sudo="sudo"
-  $sudo apt-get update
-  $sudo apt-get install -y "${missing[@]}"
-fi
 rustup target add thumbv7em-none-eabihf thumbv7m-none-eabi
 
 source .ci/lib.sh

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Soak stage of .ci/run (docs/testing.md): 10,000 frames of bus
-# noise on two virtual drives plus the fault checks. The full run is
-# `tests/soak/run.sh` (100,000 frames, ~15 min).
+# Soak stage of .ci/run (docs/testing.md): 100,000 frames of bus noise
+# over the pty on two virtual drives, plus the fault checks. The long run
+# is `tests/soak/run.sh` (1,000,000 frames), not a stage.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-tests/soak/run.sh --frames "${SOAK_FRAMES:-10000}"
+bash .ci/deps.sh base
+tests/soak/run.sh --frames "${SOAK_FRAMES:-100000}"

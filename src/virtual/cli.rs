@@ -34,6 +34,10 @@ TRANSPORTS (both may be used at once):
                              selects the drive with that address; 0 and 255
                              reach the drive when there is only one. Several
                              clients at once. Repeatable; port 0 as --tcp.
+    --tcp-idle-timeout SECS  Close a Modbus TCP connection without a request
+                             in flight after SECS idle (0: never) [default:
+                             60]. With 32 connected, a new client closes the
+                             one idle the longest.
 
 COMMISSIONING PAGE:
     --web ADDR:PORT          Serve a page on ADDR:PORT (only there; e.g.
@@ -41,6 +45,13 @@ COMMISSIONING PAGE:
                              and PA table, jog / move / homing, switches.
                              Its requests go through the drive's dispatcher
                              as a second port. Port 0 picks a free port.
+                             Requests must name ADDR or localhost as Host.
+    --web-token TOKEN        Every request to the page needs TOKEN (the URL's
+                             ?token=, which sets a cookie, or the header
+                             X-Modbus-Drive-Token); at least 16 characters of
+                             A-Z a-z 0-9 - _ . ~. Beyond loopback a token is
+                             always required: without this option a random
+                             one is made and printed in the page's URL.
 
 DRIVES AND AXES:
     --board g431|f103        The board whose step timer the drives run on, so
@@ -152,6 +163,9 @@ pub struct Options {
     pub plot: Option<PathBuf>,
     pub status_line: bool,
     pub web: Option<SocketAddr>,
+    pub web_token: Option<String>,
+    /// `None`: idle Modbus TCP connections stay open.
+    pub tcp_idle_timeout_s: Option<u64>,
     pub board: Board,
 }
 
@@ -170,6 +184,8 @@ impl Default for Options {
             plot: None,
             status_line: true,
             web: None,
+            web_token: None,
+            tcp_idle_timeout_s: Some(60),
             board: Board::G431,
         }
     }
@@ -289,6 +305,19 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
                 .modbus_tcp
                 .push(parse_socket("--modbus-tcp", &value("--modbus-tcp")?)?),
             "--web" => o.web = Some(parse_socket("--web", &value("--web")?)?),
+            "--tcp-idle-timeout" => {
+                let v = value("--tcp-idle-timeout")?;
+                o.tcp_idle_timeout_s = match v.trim().parse::<u64>() {
+                    Ok(0) => None,
+                    Ok(s @ 1..=86_400) => Some(s),
+                    _ => {
+                        return err(format!(
+                            "--tcp-idle-timeout {v}: expected seconds 0..=86400"
+                        ))
+                    }
+                };
+            }
+            "--web-token" => o.web_token = Some(parse_token(&value("--web-token")?)?),
             "--drives" => o.drives = parse_drives(&value("--drives")?)?,
             "--board" => {
                 let v = value("--board")?;
@@ -315,6 +344,9 @@ pub fn parse<I: IntoIterator<Item = String>>(args: I) -> Result<Command, UsageEr
     }
     if !o.pty && o.tcp.is_empty() && o.modbus_tcp.is_empty() {
         return err("--no-pty leaves no transport: add --tcp or --modbus-tcp ADDR:PORT");
+    }
+    if o.web_token.is_some() && o.web.is_none() {
+        return err("--web-token without --web: there is no page to guard");
     }
     check_distinct_sockets(&o)?;
     check_distinct_files(&o)?;
@@ -376,6 +408,17 @@ fn parse_socket(flag: &str, v: &str) -> Result<SocketAddr, UsageError> {
              or [::1]:5020"
         ))
     })
+}
+
+/// A token goes into a URL and a cookie as it is: URL-safe characters only.
+fn parse_token(v: &str) -> Result<String, UsageError> {
+    if !super::web::token_is_valid(v) {
+        return err(format!(
+            "--web-token: expected at least {} characters of A-Z a-z 0-9 - _ . ~",
+            super::web::MIN_TOKEN_LEN
+        ));
+    }
+    Ok(v.to_string())
 }
 
 fn parse_drives(v: &str) -> Result<Vec<u8>, UsageError> {

@@ -125,6 +125,7 @@ impl VirtualDrive {
             listeners.push(l);
         }
         let mut mbap = modbus_tcp::ModbusTcp::default();
+        mbap.idle_timeout_us = opts.tcp_idle_timeout_s.map(|s| s * 1_000_000);
         for &addr in &opts.modbus_tcp {
             let l = Listener::bind(addr)
                 .map_err(|e| StartError(listen_error("--modbus-tcp", addr, &e)))?;
@@ -136,9 +137,9 @@ impl VirtualDrive {
         }
         let web = match opts.web {
             Some(addr) => {
-                let w = WebPort::start(addr, drives.len())
+                let w = WebPort::start(addr, opts.web_token.clone(), drives.len())
                     .map_err(|e| StartError(format!("cannot serve the page on {addr}: {e}")))?;
-                console.log(&format!("web: page on http://{}/", w.addr));
+                console.log(&format!("web: page on {}", w.url()));
                 Some(w)
             }
             None => None,
@@ -210,6 +211,9 @@ impl VirtualDrive {
         let Some(web) = &mut self.web else {
             return;
         };
+        if !self.mbap.listeners.is_empty() {
+            web.set_modbus_tcp(self.mbap.stats_json());
+        }
         for (di, line) in web.serve(now, &mut self.drives) {
             log_events(&mut self.console, &mut self.drives[di], Some("web"));
             // A bus reply still queued for this drive puts a new line
@@ -360,10 +364,14 @@ impl VirtualDrive {
             String::new()
         } else {
             format!(
-                " | modbus-tcp conns {} requests {} bad ADUs {}",
+                " | modbus-tcp conns {} requests {} bad ADUs {} idle-closed {} evicted {} \
+                 refused {}",
                 mb.connections(),
                 mb.stats.requests,
-                mb.stats.bad_adus()
+                mb.stats.bad_adus(),
+                mb.stats.idle_closed,
+                mb.stats.evicted,
+                mb.stats.refused
             )
         };
         self.console.status(format!(

@@ -191,6 +191,21 @@ def click(b, element_id: str):
     b.find_element(By.ID, element_id).click()
 
 
+def set_field(b, element_id: str, value):
+    f = b.find_element(By.ID, element_id)
+    f.clear()
+    f.send_keys(str(value))
+
+
+def status_snapshot(b) -> tuple[int, bool]:
+    """The status panel's position and running bit, read in one step (both
+    rendered from one /api/state snapshot)."""
+    pos, cls = b.execute_script(
+        "return [document.getElementById('pos-readout').innerText, "
+        f"document.querySelector('#sw-bits li[data-bit=\"{SW_RUNNING}\"]').className]")
+    return int(pos), "set" in cls.split()
+
+
 def last_command_ok(b) -> bool:
     return b.find_element(By.ID, "cmd-log").get_attribute("data-ok") == "1"
 
@@ -300,6 +315,10 @@ def test_scope_streams_at_least_50_samples_per_second(browser):
     for name in ["bus messages", "bus errors", "exceptions", "slave messages",
                  "no response", "busy", "overruns"]:
         assert name in counters
+    # the Modbus TCP server's connection counters (--modbus-tcp is on)
+    mt = text(browser, "#modbus-tcp")
+    assert re.match(r"Modbus TCP: \d+ connected, \d+ requests, \d+ bad ADUs; closed idle "
+                    r"\(60 s\): 0, closed to admit a new client: 0, refused: 0$", mt), mt
 
 
 def test_enable_move_with_two_masters_at_the_same_time(browser, drive):
@@ -331,7 +350,14 @@ def test_enable_move_with_two_masters_at_the_same_time(browser, drive):
         assert max(r[2] for r in rows) > 0, "no velocity on the scope"
         assert rows[-1][1] > rows[0][1], "position not rising on the scope"
         assert browser.execute_script("return window.scope.drawn") > drawn + 20
-        assert bit_set(browser, "sw-bits", SW_RUNNING)
+        # Each sample is one snapshot: while the velocity is not 0 the
+        # running bit is set. (When the test gets here the move may be over
+        # on a busy host: its timing is the axis's, not the browser's.)
+        moving = [r for r in rows if r[2] != 0]
+        assert moving and all(r[4] & (1 << SW_RUNNING) for r in moving), moving[:3]
+        # The status panel is one snapshot too: running, or at the target.
+        pos, running = status_snapshot(browser)
+        assert running or pos == MOVE_TARGET, (pos, running)
         wait(browser, lambda: position(browser) == MOVE_TARGET, "the move ends at its target")
         wait(browser, lambda: bit_set(browser, "sw-bits", SW_TARGET_REACHED), "target reached")
     finally:
@@ -355,9 +381,13 @@ def test_the_scope_pauses_zooms_and_downloads_csv(browser, downloads):
     click(browser, "pause")
     assert browser.find_element(By.ID, "pause").text == "Resume"
     frozen = browser.execute_script("return window.scope.frozen.length")
+    frozen_end = browser.execute_script("return window.scope.frozen.at(-1)[0]")
     time.sleep(0.5)
     assert browser.execute_script("return window.scope.frozen.length") == frozen
-    assert browser.execute_script("return window.scope.buf[0].length") > frozen
+    # live data keeps coming in behind the copy: newer samples (not more:
+    # a buffer holding its full 10 s drops one old sample for each new one)
+    wait(browser, lambda: browser.execute_script("return window.scope.buf[0].at(-1)[0]") > frozen_end,
+         "live samples behind the frozen copy")
     # The window: buttons, then the wheel (zoom in by 0.8 a notch).
     browser.find_element(By.CSS_SELECTOR, 'button.span[data-span="1"]').click()
     assert browser.execute_script("return window.scope.span") == 1
@@ -495,6 +525,11 @@ def test_homing_from_the_page_finds_the_home_switch(browser):
     for index, value in [(HOMING_METHOD, 3), (HOMING_SPEED, 50), (HOMING_ZERO_SPEED, 10),
                          (HOMING_ACCEL, 200), (HOME_OFFSET, 0)]:
         assert edit(browser, index, value) == "✓ written", hex(index)
+    # Method 3 starts right of the switch: go there first (how far the
+    # jogs before went depends on how fast the browser let go)
+    set_field(browser, "move-target", MOVE_TARGET)
+    click(browser, "move-go")
+    wait(browser, lambda: status_snapshot(browser) == (MOVE_TARGET, False), "back at the move's target")
     assert position(browser) > HOME_SWITCH[1]
     click(browser, "home")
     wait(browser, lambda: text(browser, "#mode") == "homing (6)", "homing mode")
@@ -537,9 +572,10 @@ def test_a_relative_move_a_save_refused_while_moving_and_a_quick_stop(browser):
     click(browser, "enable")
     wait(browser, lambda: state(browser) == "Operation Enabled", "enabled")
     start = position(browser)
-    target = browser.find_element(By.ID, "move-target")
-    target.clear()
-    target.send_keys("1000000")
+    # slow enough (10,000 steps/s: 100 s for the move) that the quick stop
+    # below comes first however slowly the browser acts
+    set_field(browser, "speed", 10)
+    set_field(browser, "move-target", 1_000_000)
     browser.find_element(By.ID, "move-relative").click()
     click(browser, "move-go")
     wait(browser, lambda: position(browser) > start + 5000, "the relative move runs")
@@ -568,8 +604,11 @@ def test_a_page_opened_later_gets_the_last_10_s_of_scope(browser, drive):
     # By now the drive has run for more than 10 s.
     browser.get(drive.url)
     wait(browser, lambda: browser.find_element(By.ID, "link").text == "live", "event stream")
-    wait(browser, lambda: browser.execute_script("return (window.scope.buf[0] || []).length")
-         >= 900, "the kept samples")
-    span = browser.execute_script(
-        "const b = window.scope.buf[0]; return b.at(-1)[0] - b[0][0]")
-    assert 9.0 <= span <= 10.0, span
+    # At once: 9 s of history within 5 s of going live (live samples alone
+    # would span less). Counted by time, not by samples: a drive process
+    # starved of CPU samples less often than every 10 ms, and the samples
+    # say when they were taken (the stream test asks >= 50 a second).
+    span = "const b = window.scope.buf[0] || []; return b.length ? b.at(-1)[0] - b[0][0] : 0"
+    wait(browser, lambda: browser.execute_script(span) >= 9.0, "the kept samples", timeout=5)
+    assert 9.0 <= browser.execute_script(span) <= 10.0
+    assert browser.execute_script("return window.scope.buf[0].length") >= 450

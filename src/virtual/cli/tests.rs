@@ -62,6 +62,8 @@ fn every_flag_is_understood_in_both_spellings() {
         "--no-status",
         "--web",
         "127.0.0.1:8080",
+        "--web-token",
+        "0123456789abcdef-_.~",
         "--board=F103",
         "--stall-at",
         "-20000",
@@ -80,6 +82,11 @@ fn every_flag_is_understood_in_both_spellings() {
     assert!(run(&["--slip", "a@1"]).is_err());
     assert!(run(&["--encoder-noise", "-1"]).is_err());
     assert_eq!(o.web, Some("127.0.0.1:8080".parse().unwrap()));
+    assert_eq!(o.web_token.as_deref(), Some("0123456789abcdef-_.~"));
+    assert_eq!(o.tcp_idle_timeout_s, Some(60), "the default");
+    let idle = |v: &str| run(&["--tcp-idle-timeout", v]).unwrap().tcp_idle_timeout_s;
+    assert_eq!(idle("5"), Some(5));
+    assert_eq!(idle("0"), None);
     assert_eq!(o.board, Board::F103);
     assert_eq!(o.pty_link, Some(PathBuf::from("/tmp/x")));
     assert_eq!(o.tcp.len(), 2);
@@ -144,6 +151,17 @@ fn bad_flags_are_refused_with_the_flag_named() {
         (&["--no-pty=yes"], "--no-pty takes no value"),
         (&["--standard-exceptions=1"], "takes no value"),
         (&["--web", "8080"], "--web 8080: expected ADDR:PORT"),
+        (
+            &["--web", "0.0.0.0:80", "--web-token", "short"],
+            "at least 16 characters",
+        ),
+        (
+            &["--web", "0.0.0.0:80", "--web-token", "0123456789abcdef&x=1"],
+            "A-Z a-z 0-9",
+        ),
+        (&["--web-token", "0123456789abcdef"], "without --web"),
+        (&["--tcp-idle-timeout", "-1"], "expected seconds"),
+        (&["--tcp-idle-timeout", "86401"], "expected seconds"),
         (&["--drives", "0"], "1..=247"),
         (&["--drives", "248"], "1..=247"),
         (&["--drives", "1,x"], "`x`"),

@@ -14,7 +14,7 @@ modbus-drive as a Modbus master of a drive that runs this firmware (a real
 board on a USB-RS485 adapter, fw-sim, or the virtual drive).
 
 USAGE:
-    modbus-drive commission LINK [--address N] --web ADDR:PORT
+    modbus-drive commission LINK [--address N] --web ADDR:PORT [--web-token T]
     modbus-drive scan --serial PORT [--baud B|auto] [--format F] [--quick]
     modbus-drive params save LINK [--address N] FILE
     modbus-drive params restore LINK [--address N] [--yes] FILE
@@ -37,6 +37,10 @@ OPTIONS:
                              frame times and 25 ms].
     --web ADDR:PORT          commission: serve the page there (127.0.0.1:8080;
                              port 0 picks one, printed on stderr).
+    --web-token TOKEN        commission: every request to the page needs
+                             TOKEN (16+ of A-Z a-z 0-9 - _ . ~); bound
+                             beyond loopback without it, a random one is
+                             printed in the page's URL.
     --quick                  scan: the default line only (115200 8N1).
     --yes                    params restore: write the changes (without it
                              the differences are shown and nothing written).
@@ -52,6 +56,7 @@ pub struct Common {
 pub struct Commission {
     pub common: Common,
     pub web: SocketAddr,
+    pub web_token: Option<String>,
 }
 
 pub struct Scan {
@@ -105,6 +110,7 @@ pub fn parse(args: &[String]) -> Result<Option<Tool>, String> {
     let mut address = 1u8;
     let mut timeout = None;
     let mut web = None;
+    let mut web_token = None;
     let mut quick = false;
     let mut yes = false;
     let mut file = None;
@@ -147,6 +153,16 @@ pub fn parse(args: &[String]) -> Result<Option<Tool>, String> {
             Arg::Flag(f) if f == "--web" => {
                 let v = value("--web")?;
                 web = Some(v.parse().map_err(|_| format!("--web {v}: not ADDR:PORT"))?);
+            }
+            Arg::Flag(f) if f == "--web-token" => {
+                let v = value("--web-token")?;
+                if !crate::virtual_drive::web::token_is_valid(&v) {
+                    return Err(format!(
+                        "--web-token: expected at least {} characters of A-Z a-z 0-9 - _ . ~",
+                        crate::virtual_drive::web::MIN_TOKEN_LEN
+                    ));
+                }
+                web_token = Some(v);
             }
             Arg::Flag(f) if f == "--quick" => quick = true,
             Arg::Flag(f) if f == "--yes" => yes = true,
@@ -210,6 +226,7 @@ pub fn parse(args: &[String]) -> Result<Option<Tool>, String> {
         "commission" => Ok(Some(Tool::Commission(Commission {
             common,
             web: web.ok_or("commission needs --web ADDR:PORT")?,
+            web_token,
         }))),
         "save" | "restore" => {
             let params = Params {

@@ -344,9 +344,10 @@ pub fn run(o: Commission) -> Result<(), String> {
     let c = o.common;
     let timeout = c.timeout.unwrap_or(c.endpoint.default_timeout());
     let master = Master::new(c.endpoint, c.address, timeout);
-    let mut port = WebPort::start(o.web, 1).map_err(|e| format!("--web {}: {e}", o.web))?;
+    let mut port =
+        WebPort::start(o.web, o.web_token, 1).map_err(|e| format!("--web {}: {e}", o.web))?;
     eprintln!("master: {} , address {}", master.describe(), master.unit);
-    eprintln!("web: page on http://{}/", port.addr);
+    eprintln!("web: page on {}", port.url());
     println!("ready");
     let mut drive = RemoteDrive::new(master);
     let start = Instant::now();

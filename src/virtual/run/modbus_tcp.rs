@@ -32,6 +32,15 @@
 //! reassembly (the decoder's fixed buffer), and reading stops while
 //! [`MAX_QUEUED`] replies or [`OUT_MAX`] bytes wait for a peer that does
 //! not read (TCP flow control holds the client back).
+//!
+//! Connection management (Modbus TCP implementation guide §4.2.1): a
+//! connection without a request in flight (nothing half-received, no
+//! reply waiting or unsent) for the idle timeout (`--tcp-idle-timeout`)
+//! is closed, and with [`MAX_CLIENTS`] connected a new one closes the
+//! connection idle the longest to be admitted, so that sockets a client
+//! forgot (or a squatter holds) cannot lock real clients out. Connections
+//! with a request in flight are never closed for it; when every one has
+//! one, the new connection is refused. Each case is counted.
 
 use std::collections::VecDeque;
 use std::io::{ErrorKind, Read, Write};
@@ -69,8 +78,12 @@ pub(super) struct Stats {
     pub truncated: u32,
     /// Gateway exceptions 0x0A / 0x0B sent.
     pub gateway_exceptions: u32,
-    /// Connections refused beyond [`MAX_CLIENTS`].
+    /// Connections refused beyond [`MAX_CLIENTS`] (every one in flight).
     pub refused: u32,
+    /// Connections closed after the idle timeout.
+    pub idle_closed: u32,
+    /// Idle connections closed to admit a new one at the cap.
+    pub evicted: u32,
 }
 
 impl Stats {
@@ -100,11 +113,18 @@ struct Conn {
     eof: bool,
     /// When the unfinished ADU in the decoder began.
     partial_since_us: Option<u64>,
+    /// When the peer last sent bytes or was last sent a reply.
+    last_activity_us: u64,
 }
 
 impl Conn {
     fn wants_input(&self) -> bool {
         !self.eof && self.queued.len() < MAX_QUEUED && self.out.len() < OUT_MAX
+    }
+
+    /// A request half-received, being answered, or its reply unsent.
+    fn in_flight(&self) -> bool {
+        self.decoder.pending() > 0 || !self.queued.is_empty() || !self.out.is_empty()
     }
 }
 
@@ -114,6 +134,8 @@ pub(super) struct ModbusTcp {
     pub listeners: Vec<Listener>,
     conns: Vec<Conn>,
     pub stats: Stats,
+    /// Idle connections close after this; `None`: never.
+    pub idle_timeout_us: Option<u64>,
 }
 
 impl ModbusTcp {
@@ -121,16 +143,39 @@ impl ModbusTcp {
         self.conns.len()
     }
 
-    /// The earliest time a queued response is due or an unfinished ADU
-    /// times out.
+    /// The earliest time a queued response is due, an unfinished ADU
+    /// times out, or a connection has been idle for the idle timeout.
     pub fn next_due(&self) -> Option<u64> {
         self.conns
             .iter()
             .flat_map(|c| {
                 let expiry = c.partial_since_us.map(|t| t + ADU_TIMEOUT_US);
-                c.queued.front().map(|q| q.due_us).into_iter().chain(expiry)
+                let idle = self.idle_timeout_us.map(|t| c.last_activity_us + t);
+                c.queued
+                    .front()
+                    .map(|q| q.due_us)
+                    .into_iter()
+                    .chain(expiry)
+                    .chain(idle)
             })
             .min()
+    }
+
+    /// The counters as JSON, for the page.
+    pub fn stats_json(&self) -> String {
+        let s = &self.stats;
+        format!(
+            "{{\"connections\":{},\"requests\":{},\"bad_adus\":{},\"refused\":{},\
+             \"idle_closed\":{},\"evicted\":{},\"idle_timeout_s\":{}}}",
+            self.conns.len(),
+            s.requests,
+            s.bad_adus(),
+            s.refused,
+            s.idle_closed,
+            s.evicted,
+            self.idle_timeout_us
+                .map_or("null".into(), |t| (t / 1_000_000).to_string())
+        )
     }
 
     /// Poll entries: every listener, then every connection.
@@ -200,11 +245,20 @@ impl VirtualDrive {
                 Ok(Some((stream, peer))) => {
                     let label = format!("modbus-tcp {peer}");
                     if self.mbap.conns.len() >= MAX_CLIENTS {
-                        self.mbap.stats.refused += 1;
-                        self.console.log(&format!(
-                            "{label}: refused, {MAX_CLIENTS} clients connected already"
-                        ));
-                        continue; // dropping the stream closes it
+                        let idlest = (0..self.mbap.conns.len())
+                            .filter(|&ci| !self.mbap.conns[ci].in_flight())
+                            .min_by_key(|&ci| self.mbap.conns[ci].last_activity_us);
+                        let Some(ci) = idlest else {
+                            self.mbap.stats.refused += 1;
+                            self.console.log(&format!(
+                                "{label}: refused, {MAX_CLIENTS} clients connected, \
+                                 each with a request in flight"
+                            ));
+                            continue; // dropping the stream closes it
+                        };
+                        self.mbap.stats.evicted += 1;
+                        let why = format!(" (idle the longest, to admit {peer})");
+                        self.close_conn(ci, &why);
                     }
                     self.console.log(&format!("{label}: connected"));
                     self.mbap.conns.push(Conn {
@@ -215,6 +269,7 @@ impl VirtualDrive {
                         queued: VecDeque::new(),
                         eof: false,
                         partial_since_us: None,
+                        last_activity_us: self.clock.now_us(),
                     });
                 }
                 Ok(None) => return,
@@ -255,6 +310,7 @@ impl VirtualDrive {
             }
             let now = self.clock.now_us();
             let conn = &mut self.mbap.conns[ci];
+            conn.last_activity_us = now;
             conn.partial_since_us = match conn.decoder.pending() {
                 0 => None,
                 _ => Some(conn.partial_since_us.unwrap_or(now)),
@@ -397,6 +453,7 @@ impl VirtualDrive {
     /// line takes effect after the reply).
     pub(super) fn modbus_tcp_send_due(&mut self, now: u64) {
         self.expire_partial_adus(now);
+        self.expire_idle(now);
         let mut done = Vec::new();
         for ci in 0..self.mbap.conns.len() {
             let conn = &mut self.mbap.conns[ci];
@@ -404,6 +461,7 @@ impl VirtualDrive {
                 let Some(q) = conn.queued.pop_front() else {
                     break;
                 };
+                conn.last_activity_us = now;
                 conn.out.extend_from_slice(&q.adu);
                 done.extend(q.drive);
             }
@@ -432,6 +490,24 @@ impl VirtualDrive {
         }
     }
 
+    /// Closes the connections idle for the idle timeout (module docs).
+    fn expire_idle(&mut self, now: u64) {
+        let Some(timeout) = self.mbap.idle_timeout_us else {
+            return;
+        };
+        for ci in (0..self.mbap.conns.len()).rev() {
+            let conn = &self.mbap.conns[ci];
+            // a reply the peer has not taken for so long does not hold
+            // the connection open: only one being received or made does
+            let busy = conn.decoder.pending() > 0 || !conn.queued.is_empty();
+            if !busy && now >= conn.last_activity_us + timeout {
+                self.mbap.stats.idle_closed += 1;
+                let why = format!(" (idle for {} s)", timeout / 1_000_000);
+                self.close_conn(ci, &why);
+            }
+        }
+    }
+
     fn finish_replies(&mut self, done: Vec<(usize, Option<LineConfig>)>) {
         for (di, line) in done {
             self.reply_done(di, line);
@@ -439,11 +515,13 @@ impl VirtualDrive {
     }
 
     fn flush_conn(&mut self, ci: usize) {
+        let now_us = self.clock.now_us();
         let conn = &mut self.mbap.conns[ci];
         while !conn.out.is_empty() {
             match conn.stream.write(&conn.out) {
                 Ok(n) => {
                     conn.out.drain(..n);
+                    conn.last_activity_us = now_us;
                 }
                 Err(e) if e.kind() == ErrorKind::WouldBlock => return,
                 Err(e) if e.kind() == ErrorKind::Interrupted => {}

@@ -1,5 +1,5 @@
-//! The HTTP side: `tiny_http` (synchronous, no async runtime, a few small
-//! dependencies) on threads of its own. Routes:
+//! The page's routes, on the bounded server of `server.rs`, behind the
+//! `Host` and token checks of `guard.rs`:
 //! - `GET /`, `/page.js`, `/page.css`: the page, embedded in the binary;
 //! - `GET /api/state`: every drive's view (JSON), as last published;
 //! - `GET /api/events`: scope samples as server-sent events, the kept ones
@@ -11,17 +11,23 @@
 //! script sets it; a form or script of another site cannot (a browser asks
 //! this server's permission first, and it never gives it), so another web
 //! page open in the same browser cannot move the axis.
+//!
+//! An event stream lives as long as its page, so it runs on a thread of
+//! its own rather than hold a worker, and at most [`MAX_STREAMS`] run at
+//! once (the next is answered 503).
 
 use std::io::{self, Write};
+use std::net::{TcpListener, TcpStream};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::mpsc::{self, Sender};
 use std::sync::Arc;
 use std::thread;
 use std::time::Duration;
 
-use tiny_http::{Header, Method, Request, Response, Server};
-
 use super::commands::{Command, Profile};
 use super::force::Switch;
+use super::guard::{Guard, Refusal, TOKEN_HEADER};
+use super::server::{self, Method, Request, Response};
 use super::{lock, Job, Shared};
 
 const INDEX: &str = include_str!("page/index.html");
@@ -35,62 +41,97 @@ const JOB_TIMEOUT: Duration = Duration::from_secs(5);
 /// An idle event stream sends a comment this often, so that a closed page
 /// is noticed and its thread ends.
 const KEEPALIVE: Duration = Duration::from_secs(2);
+/// Event streams at once: a few pages open on one drive, with a margin.
+pub const MAX_STREAMS: usize = 8;
+/// Longest URL taken (the longest command is a raw PDU of 253 bytes).
+const MAX_URL: usize = 2048;
 
-pub fn spawn(server: Server, jobs: Sender<Job>, shared: Arc<Shared>) -> io::Result<()> {
-    thread::Builder::new()
-        .name("web".into())
-        .spawn(move || {
-            for request in server.incoming_requests() {
-                let jobs = jobs.clone();
-                let shared = Arc::clone(&shared);
-                // One thread per request: an event stream lives as long as
-                // its page, and a slow client holds up nobody else.
-                let spawned = thread::Builder::new()
-                    .name("web-request".into())
-                    .spawn(move || route(request, &jobs, &shared));
-                if spawned.is_err() {
-                    // Out of threads: the request is dropped (tiny_http
-                    // answers 500) and the next one tried.
-                }
-            }
-        })
-        .map(|_| ())
+struct Site {
+    guard: Guard,
+    jobs: Sender<Job>,
+    shared: Arc<Shared>,
+    streams: Arc<AtomicUsize>,
 }
 
-fn header(name: &str, value: &str) -> Header {
-    Header::from_bytes(name.as_bytes(), value.as_bytes()).expect("static header is valid")
+pub fn spawn(
+    listener: TcpListener,
+    guard: Guard,
+    jobs: Sender<Job>,
+    shared: Arc<Shared>,
+) -> io::Result<()> {
+    let site = Site {
+        guard,
+        jobs,
+        shared,
+        streams: Arc::new(AtomicUsize::new(0)),
+    };
+    server::spawn(listener, server::LIMITS, move |request| {
+        route(request, &site)
+    })
 }
 
-fn text(body: &str, content_type: &str, status: u16) -> Response<io::Cursor<Vec<u8>>> {
-    Response::from_data(body.as_bytes().to_vec())
-        .with_status_code(status)
-        .with_header(header("Content-Type", content_type))
-        .with_header(header("Cache-Control", "no-store"))
+fn text(body: &str, content_type: &str, status: u16) -> Response {
+    Response::new(status, content_type, body.as_bytes().to_vec())
+        .with_header("Cache-Control", "no-store")
 }
 
-fn route(request: Request, jobs: &Sender<Job>, shared: &Shared) {
+fn route(request: Request, site: &Site) {
     let url = request.url().to_string();
+    if url.len() > MAX_URL {
+        let _ = request.respond(text("URL too long", "text/plain", 414));
+        return;
+    }
     let (path, query) = url.split_once('?').unwrap_or((&url, ""));
+    let query_token = query_value(query, "token").and_then(Result::ok);
+    let checked = site.guard.check(
+        request.header("Host"),
+        query_token.as_deref(),
+        request.header(TOKEN_HEADER),
+        request.header("Cookie"),
+    );
+    match checked {
+        Ok(()) => {}
+        Err(Refusal::Host) => {
+            let why = "Host is not this drive's address (DNS rebinding?)";
+            let _ = request.respond(text(why, "text/plain", 403));
+            return;
+        }
+        Err(Refusal::Token) => {
+            let why = "a token is required: open the URL the drive printed (…/?token=…)";
+            let _ = request.respond(text(why, "text/plain", 401));
+            return;
+        }
+    }
     let response = match (request.method(), path) {
-        (Method::Get, "/" | "/index.html") => text(INDEX, "text/html; charset=utf-8", 200),
+        (Method::Get, "/" | "/index.html") => {
+            let page = text(INDEX, "text/html; charset=utf-8", 200);
+            // the page's URL carried the token: its later requests carry
+            // the cookie instead
+            match (&query_token, site.guard.token()) {
+                (Some(t), Some(_)) => page.with_header(
+                    "Set-Cookie",
+                    &format!(
+                        "{}={t}; Path=/; HttpOnly; SameSite=Strict",
+                        site.guard.cookie_name()
+                    ),
+                ),
+                _ => page,
+            }
+        }
         (Method::Get, "/page.js") => text(SCRIPT, "text/javascript; charset=utf-8", 200),
         (Method::Get, "/page.css") => text(STYLE, "text/css; charset=utf-8", 200),
         (Method::Get, "/api/state") => {
-            let state = lock(shared).state.clone();
+            let state = lock(&site.shared).state.clone();
             text(&state, "application/json", 200)
         }
         (Method::Get, "/api/events") => {
-            // Ends when the page goes away; nothing to report then.
-            let _ = events(request, shared);
+            start_events(request, site);
             return;
         }
         (Method::Post, "/api/cmd") => {
-            let guarded = request
-                .headers()
-                .iter()
-                .any(|h| h.field.equiv(GUARD.0) && h.value.as_str() == GUARD.1);
+            let guarded = request.header(GUARD.0) == Some(GUARD.1);
             if guarded {
-                command(query, jobs)
+                command(query, &site.jobs)
             } else {
                 text("missing X-Modbus-Drive header", "text/plain", 403)
             }
@@ -101,8 +142,33 @@ fn route(request: Request, jobs: &Sender<Job>, shared: &Shared) {
     let _ = request.respond(response);
 }
 
+/// Hands the event stream to a thread of its own, or answers 503 when
+/// [`MAX_STREAMS`] run already.
+fn start_events(request: Request, site: &Site) {
+    let streams = Arc::clone(&site.streams);
+    if streams.fetch_add(1, Ordering::SeqCst) >= MAX_STREAMS {
+        streams.fetch_sub(1, Ordering::SeqCst);
+        let why = "too many event streams open";
+        let _ = request.respond(text(why, "text/plain", 503));
+        return;
+    }
+    let shared = Arc::clone(&site.shared);
+    let stream = request.into_stream();
+    let spawned = thread::Builder::new()
+        .name("web-events".into())
+        .spawn(move || {
+            // Ends when the page goes away; nothing to report then.
+            let _ = events(stream, &shared);
+            streams.fetch_sub(1, Ordering::SeqCst);
+        });
+    if spawned.is_err() {
+        // out of threads: the stream is dropped with its closure
+        site.streams.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
 /// Parses and queues a command, then waits for the loop's answer.
-fn command(query: &str, jobs: &Sender<Job>) -> Response<io::Cursor<Vec<u8>>> {
+fn command(query: &str, jobs: &Sender<Job>) -> Response {
     let (drive, command) = match parse_command(query) {
         Ok(c) => c,
         Err(why) => return text(&super::error_json(&why), "application/json", 400),
@@ -132,12 +198,16 @@ fn command(query: &str, jobs: &Sender<Job>) -> Response<io::Cursor<Vec<u8>>> {
 
 /// `d=DRIVE&c=COMMAND&…` → drive number and command.
 pub fn parse_command(query: &str) -> Result<(usize, Command), String> {
+    let pairs = query
+        .split('&')
+        .filter_map(|kv| kv.split_once('='))
+        .map(|(k, v)| Ok((k, percent_decode(v)?)))
+        .collect::<Result<Vec<_>, String>>()?;
     let get = |key: &str| {
-        query
-            .split('&')
-            .filter_map(|kv| kv.split_once('='))
+        pairs
+            .iter()
             .find(|(k, _)| *k == key)
-            .map(|(_, v)| v)
+            .map(|(_, v)| v.as_str())
     };
     let number = |key: &str| -> Result<i64, String> {
         let v = get(key).ok_or_else(|| format!("`{key}` is missing"))?;
@@ -207,6 +277,42 @@ pub fn parse_command(query: &str) -> Result<(usize, Command), String> {
     Ok((drive, command))
 }
 
+/// The value of `key` in a query, percent-decoded.
+fn query_value(query: &str, key: &str) -> Option<Result<String, String>> {
+    query
+        .split('&')
+        .filter_map(|kv| kv.split_once('='))
+        .find(|(k, _)| *k == key)
+        .map(|(_, v)| percent_decode(v))
+}
+
+/// A query value as a form sends it: `%XX` is a byte, `+` a space.
+fn percent_decode(v: &str) -> Result<String, String> {
+    let bad = || format!("`{v}` is not a well-formed query value");
+    let b = v.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        match b[i] {
+            b'%' => {
+                let hex = b.get(i + 1..i + 3).ok_or_else(bad)?;
+                let hex = std::str::from_utf8(hex).map_err(|_| bad())?;
+                out.push(u8::from_str_radix(hex, 16).map_err(|_| bad())?);
+                i += 3;
+            }
+            b'+' => {
+                out.push(b' ');
+                i += 1;
+            }
+            c => {
+                out.push(c);
+                i += 1;
+            }
+        }
+    }
+    String::from_utf8(out).map_err(|_| bad())
+}
+
 /// `0360410001` → bytes.
 fn parse_hex(v: &str) -> Result<Vec<u8>, String> {
     let bad = || format!("`pdu={v}` is not hex bytes");
@@ -220,8 +326,7 @@ fn parse_hex(v: &str) -> Result<Vec<u8>, String> {
 }
 
 /// The scope stream: the kept samples, then each new one as it comes.
-fn events(request: Request, shared: &Shared) -> io::Result<()> {
-    let mut w = request.into_writer();
+fn events(mut w: TcpStream, shared: &Shared) -> io::Result<()> {
     w.write_all(
         b"HTTP/1.1 200 OK\r\nContent-Type: text/event-stream\r\nCache-Control: no-store\r\n\
           Connection: close\r\n\r\n",
@@ -297,7 +402,24 @@ mod tests {
         );
         let (_, c) = parse_command("d=0&c=raw&pdu=0360410001").unwrap();
         assert_eq!(c, Command::Raw(vec![0x03, 0x60, 0x41, 0x00, 0x01]));
+        // what a browser's URLSearchParams makes of a typed `+5` and ` 0x10`
+        let (_, c) = parse_command("d=0&c=write&index=%30x6060&value=%2B5").unwrap();
+        assert_eq!(
+            c,
+            Command::Write {
+                index: 0x6060,
+                value: 5
+            }
+        );
+        let (_, c) = parse_command("d=0&c=move&target=-7&speed=1&accel=2&relative=%31").unwrap();
+        assert!(matches!(c, Command::Move { relative: true, .. }));
+        assert_eq!(percent_decode("a+b%20c%2b"), Ok("a b c+".into()));
+        for bad in ["%", "%2", "%zz", "%FF"] {
+            assert!(percent_decode(bad).is_err(), "{bad}");
+        }
         for bad in [
+            "d=0&c=write&index=1&value=%2",
+            "d=0&c=write&index=1&value=+5",
             "d=0&c=raw&pdu=036",
             "d=0&c=raw&pdu=zz",
             "c=enable",

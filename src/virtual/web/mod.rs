@@ -23,8 +23,10 @@
 mod commands;
 mod exceptions;
 mod force;
+mod guard;
 mod http;
 mod modbus;
+mod server;
 mod state;
 
 use std::collections::VecDeque;
@@ -40,6 +42,7 @@ use modbus_drive::slave::Slave;
 pub use commands::Ctx;
 pub use exceptions::ExceptionLog;
 pub use force::{Forced, Switch};
+pub use guard::{token_is_valid, MIN_TOKEN_LEN};
 pub use modbus::{parse_reply, Answer, Dispatch, Pdu};
 pub use state::{quote, OdValue, Snapshot, View, FOLLOWING_ERROR};
 
@@ -97,32 +100,38 @@ struct Shared {
 /// The loop's end of the page.
 pub struct WebPort {
     pub addr: SocketAddr,
+    /// The token a request needs (given, or made for a non-loopback
+    /// address; `guard.rs`).
+    token: Option<String>,
     jobs: Receiver<Job>,
     shared: Arc<Shared>,
     /// Per drive, the page's own slave state (its §6 counters).
     ports: Vec<Slave>,
     next_sample_us: u64,
     next_state_us: u64,
+    /// The Modbus TCP server's counters (JSON), when it runs.
+    modbus_tcp: Option<String>,
 }
 
 impl WebPort {
     /// Listens on `addr` (only there) and starts the HTTP side.
-    pub fn start(addr: SocketAddr, drives: usize) -> io::Result<Self> {
-        let server = tiny_http::Server::http(addr).map_err(io::Error::other)?;
-        let addr = server
-            .server_addr()
-            .to_ip()
-            .ok_or_else(|| io::Error::other("not an IP listener"))?;
+    pub fn start(addr: SocketAddr, token: Option<String>, drives: usize) -> io::Result<Self> {
+        let listener = std::net::TcpListener::bind(addr)?;
+        let addr = listener.local_addr()?;
+        let guard = guard::Guard::new(addr, token)?;
+        let token = guard.token().map(String::from);
         let (tx, jobs) = mpsc::channel();
         let shared = Arc::new(Shared::default());
-        http::spawn(server, tx, Arc::clone(&shared))?;
+        http::spawn(listener, guard, tx, Arc::clone(&shared))?;
         Ok(Self {
             addr,
+            token,
             jobs,
             shared,
             ports: vec![Slave::new(); drives],
             next_sample_us: 0,
             next_state_us: 0,
+            modbus_tcp: None,
         })
     }
 
@@ -157,6 +166,19 @@ impl WebPort {
             self.next_state_us = now_us + STATE_PERIOD_US;
         }
         touched
+    }
+
+    /// The page's address to open, with the token when one is required.
+    pub fn url(&self) -> String {
+        match &self.token {
+            Some(t) => format!("http://{}/?token={t}", self.addr),
+            None => format!("http://{}/", self.addr),
+        }
+    }
+
+    /// The Modbus TCP server's counters, published with the next view.
+    pub fn set_modbus_tcp(&mut self, json: String) {
+        self.modbus_tcp = Some(json);
     }
 
     /// When [`WebPort::serve`] next has something to publish.
@@ -284,7 +306,11 @@ impl WebPort {
             }
             s.push_str(&state::drive_json(&d.view(&self.ports[di])));
         }
-        s.push_str("]}");
+        s.push(']');
+        if let Some(m) = &self.modbus_tcp {
+            let _ = write!(s, ",\"modbus_tcp\":{m}");
+        }
+        s.push('}');
         lock(&self.shared).state = s;
     }
 }

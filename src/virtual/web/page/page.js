@@ -158,6 +158,12 @@ function renderStatus(d) {
   $("state").textContent = d.state.replace(/([a-z])([A-Z])/g, "$1 $2");
   $("mode").textContent = `${MODES[d.mode] ?? d.mode} (${d.mode})`;
   $("address").textContent = d.address;
+  // The readouts come from the same snapshot as the state and the
+  // statusword bits, so that they never disagree (the scope's stream runs
+  // on its own and may lag behind under load).
+  $("pos-readout").textContent = d.position;
+  $("vel-readout").textContent = d.velocity;
+  if (d.following_error !== null) $("fe-readout").textContent = d.following_error;
   $("sw-hex").textContent = hex4(d.statusword);
   $("er-hex").textContent = hex4(d.error_register);
   const names = SW_BITS.slice();
@@ -192,6 +198,17 @@ function renderStatus(d) {
   eb.innerHTML = d.exceptions.slice().reverse().map((e) =>
     `<tr><td>${e.t.toFixed(2)}</td><td>${e.port}</td><td>0x${e.function.toString(16).toUpperCase().padStart(2, "0")}</td>` +
     `<td class="exc">${e.code} ${EXCEPTIONS[e.code] || ""}${e.answered ? "" : " (not answered)"}</td></tr>`).join("");
+}
+
+// The Modbus TCP server's connection counters (absent without --modbus-tcp).
+function renderModbusTcp(m) {
+  const p = $("modbus-tcp");
+  p.hidden = !m;
+  if (!m) return;
+  const idle = m.idle_timeout_s === null ? "never" : `${m.idle_timeout_s} s`;
+  p.textContent = `Modbus TCP: ${m.connections} connected, ${m.requests} requests, ` +
+    `${m.bad_adus} bad ADUs; closed idle (${idle}): ${m.idle_closed}, ` +
+    `closed to admit a new client: ${m.evicted}, refused: ${m.refused}`;
 }
 
 // ---- dictionary and PA tables ------------------------------------------
@@ -260,6 +277,7 @@ async function pollState() {
     if (first || $("od").tBodies[0].rows.length !== d.od.length) buildTables();
     renderStatus(d);
     renderTables(d);
+    renderModbusTcp(s.modbus_tcp);
   } catch (e) {
     // The drive stopped or is restarting: keep trying.
   }
@@ -294,13 +312,6 @@ function connectEvents() {
       let n = 0;
       while (n < b.length && b[n][0] < cut) n++;
       if (n) b.splice(0, n);
-    }
-    const b = scope.buf[drive];
-    if (b && b.length) {
-      const last = b[b.length - 1];
-      $("pos-readout").textContent = last[1];
-      $("vel-readout").textContent = last[2];
-      if (last[3] !== null) $("fe-readout").textContent = last[3];
     }
   };
 }
