@@ -5,8 +5,8 @@
 //! and never looks at this layout again. Only reading is needed, so the
 //! crate itself is not linked.
 //!
-//! The layout, as sequential-storage 8.0 writes it (its `lib.rs`, `item.rs`,
-//! `map.rs`), with `word` = the larger of the flash's read and write sizes:
+//! The layout, as sequential-storage 8.0 writes it (its crate root and its
+//! `item` and `map` modules), with `word` = the larger of the flash's read and write sizes:
 //!
 //! * page state: the first and the last `READ_SIZE` bytes of a page are
 //!   markers, "marked" when at least four of their bits are 0. Neither
