@@ -55,20 +55,7 @@ def edges_of(src: Path, file: Path):
     """(target module, line number) for every cross-module path in `file`."""
     here = module_path(src, file)
     top = here[0]
-    in_block_comment = False
-    for n, raw in enumerate(file.read_text(encoding="utf-8").splitlines(), 1):
-        line = raw
-        if in_block_comment:
-            end = line.find("*/")
-            if end < 0:
-                continue
-            line = line[end + 2 :]
-            in_block_comment = False
-        start = line.find("/*")
-        if start >= 0 and line.find("*/", start) < 0:
-            in_block_comment = True
-            line = line[:start]
-        code = strip_comments(line)
+    for n, code in code_lines(file):
         targets = []
         for group in CRATE_GROUP.finditer(code):
             for item in group.group(1).split(","):
@@ -249,20 +236,7 @@ def host_graph(root: Path):
         return at
 
     for m, f in mods.items():
-        in_block_comment = False
-        for n, raw in enumerate(f.read_text(encoding="utf-8").splitlines(), 1):
-            line = raw
-            if in_block_comment:
-                end = line.find("*/")
-                if end < 0:
-                    continue
-                line = line[end + 2 :]
-                in_block_comment = False
-            start = line.find("/*")
-            if start >= 0 and line.find("*/", start) < 0:
-                in_block_comment = True
-                line = line[:start]
-            code = strip_comments(line)
+        for n, code in code_lines(f):
             for hit in HOST_PATH.finditer(code):
                 head, rest = hit.group(1), hit.group(2)
                 # `super` is the module's parent, whichever file holds it

@@ -20,6 +20,8 @@ use std::collections::BTreeMap;
 use std::fmt::Write;
 
 use crate::virtual_drive::registers::{pa_meta, PA_COUNT};
+// a TOML basic string escapes as a JSON string does
+use crate::virtual_drive::web::quote;
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ParamFile {
@@ -40,22 +42,6 @@ fn name_comment(n: usize) -> String {
     } else {
         format!("{name} ({unit})")
     }
-}
-
-fn quote(s: &str) -> String {
-    let mut o = String::from("\"");
-    for c in s.chars() {
-        match c {
-            '"' => o.push_str("\\\""),
-            '\\' => o.push_str("\\\\"),
-            c if (c as u32) < 0x20 => {
-                let _ = write!(o, "\\u{:04x}", c as u32);
-            }
-            c => o.push(c),
-        }
-    }
-    o.push('"');
-    o
 }
 
 impl ParamFile {
