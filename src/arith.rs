@@ -61,14 +61,33 @@ pub fn div_i64(n: i64, d: i64) -> i64 {
     }
 }
 
+/// `⌊√x⌋` by Newton's iteration with the hardware divide, from a power
+/// of two at or above the root: core's `u32::isqrt` starts from a
+/// 256-entry table (half a kilobyte of flash besides its code).
+pub fn isqrt_u32(x: u32) -> u32 {
+    if x == 0 {
+        return 0;
+    }
+    // 2^⌈bits/2⌉ > √x; below 2^17, so y + x / y cannot overflow
+    let mut y = 1u32 << (32 - x.leading_zeros()).div_ceil(2);
+    loop {
+        // from above, a floor Newton step decreases until ⌊√x⌋
+        let z = (y + x / y) / 2;
+        if z >= y {
+            return y;
+        }
+        y = z;
+    }
+}
+
 /// `⌊√x⌋`: the 32-bit root of the top bits, one Newton step with a
 /// 64-by-64 division, then corrected down to the exact floor.
 pub fn isqrt_u64(x: u64) -> u64 {
     if x >> 32 == 0 {
-        return u64::from((x as u32).isqrt());
+        return u64::from(isqrt_u32(x as u32));
     }
     let k = (64 - x.leading_zeros() - 31) / 2; // x >> 2k keeps 31 or 32 bits
-    let y0 = u64::from(((x >> (2 * k)) as u32).isqrt()) << k;
+    let y0 = u64::from(isqrt_u32((x >> (2 * k)) as u32)) << k;
     // a Newton step in floor arithmetic never lands below ⌊√x⌋ (AM-GM:
     // ⌊(y0 + ⌊x/y0⌋)/2⌋ = ⌊(y0 + x/y0)/2⌋ ≥ ⌊√x⌋), and from this
     // close a start only a little above it
@@ -220,5 +239,25 @@ mod tests {
                 assert_eq!(isqrt_u64(w), w.isqrt(), "isqrt {w}");
             }
         }
+    }
+
+    #[test]
+    fn root_u32_matches_core() {
+        // every x up to 2^20, then every square's neighbours and a
+        // pseudo-random sample over the whole range
+        for w in 0..=1u32 << 20 {
+            assert_eq!(isqrt_u32(w), w.isqrt(), "isqrt {w}");
+        }
+        for r in 1u32..=65_535 {
+            for w in [r * r - 1, r * r, (r * r).saturating_add(1), r * r + 2 * r] {
+                assert_eq!(isqrt_u32(w), w.isqrt(), "isqrt {w}");
+            }
+        }
+        let mut x = 0x9E37_79B9_7F4A_7C15;
+        for i in 0..200_000u32 {
+            let w = (next(&mut x) >> 32) as u32 >> (i % 32);
+            assert_eq!(isqrt_u32(w), w.isqrt(), "isqrt {w}");
+        }
+        assert_eq!(isqrt_u32(u32::MAX), u32::MAX.isqrt());
     }
 }

@@ -23,7 +23,7 @@ pub(super) enum HomingState {
 
 impl Drive {
     pub(super) fn homing_goal(&self, od: &OdValues) -> Option<Goal> {
-        let accel = self.s.steps(u64::from(od.homing_acceleration));
+        let accel = self.s.steps(u32::from(od.homing_acceleration));
         match self.homing {
             HomingState::Searching(h) => {
                 let p = h.phase();
@@ -68,7 +68,7 @@ impl Drive {
             HomingStep::Failed(e) => {
                 self.homing = HomingState::Failed;
                 self.event(DriveEvent::HomingFailed(e));
-                let accel = self.s.steps(u64::from(od.homing_acceleration));
+                let accel = self.s.steps(u32::from(od.homing_acceleration));
                 self.stop_with(accel);
             }
         }

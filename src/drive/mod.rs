@@ -520,7 +520,7 @@ impl DriveLayer for Drive {
     }
 
     fn actual_velocity_rpm(&self) -> i32 {
-        div_i64(self.velocity * 6, self.s.steps_per_rev as i64) as i32
+        div_i64(self.velocity * 6, i64::from(self.s.steps_per_rev)) as i32
     }
 
     fn error_register(&self) -> u16 {
@@ -532,7 +532,7 @@ impl DriveLayer for Drive {
     }
 
     fn monitor(&self) -> DriveMonitor {
-        let spr = self.s.steps_per_rev as i64;
+        let spr = i64::from(self.s.steps_per_rev);
         let command = self
             .active
             .map(|a| a.target)

@@ -24,7 +24,9 @@ pub(super) struct Settings {
     /// below are recomputed when they change.
     pub(super) steps_per_rev_reg: u16,
     pub(super) max_speed_rpm_reg: u16,
-    pub(super) steps_per_rev: u64,
+    /// PA10 in force (a u16 register, at least 1): a u32 so that a ramp
+    /// register times it is one 32×32-bit multiply, which cannot overflow.
+    pub(super) steps_per_rev: u32,
     /// PA12 and the board's maximum step rate, 0.1 steps/s.
     pub(super) max_velocity: u64,
     /// The board's step rate and acceleration limits in 0.1 steps/s and
@@ -74,23 +76,23 @@ impl Settings {
         if spr_reg != self.steps_per_rev_reg || rpm_reg != self.max_speed_rpm_reg {
             self.steps_per_rev_reg = spr_reg;
             self.max_speed_rpm_reg = rpm_reg;
-            let spr = u64::from(spr_reg.max(1));
-            self.steps_per_rev = spr;
+            self.steps_per_rev = u32::from(spr_reg.max(1));
             self.max_velocity = self.rpm_to_velocity(u64::from(rpm_reg));
         }
     }
 
     /// 0.1 rev/s (or rev/s²) register → 0.1 steps/s (steps/s²).
-    pub(super) fn steps(&self, reg: u64) -> u64 {
-        reg.saturating_mul(self.steps_per_rev)
+    /// Below 2^48 (a u32 register times a u16 PA10): no saturation needed.
+    pub(super) fn steps(&self, reg: u32) -> u64 {
+        u64::from(reg) * u64::from(self.steps_per_rev)
     }
 
     /// The profile ramp of 0x6081/0x6083/0x6084, clamped (SPEC §8.4).
     pub(super) fn profile_ramp(&self, od: &OdValues) -> Ramp {
         Ramp {
-            velocity: self.steps(u64::from(od.profile_velocity.unsigned_abs())),
-            accel: self.steps(u64::from(od.acceleration)),
-            decel: self.steps(u64::from(od.deceleration)),
+            velocity: self.steps(od.profile_velocity.unsigned_abs()),
+            accel: self.steps(u32::from(od.acceleration)),
+            decel: self.steps(u32::from(od.deceleration)),
         }
         .clamped(self.max_velocity, self.accel_cap)
     }
@@ -103,10 +105,10 @@ impl Settings {
         } else {
             od.homing_speed
         };
-        let accel = self.steps(u64::from(od.homing_acceleration));
+        let accel = self.steps(u32::from(od.homing_acceleration));
         let cap = self.rpm_to_velocity(u64::from(method.max_rpm()));
         Ramp {
-            velocity: self.steps(u64::from(reg)),
+            velocity: self.steps(reg),
             accel,
             decel: accel,
         }
@@ -114,11 +116,11 @@ impl Settings {
     }
 
     pub(super) fn decel(&self, od: &OdValues) -> u64 {
-        self.steps(u64::from(od.deceleration))
+        self.steps(u32::from(od.deceleration))
     }
 
     pub(super) fn quick_stop_decel(&self, od: &OdValues) -> u64 {
-        self.steps(u64::from(od.quick_stop_deceleration))
+        self.steps(u32::from(od.quick_stop_deceleration))
     }
 
     pub(super) fn cw_limit_enabled(&self) -> bool {
@@ -134,7 +136,7 @@ impl Settings {
     /// r/min → 0.1 steps/s at PA10, capped at the board's maximum step
     /// rate.
     fn rpm_to_velocity(&self, rpm: u64) -> u64 {
-        div_u64(rpm * self.steps_per_rev, 6).min(self.velocity_cap)
+        div_u64(rpm * u64::from(self.steps_per_rev), 6).min(self.velocity_cap)
     }
 }
 
@@ -164,10 +166,25 @@ mod tests {
             pa.set_unchecked(12, rpm);
             s.update(Config { od: &od, pa: &pa });
             let spr = u64::from(spr.max(1));
-            assert_eq!(s.steps_per_rev, spr);
+            assert_eq!(u64::from(s.steps_per_rev), spr);
             let v = (u64::from(rpm) * spr / 6).min(u64::from(Board::G431.max_step_rate()) * 10);
             assert_eq!(s.max_velocity, v, "PA10 {spr} PA12 {rpm}");
             assert_eq!(s.profile_velocity, od.profile_velocity);
+        }
+    }
+
+    #[test]
+    fn step_figures_of_the_largest_registers_are_exact() {
+        // the widest register (u32) times the largest PA10 (u16): the
+        // product the saturating u64 multiply gave, without saturating
+        let od = OdValues::default();
+        let mut pa = Params::defaults();
+        pa.set_unchecked(10, u16::MAX);
+        let mut s = Settings::from(Config { od: &od, pa: &pa }, PlannerConfig::default());
+        s.update(Config { od: &od, pa: &pa });
+        for reg in [0, 1, u32::from(u16::MAX), u32::MAX] {
+            let want = u64::from(reg).saturating_mul(u64::from(u16::MAX));
+            assert_eq!(s.steps(reg), want, "register {reg}");
         }
     }
 }

@@ -121,7 +121,9 @@ static STUCK_LOGGED: AtomicBool = AtomicBool::new(false);
 
 /// ms since boot, wrapping (the time driver's).
 fn now_ms() -> u32 {
-    embassy_time::Instant::now().as_millis() as u32
+    // the crate's 32-bit-step division: `as_millis` would link
+    // compiler_builtins' 64-bit one for this single use
+    modbus_drive::arith::div_u64(embassy_time::Instant::now().as_micros(), 1000) as u32
 }
 
 /// A long-lived task the watchdog supervises besides the control loop:
