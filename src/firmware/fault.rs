@@ -280,8 +280,9 @@ unsafe fn NonMaskableInt() {
 /// Test builds only (`--features fault-test`, for the firmware-in-the-loop
 /// tests): a write (function 0x06) to register 0xFA17 of 0xDEAD panics, of
 /// 0x5717 sticks the dispatcher (it never finishes that frame), of 0xC0DE
-/// sticks the control loop (it never ticks again). Returns true for the
-/// dispatcher's.
+/// sticks the control loop (it never ticks again), of 0x6A90 sticks the
+/// F103's frame-gap task at the next frame's first byte (no frame closes
+/// after it). Returns true for the dispatcher's.
 #[cfg(feature = "fault-test")]
 pub fn test_trigger(ev: modbus_drive::rtu::RxEvent<'_>) -> bool {
     let modbus_drive::rtu::RxEvent::Frame {
@@ -298,8 +299,22 @@ pub fn test_trigger(ev: modbus_drive::rtu::RxEvent<'_>) -> bool {
             false
         }
         0x5717 => true,
+        #[cfg(feature = "board-f103")]
+        0x6A90 => {
+            FRAME_GAP_STUCK.store(true, Ordering::Relaxed);
+            false
+        }
         _ => false,
     }
+}
+
+#[cfg(all(feature = "fault-test", feature = "board-f103"))]
+static FRAME_GAP_STUCK: AtomicBool = AtomicBool::new(false);
+
+/// Test builds only: the frame-gap task is to stick ([`test_trigger`]).
+#[cfg(all(feature = "fault-test", feature = "board-f103"))]
+pub fn frame_gap_stuck() -> bool {
+    FRAME_GAP_STUCK.load(Ordering::Relaxed)
 }
 
 #[cfg(feature = "fault-test")]

@@ -603,6 +603,10 @@ pub async fn frame_gap_task() {
             // checked in at each byte's gap: a bus that never falls silent
             // keeps it busy, not stuck
             super::fault::FRAME_GAP.busy();
+            #[cfg(feature = "fault-test")]
+            if super::fault::frame_gap_stuck() {
+                core::future::pending::<()>().await; // stuck on purpose
+            }
             let last = LAST_BYTE_AT_US.load(Ordering::Relaxed);
             let t35 = T35_US.load(Ordering::Relaxed);
             let wait = super::calc::reply_wait_us(now_us(), last, t35);
