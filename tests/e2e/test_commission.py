@@ -18,8 +18,9 @@ _spec.loader.exec_module(commission)
 class Runner:
     """The virtual drive as a runner of commission.py, with a flash file."""
 
-    def __init__(self, tmp: Path):
-        self.drive = VirtualDrive(tmp, ["--no-status", "--state", str(tmp / "flash.bin")])
+    def __init__(self, tmp: Path, flags: tuple[str, ...] = ()):
+        self.drive = VirtualDrive(tmp, ["--no-status", "--state", str(tmp / "flash.bin"),
+                                        *flags])
         self.link = self.drive.link
         self.drive.start()
 
@@ -75,6 +76,22 @@ def test_the_page_says_the_drive_is_gone_and_finds_it_again(runner, tmp_path):
 
 def test_the_page_enables_and_moves_the_drive(runner, tmp_path):
     commission.the_page_moves_the_drive(runner, BIN, tmp_path)
+
+
+def test_the_page_jogs_the_drive_both_ways(runner, tmp_path):
+    commission.the_page_jogs_the_drive(runner, BIN, tmp_path)
+
+
+def test_the_page_homes_the_drive_to_its_home_switch(tmp_path):
+    r = Runner(tmp_path, ("--home-switch", commission.HOME_WINDOW))
+    try:
+        commission.the_page_homes_the_drive(r, BIN, tmp_path)
+    finally:
+        r.stop()
+
+
+def test_the_pages_fault_reset_clears_a_comm_loss_fault(runner, tmp_path):
+    commission.the_page_resets_a_comm_loss_fault(runner, BIN, tmp_path)
 
 
 def test_the_page_over_modbus_tcp_reads_the_drive(tmp_path):
