@@ -17,4 +17,6 @@ pytest_venv "$venv" tests/e2e/requirements.txt
 (cd tests/e2e/node && npm ci --omit=optional --no-audit --no-fund --loglevel=error)
 
 release_binary e2e
+# the full scan's time at one baud (docs/commissioning.md)
+"$venv/bin/python" tests/e2e/scan_time.py --out docs/generated/scan.md
 run_pytest e2e "$venv" tests/e2e "$@"

@@ -111,6 +111,18 @@ def scan_finds_the_drive_at_its_address_and_line(runner, bin_path: Path):
     assert "scan done: 1 drive(s)" in out.stderr, out.stderr
 
 
+# the baud the full scan is measured and tested at: the drive's default
+SCAN_BAUD = 115200
+
+
+def full_scan_at_one_baud(bin_path: Path, link, baud: int = SCAN_BAUD):
+    """`scan --baud B` without --format: 247 addresses in each of the four
+    formats of PA53. Returns the wall time in seconds and the tool's run."""
+    t0 = time.monotonic()
+    out = tool(bin_path, "scan", "--serial", link, "--baud", baud, timeout=600)
+    return time.monotonic() - t0, out
+
+
 def params_round_trip_survives_a_restart(runner, bin_path: Path, tmp: Path, suffix: str):
     """save → change three PAs → restore (diff, --yes, read back, EE-Set) →
     restart the runner on its --state file → the three values are back."""
@@ -233,3 +245,128 @@ def a_restore_follows_the_drive_to_its_new_address_and_line(runner, bin_path: Pa
     runner.start()
     m = runner.master(17)
     assert [m.read(PA + n) for n in (51, 52, 53, 12)] == [17, 1, 1, 1500]
+
+
+# statusword power states (SPEC §8.1): the bits that tell them apart
+STATE_MASK = 0x006F
+SWITCH_ON_DISABLED = 0x0040  # under mask 0x004F
+OPERATION_ENABLED = 0x0027
+FAULT_BIT = 1 << 3
+HOME_SWITCH_BIT = 1 << 11
+HOMING_ATTAINED = 1 << 12
+HOMING_ERROR = 1 << 13
+TARGET_REACHED = 1 << 10
+ERROR_REGISTER = 0x1001
+# where the homing test's home switch is: the window test_programs uses
+HOME_WINDOW = "-5000:-3000"
+
+
+def after_the_page(runner):
+    """A master of our own once the page has stopped and its last reply has
+    left the wire: one master at a time on a shared line (fw-sim's is one
+    bus, as RS-485 is)."""
+    time.sleep(0.3)
+    return runner.master()
+
+
+def the_page_jogs_the_drive(runner, bin_path: Path, tmp: Path):
+    """Jog + and − with Jog stop between, through /api as the page's
+    buttons send them; the position the page shows follows the motor, and
+    a read of our own afterwards finds it where the page left it, the
+    drive still enabled (halt, not disable)."""
+    page = Commission(bin_path, tmp, "--serial", runner.link)
+    try:
+        page.wait(lambda s: s["link"]["ok"], "the page reads the drive")
+        # a jog needs an enabled drive: refused before any request
+        r = page.cmd(c="jog", dir="pos", speed=20, accel=200)
+        assert not r["ok"] and r["steps"] == [] and "enable it first" in r["error"], r
+        assert page.cmd(c="enable")["ok"]
+        r = page.cmd(c="jog", dir="pos", speed=20, accel=200)
+        assert r["ok"] and len(r["steps"]) == 3, r
+        page.wait(lambda s: s["position"] > 2000 and s["velocity"] != 0, "jogging forward")
+        r = page.cmd(c="jogstop")
+        assert r["ok"], r
+        s = page.wait(lambda s: s["velocity"] == 0 and s["position"] > 2000,
+                      "stopped after Jog stop")
+        forward = s["position"]
+        assert page.cmd(c="jog", dir="neg", speed=20, accel=200)["ok"]
+        page.wait(lambda s: s["position"] < forward - 2000 and s["velocity"] != 0,
+                  "jogging back")
+        assert page.cmd(c="jogstop")["ok"]
+        time.sleep(0.5)
+        s = page.wait(lambda s: s["velocity"] == 0, "stopped again")
+        s2 = page.wait(lambda x: x["position"] == s["position"], "standing still")
+        shown = s2["position"]
+        assert s2["state"] == "OperationEnabled", s2["state"]
+    finally:
+        page.stop()
+    m = after_the_page(runner)
+    assert m.read32(ACTUAL_POSITION) == shown
+    assert m.statusword() & STATE_MASK == OPERATION_ENABLED, hex(m.statusword())
+
+
+def the_page_homes_the_drive(runner, bin_path: Path, tmp: Path):
+    """Homing method 3 (SPEC §8.6) to the runner's home switch at
+    HOME_WINDOW, set up with the page's table writes and started with its
+    Start homing: homing attained, and the origin is the switch's edge
+    (position 0 with the switch active) in a read of our own afterwards."""
+    page = Commission(bin_path, tmp, "--serial", runner.link)
+    try:
+        page.wait(lambda s: s["link"]["ok"], "the page reads the drive")
+        assert page.cmd(c="enable")["ok"]
+        for index, value in ((0x6098, 3), (0x609A, 1000), (0x6099, 20), (0x609B, 10),
+                             (0x607C, 0)):
+            r = page.cmd(c="write", index=index, value=value)
+            assert r["ok"], r
+        r = page.cmd(c="home")
+        assert r["ok"] and len(r["steps"]) == 3, r
+        s = page.wait(lambda s: s["statusword"] & HOMING_ATTAINED
+                      and s["statusword"] & TARGET_REACHED, "homing done", timeout=40)
+        assert not s["statusword"] & HOMING_ERROR, hex(s["statusword"])
+    finally:
+        page.stop()
+    m = after_the_page(runner)
+    assert m.read32(ACTUAL_POSITION) == 0
+    sw = m.statusword()
+    assert sw & HOME_SWITCH_BIT, f"the origin is the switch's edge: {sw:#06x}"
+    assert sw & HOMING_ATTAINED and not sw & HOMING_ERROR, hex(sw)
+
+
+def the_page_resets_a_comm_loss_fault(runner, bin_path: Path, tmp: Path):
+    """PA20 = 200 ms and the drive enabled through the page; the page stops
+    (its polling was the traffic): the drive faults with error register
+    bit 4 (SPEC §8.7). A new page shows the fault, refuses Enable before
+    sending anything, and its Fault reset brings the drive to switch on
+    disabled, which a read of our own confirms after the page."""
+    page = Commission(bin_path, tmp, "--serial", runner.link)
+    try:
+        page.wait(lambda s: s["link"]["ok"], "the page reads the drive")
+        assert page.cmd(c="write", index=PA + 20, value=200)["ok"]
+        assert page.cmd(c="enable")["ok"]
+        page.wait(lambda s: s["state"] == "OperationEnabled", "enabled")
+    finally:
+        page.stop()
+    m = runner.master()
+    sw = 0
+    for _ in range(40):
+        # silence longer than PA20 between two reads (each read is traffic)
+        time.sleep(0.5)
+        sw = m.statusword()
+        if sw & FAULT_BIT:
+            break
+    assert sw & FAULT_BIT, f"no comm-loss fault: {sw:#06x}"
+    assert m.read(ERROR_REGISTER) & (1 << 4), "error register bit 4 (communication)"
+    page = Commission(bin_path, tmp, "--serial", runner.link)
+    try:
+        page.wait(lambda s: s["link"]["ok"] and s["state"] == "Fault", "the page shows the fault")
+        r = page.cmd(c="enable")
+        assert not r["ok"] and r["steps"] == [] and "reset the fault" in r["error"], r
+        r = page.cmd(c="reset")
+        assert r["ok"], r
+        assert [st["label"] for st in r["steps"]] == ["0x6040 = 0x0000", "0x6040 = 0x0080"], r
+        page.wait(lambda s: s["state"] == "SwitchOnDisabled", "fault reset")
+    finally:
+        page.stop()
+    m = after_the_page(runner)
+    sw = m.statusword()
+    assert sw & 0x004F == SWITCH_ON_DISABLED and not sw & FAULT_BIT, hex(sw)

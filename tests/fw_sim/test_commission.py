@@ -20,15 +20,16 @@ BIN = Path(os.environ.get("MODBUS_DRIVE_BIN") or ROOT / "target" / "release" / "
 class Runner:
     """fw-sim running `board`'s image with a pty and a flash file."""
 
-    def __init__(self, tmp: Path, board: str):
-        self.tmp, self.board = tmp, board
+    def __init__(self, tmp: Path, board: str, flags: tuple[str, ...] = ()):
+        self.tmp, self.board, self.flags = tmp, board, list(flags)
         self.link = tmp / f"tty-{board}"
         self.fw: Firmware | None = None
         self.start()
 
     def start(self):
         self.fw = Firmware(self.tmp, self.board, ["--pty-link", str(self.link),
-                                                  "--state", str(self.tmp / "flash.bin")])
+                                                  "--state", str(self.tmp / "flash.bin"),
+                                                  *self.flags])
 
     def stop(self):
         rc = self.fw.stop()
@@ -70,6 +71,22 @@ def test_the_page_says_the_firmware_is_gone_and_finds_it_again(runner, tmp_path)
 
 def test_the_page_enables_and_moves_the_firmware(runner, tmp_path):
     commission.the_page_moves_the_drive(runner, BIN, tmp_path)
+
+
+def test_the_page_jogs_the_firmware_both_ways(runner, tmp_path):
+    commission.the_page_jogs_the_drive(runner, BIN, tmp_path)
+
+
+def test_the_page_homes_the_firmware_to_its_home_switch(tmp_path, board):
+    r = Runner(tmp_path, board, ("--home-switch", commission.HOME_WINDOW))
+    try:
+        commission.the_page_homes_the_drive(r, BIN, tmp_path)
+    finally:
+        r.stop()
+
+
+def test_the_pages_fault_reset_clears_the_firmwares_comm_loss_fault(runner, tmp_path):
+    commission.the_page_resets_a_comm_loss_fault(runner, BIN, tmp_path)
 
 
 def test_the_page_through_the_runners_modbus_tcp_gateway(start_fw, board, tmp_path):

@@ -129,6 +129,11 @@ def test_the_page_moves_a_drive_and_follows_its_line_away_and_back(browser, kind
         wait(b, lambda: "samples/s" in text(b, "remote") and text(b, "state") == "Switch On Disabled",
              "the drive's state read over the line")
         wait(b, lambda: len(b.find_elements(By.CSS_SELECTOR, "#pa tbody tr")) == 60, "PA table")
+        # the §6 table's page column: the master's requests sent, not "—"
+        sent = lambda: b.execute_script(
+            "const e = document.querySelector('[data-counter=\"page-bus_messages\"]');"
+            " return e ? e.innerText : ''")
+        wait(b, lambda: sent().isdigit() and int(sent()) > 0, "the master's count shown")
         # the force buttons of the simulated axis have no meaning here
         assert text(b, "switches-title") == "Switch inputs (DP-In)"
         b.find_element(By.ID, "enable").click()

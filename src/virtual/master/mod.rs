@@ -18,6 +18,7 @@ mod params_file;
 mod scan;
 mod serial;
 mod status;
+mod tally;
 mod tcp;
 
 use std::fmt;
@@ -30,6 +31,7 @@ use super::registers::{BAUDS, FORMATS, PA_BASE};
 use super::web::{parse_reply, Answer, Pdu};
 
 pub use cli::{is_tool, parse, Tool, HELP};
+use tally::Tally;
 
 /// Baud and character format of a serial line (PA52 / PA53 values).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -188,6 +190,7 @@ pub struct Master {
     pub reopen_on_silence: bool,
     /// Requests in a row that got no reply.
     silent: u32,
+    tally: Tally,
 }
 
 /// Silent requests in a row after which the link is reopened (a port that
@@ -203,6 +206,7 @@ impl Master {
             timeout,
             reopen_on_silence: true,
             silent: 0,
+            tally: Tally::default(),
         }
     }
 
@@ -235,6 +239,11 @@ impl Master {
         Ok(self.link.as_mut().expect("opened above"))
     }
 
+    /// The requests sent on this master and what came back.
+    pub fn tally(&self) -> &Tally {
+        &self.tally
+    }
+
     /// See [`Link::stale`].
     pub fn stale(&self) -> &[u8] {
         self.link.as_ref().map_or(&[], |l| l.stale())
@@ -263,6 +272,7 @@ impl Master {
                     self.link = None;
                     self.silent = 0;
                 }
+                self.tally.count(&reply, &Answer::Silent, !tcp);
                 let why = format!("no reply within {} ms", timeout.as_millis());
                 (request, reply, Err(why))
             }
@@ -279,6 +289,7 @@ impl Master {
                 } else {
                     parse_reply(unit, pdu, &reply)
                 };
+                self.tally.count(&reply, &answer, !tcp);
                 (request, reply, Ok(answer))
             }
         }

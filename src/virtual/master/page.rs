@@ -291,7 +291,7 @@ impl RemoteDrive {
                 busy: c[5],
                 overruns: c[6],
             }),
-            page_counters: None,
+            page_counters: Some(self.master.tally().as_counters()),
             exceptions: &self.log,
             od: self.od.clone(),
             pa: self.pas.clone(),
