@@ -24,7 +24,7 @@ use heapless::Deque;
 use crate::arith::div_i64;
 use crate::dictionary::{Config, DriveLayer, OdValues};
 use crate::motion::{
-    Fill, Goal, HomingError, Planner, PlannerConfig, StepSchedule, SwitchEdges, Switches,
+    Fill, Goal, HomingError, Planner, PlannerConfig, StepSchedule, StepSink, SwitchEdges, Switches,
 };
 use crate::params::{DriveMonitor, Params};
 use brake::BrakeSequence;
@@ -350,6 +350,22 @@ impl Drive {
         sched: &StepSchedule,
         cfg: Config<'_>,
     ) {
+        self.control_with(now_us, switches, edges, sched, &mut (), cfg);
+    }
+
+    /// [`Self::control`], telling `sink` of every push to `sched`
+    /// ([`StepSink`]). Inlined: the firmware's [`Self::control`] stays the
+    /// function it is without a sink.
+    #[inline(always)]
+    pub fn control_with<S: StepSink>(
+        &mut self,
+        now_us: u64,
+        switches: Switches,
+        edges: SwitchEdges,
+        sched: &StepSchedule,
+        sink: &mut S,
+        cfg: Config<'_>,
+    ) {
         self.s.update(cfg);
         self.now_us = now_us;
         let sw = Switches {
@@ -402,7 +418,7 @@ impl Drive {
         }
         let underruns = self.planner.underruns();
         for _ in 0..8 {
-            match self.planner.fill(now_us, sched) {
+            match self.planner.fill_with(now_us, sched, sink) {
                 Fill::Ended => self.motion_ended(),
                 _ => break,
             }
