@@ -356,7 +356,6 @@ impl Drive {
     /// [`Self::control`], telling `sink` of every push to `sched`
     /// ([`StepSink`]). Inlined: the firmware's [`Self::control`] stays the
     /// function it is without a sink.
-    #[inline(always)]
     pub fn control_with<S: StepSink>(
         &mut self,
         now_us: u64,
