@@ -439,12 +439,7 @@ impl Device {
         edges: SwitchEdges,
         schedule: &StepSchedule,
     ) {
-        let cfg = Config {
-            od: &self.od,
-            pa: &self.pa,
-        };
-        self.drive.control(now_us, switches, edges, schedule, cfg);
-        self.after_control(now_us);
+        self.control_latched_with(now_us, switches, edges, schedule, &mut ());
     }
 
     /// [`Self::control_latched`], telling `sink` of every step it pushes
@@ -462,14 +457,7 @@ impl Device {
             pa: &self.pa,
         };
         self.drive
-            .control_with(now_us, switches, edges, schedule, sink, cfg);
-        self.after_control(now_us);
-    }
-
-    /// After the drive's control call: the time kept for
-    /// [`Self::poll_at`] and the drive's events queued for the glue.
-    #[inline(always)]
-    fn after_control(&mut self, now_us: u64) {
+            .control(now_us, switches, edges, schedule, sink, cfg);
         self.last_control_us = Some(now_us);
         while let Some(e) = self.drive.take_event() {
             self.push_event(Event::Drive(e));

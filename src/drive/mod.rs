@@ -341,22 +341,9 @@ impl Drive {
     /// The control loop (see the module docs). `switches` are the logical
     /// states (after PA13, e.g. from [`io::SwitchInputs::read`]) sampled now;
     /// `edges` where they began, if the glue latched that (homing origin,
-    /// SPEC §8.6), else [`SwitchEdges::default`].
-    pub fn control(
-        &mut self,
-        now_us: u64,
-        switches: Switches,
-        edges: SwitchEdges,
-        sched: &StepSchedule,
-        cfg: Config<'_>,
-    ) {
-        self.control_with(now_us, switches, edges, sched, &mut (), cfg);
-    }
-
-    /// [`Self::control`], telling `sink` of every push to `sched`
-    /// ([`StepSink`]). Inlined: the firmware's [`Self::control`] stays the
-    /// function it is without a sink.
-    pub fn control_with<S: StepSink>(
+    /// SPEC §8.6), else [`SwitchEdges::default`]. `sink` is told of every
+    /// push to `sched` ([`StepSink`]; the firmware passes `()`).
+    pub fn control<S: StepSink>(
         &mut self,
         now_us: u64,
         switches: Switches,
