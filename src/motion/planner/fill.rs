@@ -38,7 +38,7 @@ impl Planner {
         if self.covered && self.horizon_covered(now) && (sched.is_running() || !sched.is_empty()) {
             return Fill::Full;
         }
-        let fill = self.fill_from(now, sched, sink);
+        let fill = self.fill_from(sched, now, sink);
         self.covered = fill == Fill::Full && self.cut.is_none() && self.more_to_plan();
         fill
     }
@@ -57,12 +57,15 @@ impl Planner {
                 || self.profile.as_ref().is_some_and(|p| p.remaining() != 0))
     }
 
-    /// [`Planner::fill`] past its first check.
+    /// [`Planner::fill`] past its first check. `sched` before `now`: on a
+    /// Cortex-M the `u64` takes an even register pair (r2:r3) and `sched`
+    /// the r1 it would leave empty, so the sink (nothing, in the firmware)
+    /// is the only argument passed on the stack.
     #[inline(never)]
     pub(super) fn fill_from<S: StepSink>(
         &mut self,
-        now: u64,
         sched: &StepSchedule,
+        now: u64,
         sink: &mut S,
     ) -> Fill {
         if let Some((at, frac, goal)) = self.cut.take() {
