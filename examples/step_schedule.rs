@@ -44,7 +44,7 @@ fn main() {
     let mut ticks = Vec::new();
     let mut now_us = 0;
     loop {
-        let _: Fill = planner.fill(now_us, &sched);
+        let _: Fill = planner.fill_with(now_us, &sched, &mut axis);
         axis.kick(&sched);
         let until = axis.us_to_ticks(now_us + PERIOD_US);
         while axis.run_until(&sched, until, |s| ticks.push(s.tick)) == RunStop::SwitchChanged {}

@@ -164,7 +164,9 @@ fn a_fault_engages_the_brake_when_the_reaction_ends_and_holds_pa23() {
         rig.now_us += 1000;
         let axis_until = rig.axis.us_to_ticks(rig.now_us);
         rig.axis.run_until(&rig.sched, axis_until, |_| {});
-        rig.bus.device.control(rig.now_us, both, &rig.sched);
+        rig.bus
+            .device
+            .control_with(rig.now_us, both, &rig.sched, &mut rig.axis);
         rig.axis.kick(&rig.sched);
         if rig.statusword() & 0x004F == 0x0008 {
             break;
@@ -181,7 +183,9 @@ fn a_fault_engages_the_brake_when_the_reaction_ends_and_holds_pa23() {
     let t0 = rig.now_us;
     while out(&rig) == (true, false) {
         rig.now_us += 1000;
-        rig.bus.device.control(rig.now_us, both, &rig.sched);
+        rig.bus
+            .device
+            .control_with(rig.now_us, both, &rig.sched, &mut rig.axis);
         assert!(rig.now_us - t0 <= 100_000);
     }
     assert_eq!(out(&rig), (false, false));

@@ -266,7 +266,9 @@ fn limits_disabled_by_pa14_do_not_block() {
 }
 
 fn control_with(rig: &mut Rig, sw: Switches) {
-    rig.bus.device.control(rig.now_us, sw, &rig.sched);
+    rig.bus
+        .device
+        .control_with(rig.now_us, sw, &rig.sched, &mut rig.axis);
 }
 
 #[test]

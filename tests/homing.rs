@@ -299,7 +299,7 @@ fn leaving_operation_enabled_interrupts() {
 // ------------------------------------------- origin latched at the edge (SPEC §8.6)
 
 /// The firmware's glue (src/firmware/control.rs, switches.rs) on the
-/// simulated axis: `Device::control_latched` every 1 ms only, switch
+/// simulated axis: `Device::control_latched(_with)` every 1 ms only, switch
 /// states debounced over three samples (`calc::LatchedSwitch`, so 2–3 ms
 /// after the edge), and — if `latch` — the step count the switch interrupt
 /// latched at the edge (`StepSchedule::position`).
@@ -354,7 +354,7 @@ impl Firmware {
         };
         rig.bus
             .device
-            .control_latched(rig.now_us, states, edges, &rig.sched);
+            .control_latched_with(rig.now_us, states, edges, &rig.sched, &mut rig.axis);
         rig.axis.kick(&rig.sched);
     }
 }

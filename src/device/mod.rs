@@ -40,7 +40,7 @@ use embedded_storage::nor_flash::NorFlash;
 use crate::dictionary::{Config, DriveLayer, OdValues, Registers};
 use crate::drive::Drive;
 use crate::event::Event;
-use crate::motion::{PlannerConfig, StepSchedule, SwitchEdges, Switches};
+use crate::motion::{PlannerConfig, StepSchedule, StepSink, SwitchEdges, Switches};
 use crate::params::{
     execute, Boot, BootOutcome, EeError, EeOp, ParamStore, Params, PendingEe, StoreStatus,
 };
@@ -397,6 +397,19 @@ impl Device {
         self.control_latched(now_us, switches, SwitchEdges::default(), schedule);
     }
 
+    /// [`Self::control`], telling `sink` of every step it pushes to
+    /// `schedule` ([`StepSink`]: the simulation keeps their exact times).
+    pub fn control_with<S: StepSink>(
+        &mut self,
+        now_us: u64,
+        switches: Switches,
+        schedule: &StepSchedule,
+        sink: &mut S,
+    ) {
+        let edges = SwitchEdges::default();
+        self.control_latched_with(now_us, switches, edges, schedule, sink);
+    }
+
     /// When the host must call [`Self::control`] next, host µs: one
     /// [`CONTROL_PERIOD_US`] after the last call (at once before the
     /// first). Earlier calls are welcome: after a handled frame and at a
@@ -426,11 +439,25 @@ impl Device {
         edges: SwitchEdges,
         schedule: &StepSchedule,
     ) {
+        self.control_latched_with(now_us, switches, edges, schedule, &mut ());
+    }
+
+    /// [`Self::control_latched`], telling `sink` of every step it pushes
+    /// ([`Self::control_with`]).
+    pub fn control_latched_with<S: StepSink>(
+        &mut self,
+        now_us: u64,
+        switches: Switches,
+        edges: SwitchEdges,
+        schedule: &StepSchedule,
+        sink: &mut S,
+    ) {
         let cfg = Config {
             od: &self.od,
             pa: &self.pa,
         };
-        self.drive.control(now_us, switches, edges, schedule, cfg);
+        self.drive
+            .control(now_us, switches, edges, schedule, sink, cfg);
         self.last_control_us = Some(now_us);
         while let Some(e) = self.drive.take_event() {
             self.push_event(Event::Drive(e));

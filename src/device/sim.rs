@@ -71,7 +71,8 @@ impl<'a> SimHost<'a> {
         }
         let seen = self.axis.switches();
         let seen = self.switches.map_or(seen, |view| view.seen(seen));
-        self.device.control(now_us, seen, self.schedule);
+        self.device
+            .control_with(now_us, seen, self.schedule, &mut *self.axis);
         self.axis.kick(self.schedule);
     }
 

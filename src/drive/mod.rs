@@ -24,7 +24,7 @@ use heapless::Deque;
 use crate::arith::div_i64;
 use crate::dictionary::{Config, DriveLayer, OdValues};
 use crate::motion::{
-    Fill, Goal, HomingError, Planner, PlannerConfig, StepSchedule, SwitchEdges, Switches,
+    Fill, Goal, HomingError, Planner, PlannerConfig, StepSchedule, StepSink, SwitchEdges, Switches,
 };
 use crate::params::{DriveMonitor, Params};
 use brake::BrakeSequence;
@@ -341,13 +341,15 @@ impl Drive {
     /// The control loop (see the module docs). `switches` are the logical
     /// states (after PA13, e.g. from [`io::SwitchInputs::read`]) sampled now;
     /// `edges` where they began, if the glue latched that (homing origin,
-    /// SPEC §8.6), else [`SwitchEdges::default`].
-    pub fn control(
+    /// SPEC §8.6), else [`SwitchEdges::default`]. `sink` is told of every
+    /// push to `sched` ([`StepSink`]; the firmware passes `()`).
+    pub fn control<S: StepSink>(
         &mut self,
         now_us: u64,
         switches: Switches,
         edges: SwitchEdges,
         sched: &StepSchedule,
+        sink: &mut S,
         cfg: Config<'_>,
     ) {
         self.s.update(cfg);
@@ -402,7 +404,7 @@ impl Drive {
         }
         let underruns = self.planner.underruns();
         for _ in 0..8 {
-            match self.planner.fill(now_us, sched) {
+            match self.planner.fill_with(now_us, sched, sink) {
                 Fill::Ended => self.motion_ended(),
                 _ => break,
             }

@@ -12,8 +12,8 @@ pub mod homing;
 pub mod planner;
 pub mod profile;
 pub mod schedule;
-// it reports exact step times, which the schedule keeps only with the
-// feature (schedule/mod.rs module docs)
+// a test double: out of the firmware, which needs none of it; it keeps the
+// exact step times itself (module docs of `schedule`)
 #[cfg(feature = "sim")]
 pub mod sim;
 
@@ -21,7 +21,9 @@ pub use homing::{Homing, HomingError, HomingMethod, HomingStep};
 pub use planner::{
     Fill, Goal, Planner, PlannerConfig, Ramp, MAX_ACCEL, MAX_STEP_RATE, SCHEDULE_SLOTS,
 };
-pub use schedule::{LimitBrake, NextStep, Segment, StepSchedule, StepSource, SCHEDULE_STEPS};
+pub use schedule::{
+    LimitBrake, NextStep, PushedSteps, Segment, StepSchedule, StepSink, StepSource, SCHEDULE_STEPS,
+};
 
 /// Logical switch states, after the polarity of PA13 (true = active).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

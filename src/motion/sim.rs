@@ -23,6 +23,14 @@
 //!   that changed them and at every [`SimAxis::run_until`], so the step
 //!   interrupt's limit brake (SPEC §8.7) begins at the edge step, as on
 //!   the board. Without it the caller plays that interrupt.
+//! - The exact-time record: [`SimAxis`] is a [`StepSink`]; hand it to the
+//!   push path ([`crate::Device::control_with`],
+//!   [`crate::motion::Planner::fill_with`],
+//!   [`StepSchedule::push_steps`]) and it keeps the exact time of every
+//!   step pushed, which [`StepRecord::exact`] reports. The schedule keeps
+//!   none (one layout on every target): a step whose push the axis was not
+//!   told of has no exact time, and `run_until` panics on it rather than
+//!   report a wrong one.
 //! - [`SimAxis::switches`]: the logical switch states at the current
 //!   position; [`SimAxis::position`], [`SimAxis::now_ticks`],
 //!   [`SimAxis::now_us`], [`SimAxis::us_to_ticks`].
@@ -37,7 +45,7 @@
 //! }
 //! ```
 
-use super::schedule::{StepSchedule, StepSource};
+use super::schedule::{PushedSteps, StepSchedule, StepSink, StepSource, SCHEDULE_STEPS};
 use super::Switches;
 
 /// One step the simulated motor made.
@@ -77,7 +85,14 @@ pub struct SimAxis {
     limit_interrupt: Option<u16>,
     /// Steps made.
     pub steps: u64,
+    /// The exact-time record: per ring slot, the ring index (wrapping) of
+    /// the step last pushed there and the fraction its time carries on
+    /// ([`PushedSteps::fractions`]).
+    exact: [(u32, u32); SCHEDULE_STEPS],
 }
+
+/// Half a tick, Q0.32: the carried fraction of a time that falls on a tick.
+const HALF_TICK: u32 = 1 << 31;
 
 impl SimAxis {
     pub fn new(tick_hz: u32) -> Self {
@@ -92,6 +107,8 @@ impl SimAxis {
             home: None,
             limit_interrupt: None,
             steps: 0,
+            // index 1 in slot 0 and so on: no step is recorded yet
+            exact: core::array::from_fn(|i| (i as u32 ^ 1, 0)),
         }
     }
 
@@ -208,7 +225,7 @@ impl SimAxis {
             self.steps += 1;
             on_step(StepRecord {
                 tick,
-                exact: (tick << 32).wrapping_add(self.source.rounding_q32(sched) as u64),
+                exact: (tick << 32).wrapping_add(self.rounding_q32(sched) as u64),
                 position: self.position,
                 forward,
             });
@@ -224,10 +241,51 @@ impl SimAxis {
     }
 }
 
+impl SimAxis {
+    /// Exact time of the pending step minus the tick it is announced at
+    /// (Q32.32, signed, within ±½ tick): the rounding its delay carries,
+    /// from the record (or the limit brake's own fraction: its steps are
+    /// no ring entries).
+    fn rounding_q32(&self, sched: &StepSchedule) -> i64 {
+        let frac = self.source.braking_frac().unwrap_or_else(|| {
+            let index = sched.step_index();
+            let (recorded, frac) = self.exact[index as usize % SCHEDULE_STEPS];
+            assert_eq!(
+                recorded, index,
+                "step at ring index {index} pushed without the axis as sink"
+            );
+            frac
+        });
+        i64::from(frac) - i64::from(HALF_TICK)
+    }
+}
+
+impl StepSink for SimAxis {
+    fn pushed(&mut self, steps: &PushedSteps) {
+        for (index, frac) in steps.fractions() {
+            self.exact[index as usize % SCHEDULE_STEPS] = (index, frac);
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::motion::Segment;
+
+    const ONE_TICK: u64 = 1 << 32;
+
+    fn steps(interval: u64, count: u32) -> Segment {
+        Segment {
+            interval,
+            add: 0,
+            add2: 0,
+            add3: 0,
+            add4: 0,
+            count,
+            forward: true,
+        }
+    }
 
     #[test]
     fn steps_and_switch_windows() {
@@ -237,20 +295,15 @@ mod tests {
             .with_ccw_limit(8)
             .at(0);
         sched
-            .push(Segment {
-                interval: 10 << 32,
-                add: 0,
-                add2: 0,
-                add3: 0,
-                add4: 0,
-                count: 10,
-                forward: true,
-            })
+            .push_steps(&mut steps(10 << 32, 10), 10, &mut axis)
             .unwrap();
         axis.kick(&sched);
         let mut seen = 0;
         assert_eq!(
-            axis.run_until(&sched, 1000, |_| seen += 1),
+            axis.run_until(&sched, 1000, |s| {
+                seen += 1;
+                assert_eq!(s.exact, s.tick << 32);
+            }),
             RunStop::SwitchChanged
         );
         assert_eq!((axis.position(), axis.now_ticks()), (3, 30));
@@ -272,5 +325,53 @@ mod tests {
         );
         assert_eq!((axis.position(), seen, sched.position()), (10, 10, 10));
         assert_eq!(axis.now_ticks(), 1000);
+    }
+
+    /// The record gives each step the exact time of its own push, across
+    /// the ring's wrap.
+    #[test]
+    fn exact_times_come_from_the_record() {
+        let sched = StepSchedule::new();
+        let mut axis = SimAxis::new(1_000_000);
+        let (mut made, mut starts) = (Vec::new(), Vec::new());
+        // 2.25 ticks a step: the exact times fall between ticks
+        let quarter = (9u64 << 32) / 4;
+        for _ in 0..3 {
+            starts.push(axis.now_ticks() << 32);
+            sched
+                .push_steps(&mut steps(quarter, 300), 300, &mut axis)
+                .unwrap();
+            axis.kick(&sched);
+            let until = axis.now_ticks() + 1000;
+            axis.run_until(&sched, until, |s| made.push(s));
+        }
+        assert_eq!(made.len(), 900);
+        // each run from rest is timed from the kick
+        for (run, t0) in made.chunks(300).zip(starts) {
+            for (i, s) in run.iter().enumerate() {
+                assert_eq!(s.exact - t0, (i as u64 + 1) * quarter);
+                assert!(s.exact.abs_diff(s.tick << 32) <= 1 << 31);
+            }
+        }
+    }
+
+    /// A step whose push the axis was not told of stops the run instead of
+    /// reporting a wrong time, also where the slot holds an older step's.
+    #[test]
+    #[should_panic(expected = "ring index 512 pushed without the axis as sink")]
+    fn a_push_the_axis_was_not_told_of_has_no_exact_time() {
+        let sched = StepSchedule::new();
+        let mut axis = SimAxis::new(1_000_000);
+        for _ in 0..2 {
+            sched
+                .push_steps(&mut steps(ONE_TICK, 256), 256, &mut axis)
+                .unwrap();
+            axis.kick(&sched);
+            axis.run_until(&sched, axis.now_ticks() + 1000, |_| {});
+        }
+        assert_eq!(axis.position(), 512);
+        sched.push(steps(ONE_TICK, 1)).unwrap();
+        axis.kick(&sched);
+        axis.run_until(&sched, axis.now_ticks() + 10, |_| {});
     }
 }

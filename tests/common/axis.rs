@@ -55,7 +55,10 @@ impl PlannerRun {
     pub fn control(&mut self) {
         let idle = !self.sched.is_running() && self.sched.is_empty();
         for _ in 0..16 {
-            match self.planner.fill(self.now_us, &self.sched) {
+            match self
+                .planner
+                .fill_with(self.now_us, &self.sched, &mut self.axis)
+            {
                 Fill::Ended => {
                     if let Some(g) = self.goals.pop_front() {
                         assert!(self.planner.set_goal(g));

@@ -2,7 +2,7 @@
 //! is covered or the ring is full.
 
 use super::{Fill, Goal, Planner};
-use crate::motion::StepSchedule;
+use crate::motion::{StepSchedule, StepSink};
 
 impl Planner {
     /// Converts µs of the control clock to Q32.32 ticks (wrapping): one
@@ -21,12 +21,24 @@ impl Planner {
     /// without the set-up of the full fill.
     #[inline]
     pub fn fill(&mut self, now_us: u64, sched: &StepSchedule) -> Fill {
+        self.fill_with(now_us, sched, &mut ())
+    }
+
+    /// [`Planner::fill`], telling `sink` of every push (the simulation's
+    /// exact step times, [`StepSink`]).
+    #[inline]
+    pub fn fill_with<S: StepSink>(
+        &mut self,
+        now_us: u64,
+        sched: &StepSchedule,
+        sink: &mut S,
+    ) -> Fill {
         let now = self.ticks_q(now_us);
         self.now = now;
         if self.covered && self.horizon_covered(now) && (sched.is_running() || !sched.is_empty()) {
             return Fill::Full;
         }
-        let fill = self.fill_from(now, sched);
+        let fill = self.fill_from(sched, now, sink);
         self.covered = fill == Fill::Full && self.cut.is_none() && self.more_to_plan();
         fill
     }
@@ -45,9 +57,17 @@ impl Planner {
                 || self.profile.as_ref().is_some_and(|p| p.remaining() != 0))
     }
 
-    /// [`Planner::fill`] past its first check.
+    /// [`Planner::fill`] past its first check. `sched` before `now`: on a
+    /// Cortex-M the `u64` takes an even register pair (r2:r3) and `sched`
+    /// the r1 it would leave empty, so the sink (nothing, in the firmware)
+    /// is the only argument passed on the stack.
     #[inline(never)]
-    pub(super) fn fill_from(&mut self, now: u64, sched: &StepSchedule) -> Fill {
+    pub(super) fn fill_from<S: StepSink>(
+        &mut self,
+        sched: &StepSchedule,
+        now: u64,
+        sink: &mut S,
+    ) -> Fill {
         if let Some((at, frac, goal)) = self.cut.take() {
             if !sched.truncate(at, frac) {
                 // The interrupt got to the cut first (the control loop ran
@@ -118,7 +138,7 @@ impl Planner {
         self.oldest = self.first_unfinished(sched.step_index());
         loop {
             if self.pending.rest.count > 0 {
-                if !self.push_pending(sched) {
+                if !self.push_pending(sched, sink) {
                     return Fill::Full;
                 }
                 continue;

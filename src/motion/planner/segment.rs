@@ -5,7 +5,7 @@ use super::slots::SlotInfo;
 use super::{Planner, SCHEDULE_SLOTS};
 use crate::arith::div_i64;
 use crate::motion::profile::w_along;
-use crate::motion::schedule::{Segment, StepSchedule};
+use crate::motion::schedule::{Segment, StepSchedule, StepSink};
 
 /// The segment being handed to the interrupt: fitted and pushed whole
 /// (in parts when the ring lacks room), and cut at the horizon by a new
@@ -122,7 +122,7 @@ impl Planner {
     /// takes (a new goal cuts it at the horizon, `drop_pending`). True when
     /// none is left; false when the ring or the segment bookkeeping
     /// stopped it.
-    pub(super) fn push_pending(&mut self, sched: &StepSchedule) -> bool {
+    pub(super) fn push_pending<S: StepSink>(&mut self, sched: &StepSchedule, sink: &mut S) -> bool {
         let tracked = self.segments.wrapping_sub(self.oldest) as usize;
         if tracked >= SCHEDULE_SLOTS {
             return false;
@@ -138,7 +138,7 @@ impl Planner {
             pending.start_frac = sched.carry_in();
             pending.t_start = self.t_isr;
         }
-        let Some(made) = sched.push_steps(seg, k) else {
+        let Some(made) = sched.push_steps(seg, k, sink) else {
             return false;
         };
         pending.pushed += k;

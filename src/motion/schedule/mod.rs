@@ -72,19 +72,20 @@
 //!   (`head_backward`, stored before `head`), so that the markers it
 //!   skipped cannot leave the interrupt in the wrong direction.
 //!
-//! With the `sim` feature (the simulated axis of the tests, the virtual
-//! drive, the fuzz targets) the schedule also keeps each step's carried
-//! fraction beside its delay (`exact_frac`), so that the simulation can
-//! report the exact time every step was scheduled for
-//! ([`StepSource::rounding_q32`]). The firmware and the benchmarks build
-//! without it: one layout on every target, the one the firmware runs.
+//! The schedule keeps no exact time beside the delays, in any build: one
+//! layout on every target. Who needs the exact times (the simulation,
+//! `motion::sim::SimAxis`, whose tests check the pulses against
+//! the exact profile) passes a [`StepSink`] to the push
+//! ([`StepSchedule::push_steps`]), which tells it each step's ring index
+//! and carried fraction ([`PushedSteps::fractions`]) and keeps them in
+//! its own storage; the firmware passes `()`, which compiles to nothing.
 //!
 //! # Files
 //!
 //! [`segment`]: the segment and its expansion into delays; [`ring`]: the
 //! shared ring ([`StepSchedule`], producer side); [`source`]: the
 //! interrupt side ([`StepSource`]); [`brake`]: the limit brake's rate and
-//! intervals.
+//! intervals; [`sink`]: the hook that reports the pushed steps' exact times.
 //!
 //! # Worst-case interrupt cost
 //!
@@ -128,6 +129,7 @@
 mod brake;
 mod ring;
 mod segment;
+mod sink;
 mod source;
 #[cfg(test)]
 mod tests;
@@ -135,6 +137,7 @@ mod tests;
 pub use brake::{brake_rate, LimitBrake};
 pub use ring::StepSchedule;
 pub use segment::Segment;
+pub use sink::{PushedSteps, StepSink};
 pub use source::{NextStep, StepSource};
 
 /// Entries of the per-step ring (a power of two): delays plus the rare

@@ -8,6 +8,7 @@ use super::brake::{
     LimitBrake, BLOCK_BACKWARD, BLOCK_FORWARD, BRAKE_DONE, BRAKE_FORWARD, BRAKE_NONE,
 };
 use super::segment::{time_made, Expansion, Segment};
+use super::sink::{PushedSteps, StepSink};
 use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, SCHEDULE_STEPS};
 
 /// The shared ring of per-step delays plus what the interrupt reports back
@@ -53,10 +54,6 @@ pub struct StepSchedule {
     pub(super) brake_rate: AtomicU32,
     /// The limit brake's state (`BRAKE_*`).
     pub(super) brake: AtomicU8,
-    /// Feature `sim`: each entry's carried fraction, as `frac` after that
-    /// step (module docs).
-    #[cfg(feature = "sim")]
-    pub(super) exact_frac: [AtomicU32; SCHEDULE_STEPS],
 }
 
 impl Default for StepSchedule {
@@ -84,8 +81,6 @@ impl StepSchedule {
             limits: AtomicU8::new(0),
             brake_rate: AtomicU32::new(0),
             brake: AtomicU8::new(BRAKE_NONE),
-            #[cfg(feature = "sim")]
-            exact_frac: [const { AtomicU32::new(0) }; SCHEDULE_STEPS],
         }
     }
 
@@ -115,7 +110,7 @@ impl StepSchedule {
     /// them (plus a direction marker if the direction changes).
     pub fn push(&self, seg: Segment) -> Result<(), Segment> {
         let mut rest = seg;
-        match self.push_steps(&mut rest, seg.count) {
+        match self.push_steps(&mut rest, seg.count, &mut ()) {
             Some(_) => Ok(()),
             None => Err(seg),
         }
@@ -127,8 +122,14 @@ impl StepSchedule {
     /// ring lacks room for all of it). Returns the time the appended
     /// steps take, exactly ([`time_made`]). `None`, and
     /// nothing done, when `count` is 0 or the ring lacks room for them.
+    /// `sink` is told of the steps first ([`StepSink`]; `()` for none).
     #[inline(never)]
-    pub fn push_steps(&self, seg: &mut Segment, count: u32) -> Option<u64> {
+    pub fn push_steps<S: StepSink>(
+        &self,
+        seg: &mut Segment,
+        count: u32,
+        sink: &mut S,
+    ) -> Option<u64> {
         let count = count.min(seg.count);
         let head = self.head.load(Ordering::Relaxed);
         let turn = seg.forward == self.head_backward.load(Ordering::Relaxed);
@@ -140,7 +141,14 @@ impl StepSchedule {
         let mut carry = (frac, 0);
         // ring[head], the old sentinel, is written last (module docs)
         let end = head.wrapping_add(entries);
-        let first_step = self.expand(seg, &mut carry, head.wrapping_add(u32::from(turn)), end);
+        let from = head.wrapping_add(u32::from(turn));
+        sink.pushed(&PushedSteps {
+            seg: *seg,
+            frac,
+            from,
+            to: end,
+        });
+        let first_step = self.expand(seg, &mut carry, from, end);
         let first = match (turn, seg.forward) {
             (false, _) => first_step,
             (true, forward) => {
@@ -217,17 +225,6 @@ impl StepSchedule {
     /// (excluded, at least one): writes all but the first, which it
     /// returns, so that the caller can write it last.
     fn expand(&self, seg: &mut Segment, carry: &mut (u32, u32), from: u32, to: u32) -> u32 {
-        #[cfg(feature = "sim")]
-        {
-            let mut shadow = Expansion::of(seg, *carry);
-            let mut i = from;
-            while i != to {
-                shadow.step();
-                let slot = i as usize % SCHEDULE_STEPS;
-                self.exact_frac[slot].store(shadow.frac, Ordering::Relaxed);
-                i = i.wrapping_add(1);
-            }
-        }
         // the first into a local, the rest to the ring in at most two
         // contiguous pieces (the `min`s never cut: fewer than
         // SCHEDULE_STEPS entries)

@@ -8,8 +8,6 @@ use super::brake::{
 };
 use super::ring::StepSchedule;
 use super::segment::carried;
-#[cfg(feature = "sim")]
-use super::SCHEDULE_STEPS;
 use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, TICK_FRAC_BITS};
 
 /// What the timer must do next: wait `delay_ticks` (≥ 1) after the step
@@ -216,18 +214,11 @@ impl StepSource {
         );
     }
 
-    /// Exact time of the pending step minus the tick it is announced at
-    /// (Q32.32, signed, within ±½ tick): the rounding its delay carries.
-    /// Feature `sim` only (module docs), for the simulation's step records.
-    #[cfg(feature = "sim")]
-    pub fn rounding_q32(&self, sched: &StepSchedule) -> i64 {
-        let frac = if self.braking != 0 {
-            self.frac
-        } else {
-            let pending = sched.next.load(Ordering::Relaxed).wrapping_sub(1);
-            sched.exact_frac[pending as usize % SCHEDULE_STEPS].load(Ordering::Relaxed)
-        };
-        i64::from(frac) - i64::from(HALF_TICK)
+    /// While the limit brake runs, the fraction its pending step's time
+    /// carries on (Q0.32, as a push's, [`super::PushedSteps::fractions`]):
+    /// braking steps are no ring entries, so no push reported them.
+    pub fn braking_frac(&self) -> Option<u32> {
+        (self.braking != 0).then_some(self.frac)
     }
 
     /// Drops the pending step and every queued entry; `made` is the

@@ -272,7 +272,7 @@ fn truncate_takes_back_the_entries_ahead_of_the_interrupt() {
     // 7.25 ticks growing by a quarter: delays with carried fractions
     let whole = seg(7 * ONE + ONE / 4, (ONE / 4) as i64, 0, 10, true);
     let (mut rest, frac0) = (whole, sched.carry_in());
-    let pushed = sched.push_steps(&mut rest, 10).unwrap();
+    let pushed = sched.push_steps(&mut rest, 10, &mut ()).unwrap();
     let first = sched.last_pushed_index().wrapping_sub(9);
     // the time of all ten, found again without the ring
     let (mut again, mut frac) = (whole, frac0);
@@ -329,27 +329,42 @@ fn long_and_zero_delays() {
     assert_eq!(sched.position(), 6);
 }
 
+/// The fractions a push reports ([`StepSink`]), kept by ring slot.
+struct Fracs([u32; SCHEDULE_STEPS]);
+
+impl StepSink for Fracs {
+    fn pushed(&mut self, steps: &PushedSteps) {
+        for (index, frac) in steps.fractions() {
+            self.0[index as usize % SCHEDULE_STEPS] = frac;
+        }
+    }
+}
+
 /// The exact time of each step is its tick plus the rounding its
-/// delay carried, within ±½ tick.
-#[cfg(feature = "sim")]
+/// delay carried (the reported fraction less half a tick), within ±½ tick;
+/// a direction marker takes no fraction.
 #[test]
-fn rounding_gives_the_exact_times() {
+fn reported_fractions_give_the_exact_times() {
     let sched = StepSchedule::new();
     let mut src = StepSource::new();
-    // 5.5, then 5.5 + 1/3 per step, ticks
+    let mut fracs = Fracs([0; SCHEDULE_STEPS]);
+    // 5.5, then 5.5 + 1/3 per step, ticks; backward: after a marker
     let third = (ONE / 3) as i64;
-    sched.push(seg(ONE * 11 / 2, third, 0, 6, true)).unwrap();
+    let mut rest = seg(ONE * 11 / 2, third, 0, 6, false);
+    sched.push_steps(&mut rest, 6, &mut fracs).unwrap();
     let (mut tick, mut exact) = (0u64, 0u64);
     let mut interval = ONE * 11 / 2;
     while let Some(s) = src.advance(&sched) {
         tick += u64::from(s.delay_ticks);
         exact += interval;
         interval += third as u64;
-        let r = src.rounding_q32(&sched);
+        let frac = fracs.0[sched.step_index() as usize % SCHEDULE_STEPS];
+        let r = i64::from(frac) - i64::from(HALF_TICK);
         assert!(r.abs() <= 1 << 31, "{r}");
         assert_eq!((tick << 32).wrapping_add(r as u64), exact);
     }
     assert_eq!(tick, 6 * 11 / 2 + 5); // 33 + 15 × ⅓ = 38
+    assert_eq!(sched.position(), -6);
 }
 
 #[test]
