@@ -15,8 +15,12 @@ pub const PA_ADDRESS: usize = 51;
 pub const PA_BAUD: usize = 52;
 pub const PA_FORMAT: usize = 53;
 
-/// The bauds of PA52, by value.
-pub const BAUDS: [u32; 5] = [9600, 19200, 38400, 57600, 115200];
+/// The bauds of PA52, by value, as the drive's line takes them.
+pub fn bauds() -> Vec<u32> {
+    (0..)
+        .map_while(modbus_drive::rtu::LineConfig::baud_from_pa52)
+        .collect()
+}
 /// The character formats of PA53, by value.
 pub const FORMATS: [&str; 4] = ["8N1", "8E1", "8O1", "8N2"];
 

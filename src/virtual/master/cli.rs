@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use super::{Endpoint, LineSpec};
-use crate::virtual_drive::registers::{BAUDS, FORMATS};
+use crate::virtual_drive::registers::{bauds, FORMATS};
 
 pub const HELP: &str = "\
 modbus-drive as a Modbus master of a drive that runs this firmware (a real
@@ -173,12 +173,12 @@ pub fn parse(args: &[String]) -> Result<Option<Tool>, String> {
     }
     let bauds: Vec<u32> = match baud.as_deref() {
         None => vec![115_200],
-        Some("auto") if tool == "scan" => BAUDS.iter().rev().copied().collect(),
+        Some("auto") if tool == "scan" => bauds().into_iter().rev().collect(),
         Some(b) => vec![b
             .parse()
             .ok()
-            .filter(|b| BAUDS.contains(b))
-            .ok_or(format!("--baud {b}: one of {BAUDS:?}"))?],
+            .filter(|b| bauds().contains(b))
+            .ok_or(format!("--baud {b}: one of {:?}", bauds()))?],
     };
     let formats: Vec<u16> = match format.as_deref() {
         None if tool == "scan" => vec![0, 1, 2, 3],

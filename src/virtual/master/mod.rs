@@ -27,8 +27,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use super::registers::{BAUDS, FORMATS, PA_BASE};
+use super::registers::{FORMATS, PA_BASE};
 use super::web::{parse_reply, Answer, Pdu};
+use modbus_drive::rtu::{CharFormat, LineConfig};
 
 pub use cli::{is_tool, parse, Tool, HELP};
 use tally::Tally;
@@ -50,17 +51,15 @@ impl LineSpec {
 
     /// From PA52 / PA53 values.
     pub fn from_pa(baud: u16, format: u16) -> Option<Self> {
-        let baud = *BAUDS.get(usize::from(baud))?;
-        FORMATS.get(usize::from(format))?;
-        Some(Self { baud, format })
+        let line = LineConfig::from_params(baud, format)?;
+        Some(Self {
+            baud: line.baud,
+            format,
+        })
     }
 
     fn bits_per_char(self) -> u32 {
-        if self.format == 0 {
-            10
-        } else {
-            11
-        }
+        CharFormat::from_pa53(self.format).map_or(11, CharFormat::bits_per_char)
     }
 
     /// Time on the wire of `bytes` characters.
