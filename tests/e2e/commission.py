@@ -265,7 +265,7 @@ def after_the_page(runner):
     """A master of our own once the page has stopped and its last reply has
     left the wire: one master at a time on a shared line (fw-sim's is one
     bus, as RS-485 is)."""
-    time.sleep(0.3)
+    time.sleep(0.5)
     return runner.master()
 
 
@@ -346,7 +346,7 @@ def the_page_resets_a_comm_loss_fault(runner, bin_path: Path, tmp: Path):
         page.wait(lambda s: s["state"] == "OperationEnabled", "enabled")
     finally:
         page.stop()
-    m = runner.master()
+    m = after_the_page(runner)
     sw = 0
     for _ in range(40):
         # silence longer than PA20 between two reads (each read is traffic)
