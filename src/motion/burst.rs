@@ -198,6 +198,24 @@ impl BurstWriter {
     ) -> u32 {
         let before = self.pulses;
         for slot in out {
+            if self.open && self.next.is_none() {
+                // The common case on ramps and at cruise: the pulse just
+                // reached starts this entry and the next step follows in
+                // the same direction within one period. The entry is that
+                // step's delay, whole: what `accept` and `entry` would
+                // write, without their cases.
+                let Some((delay, level)) = next_step() else {
+                    *slot = self.entry();
+                    continue;
+                };
+                if level == self.level && (MIN_ENTRY_TICKS..=MAX_PERIOD_TICKS).contains(&delay) {
+                    self.pulses += 1;
+                    self.last_interval = delay;
+                    *slot = Burst::new(delay, 1, self.shape.width.min(delay / 2), level);
+                    continue;
+                }
+                self.accept(delay, level);
+            }
             // a step whose pulse starts right where the entries end leaves
             // the pulse open: its entry's length is the step after it
             for _ in 0..2 {

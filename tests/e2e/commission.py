@@ -14,11 +14,18 @@ from __future__ import annotations
 import json
 import re
 import select
-import signal
 import subprocess
+import sys
 import time
 import urllib.request
 from pathlib import Path
+
+# the shared process helpers of tests/e2e, however this module was loaded
+# (pytest, or by path from tests/fw_sim and tests/web)
+_E2E = Path(__file__).resolve().parent
+if str(_E2E) not in sys.path:
+    sys.path.append(str(_E2E))
+from processes import stop_process  # noqa: E402
 
 PA = 0x0064  # PA0 (SPEC §9)
 STATUSWORD = 0x6041
@@ -80,15 +87,7 @@ class Commission:
                              f"\n{self.log()}")
 
     def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.proc.stdout.close()
-        self._log.close()
+        stop_process(self.proc, self._log)
 
 
 def move_to_address_17_at_19200_8e1(runner):

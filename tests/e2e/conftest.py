@@ -13,6 +13,7 @@ import socket
 import struct
 import json
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -20,6 +21,13 @@ import pytest
 import serial
 from pymodbus import FramerType
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+
+# the shared process helpers of tests/e2e, however this module was loaded
+# (pytest, or by path from tests/fw_sim and tests/web)
+_E2E = Path(__file__).resolve().parent
+if str(_E2E) not in sys.path:
+    sys.path.append(str(_E2E))
+from processes import stop_process  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -115,18 +123,8 @@ class VirtualDrive:
         if self.proc is None:
             return self.returncode
         try:
-            if self.proc.poll() is None:
-                self.proc.send_signal(sig)
-                try:
-                    self.proc.wait(STOP_TIMEOUT_S)
-                except subprocess.TimeoutExpired:
-                    self.proc.kill()
-                    self.proc.wait(STOP_TIMEOUT_S)
-            self.returncode = self.proc.returncode
+            self.returncode = stop_process(self.proc, self._stderr, sig=sig)
         finally:
-            if self.proc.stdout:
-                self.proc.stdout.close()
-            self._stderr.close()
             self.proc = None
         return self.returncode
 

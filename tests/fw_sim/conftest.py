@@ -10,11 +10,9 @@ from __future__ import annotations
 import importlib.util
 import os
 import select
-import signal
 import socket
 import struct
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -55,6 +53,7 @@ def _load(name: str, path: Path):
 # them as `conftest`, which is this module while these tests run
 e2e = _load("e2e_conftest", E2E / "conftest.py")
 crc16, with_crc, hexb, Master = e2e.crc16, e2e.with_crc, e2e.hexb, e2e.Master
+stop_process = e2e.stop_process
 for _name in dir(e2e):
     if _name.isupper():
         globals()[_name] = getattr(e2e, _name)
@@ -147,14 +146,7 @@ class Firmware:
         if self.err.closed:
             return self.exited
         rc = self.exited = self.proc.poll()
-        if rc is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.err.close()
+        stop_process(self.proc, self.err)
         return rc
 
     def client(self, timeout: float = 1.0) -> ModbusTcpClient:

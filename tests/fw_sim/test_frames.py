@@ -2,7 +2,6 @@
 byte (SPEC §10), the exception codes of SPEC §5.2 / §3 and addressing
 (SPEC §2), on the emulated USART at 115200 baud."""
 
-import pytest
 
 from conftest import NO_REPLY_WAIT_S, e2e_module, hexb, with_crc
 

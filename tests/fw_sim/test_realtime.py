@@ -13,10 +13,9 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
 from pymodbus.exceptions import ModbusIOException
 from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, ELF, MODE,
-                      MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY, STATE_MASK,
+                      MOTOR_RUNNING, PROFILE_VELOCITY, STATE_MASK,
                       SWITCH_ON_DISABLED, TARGET_POSITION, TARGET_REACHED, Master, with_crc)
 
 # step timer tick per board (modbus_drive::boards), ns

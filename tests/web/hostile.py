@@ -15,7 +15,6 @@ import argparse
 import os
 import re
 import select
-import signal
 import socket
 import statistics
 import subprocess
@@ -31,6 +30,12 @@ from pathlib import Path
 from pymodbus.client import ModbusTcpClient
 
 ROOT = Path(__file__).resolve().parents[2]
+# the process helpers shared with tests/e2e
+_E2E = ROOT / "tests" / "e2e"
+if str(_E2E) not in sys.path:
+    sys.path.append(str(_E2E))
+from processes import stop_process  # noqa: E402
+
 BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
 STATUSWORD = 0x6041
 
@@ -70,15 +75,7 @@ class Drive:
         return len(os.listdir(f"/proc/{self.proc.pid}/task"))
 
     def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        self.proc.stdout.close()
-        self._err.close()
+        stop_process(self.proc, self._err)
 
 
 def http(url: str, method: str = "GET", headers: dict | None = None, timeout: float = 5):

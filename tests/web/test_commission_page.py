@@ -11,22 +11,26 @@ from __future__ import annotations
 import importlib.util
 import os
 import select
-import signal
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import pytest
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
 
+from browser import headless_chromium
+
 ROOT = Path(__file__).resolve().parents[2]
+# the process helpers shared with tests/e2e
+_E2E = ROOT / "tests" / "e2e"
+if str(_E2E) not in sys.path:
+    sys.path.append(str(_E2E))
+from processes import stop_process  # noqa: E402
+
 BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
-CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
-CHROMEDRIVER = os.environ.get("CHROMEDRIVER", "/usr/bin/chromedriver")
 SIM = Path(os.environ.get("FW_SIM_BIN") or ROOT / "fw-sim" / "target" / "release" / "fw-sim")
 ELF = {
     "g431": Path(os.environ.get("FW_SIM_ELF_G431")
@@ -72,28 +76,13 @@ class Runner:
         assert b"ready\n" in got, f"{self.kind}: no ready"
 
     def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.proc.stdout.close()
-        self.log.close()
+        stop_process(self.proc, self.log)
 
 
 @pytest.fixture(scope="module")
 def browser():
     with tempfile.TemporaryDirectory() as profile:
-        opts = webdriver.ChromeOptions()
-        opts.binary_location = CHROMIUM
-        for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                     "--no-first-run", "--disable-background-networking",
-                     "--disable-component-update", "--disable-sync",
-                     f"--user-data-dir={profile}", "--window-size=1600,1000"]:
-            opts.add_argument(flag)
-        b = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
+        b = headless_chromium(profile)
         try:
             yield b
         finally:

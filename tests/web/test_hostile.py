@@ -127,7 +127,7 @@ def test_event_streams_are_capped_and_freed(local):
     try:
         for _ in range(cap):
             s = socket.create_connection(("127.0.0.1", local.web_port), timeout=5)
-            s.sendall(f"GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
+            s.sendall("GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n".encode())
             assert s.recv(64).startswith(b"HTTP/1.1 200"), "a stream under the cap"
             streams.append(s)
         status, _, _ = http(local.base + "api/events")

@@ -14,9 +14,9 @@ import json
 import os
 import re
 import select
-import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -27,16 +27,20 @@ from pathlib import Path
 import pytest
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
-from selenium import webdriver
-from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.action_chains import ActionChains
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import WebDriverWait
 
+from browser import headless_chromium
+
 ROOT = Path(__file__).resolve().parents[2]
+# the process helpers shared with tests/e2e
+_E2E = ROOT / "tests" / "e2e"
+if str(_E2E) not in sys.path:
+    sys.path.append(str(_E2E))
+from processes import stop_process  # noqa: E402
+
 BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
-CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
-CHROMEDRIVER = os.environ.get("CHROMEDRIVER", "/usr/bin/chromedriver")
 WAIT_S = 15
 
 # Dictionary entries (SPEC §5) and PAs (SPEC §7, legacy map 0x0064 + n).
@@ -89,15 +93,7 @@ class Drive:
             return json.load(r)["drives"][0]
 
     def stop(self):
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        self.proc.stdout.close()
-        self._err.close()
+        stop_process(self.proc, self._err)
 
 
 @pytest.fixture(scope="module")
@@ -119,18 +115,10 @@ def downloads():
 @pytest.fixture(scope="module")
 def browser(drive, downloads):
     with tempfile.TemporaryDirectory() as profile:
-        opts = webdriver.ChromeOptions()
-        opts.binary_location = CHROMIUM
-        for flag in ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-                     "--no-first-run", "--disable-background-networking",
-                     "--disable-component-update", "--disable-sync",
-                     f"--user-data-dir={profile}", "--window-size=1600,1000"]:
-            opts.add_argument(flag)
-        opts.add_experimental_option("prefs", {
+        b = headless_chromium(profile, {
             "download.default_directory": str(downloads),
             "download.prompt_for_download": False,
         })
-        b = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
         try:
             b.execute_cdp_cmd("Browser.setDownloadBehavior",
                               {"behavior": "allow", "downloadPath": str(downloads)})

@@ -29,6 +29,7 @@ mod bench {
     use core::hint::black_box;
 
     use crate::rt::{exit, Console};
+    use workloads::dma_refill::{simulate_dma_move, RefillCost, HALF_ENTRIES};
     use workloads::per_step::{per_step_move, PerStep};
     use workloads::*;
 
@@ -157,6 +158,37 @@ mod bench {
             ok,
         );
         (isr, planner)
+    }
+
+    /// One move by the DMA engine's refill side: checks that it wrote one
+    /// pulse per step and none late, prints the refill's instructions per
+    /// step (tenths) against `target`.
+    fn refill_row(
+        name: &str,
+        steps: u32,
+        cost: RefillCost,
+        overhead: u64,
+        target: Option<u64>,
+        ok: &mut bool,
+    ) {
+        expect(name, cost.final_position as u32, steps);
+        expect("refill: pulses", cost.pulses, steps);
+        expect("refill: late steps", cost.late, 0);
+        let per_step = (u64::from(cost.refill_clock) * INSTR_PER_TICK * 10)
+            .saturating_sub(u64::from(cost.refill_calls) * overhead)
+            / u64::from(steps);
+        let _ = writeln!(
+            Console,
+            "   ({} steps, {} refills of {} entries)",
+            steps, cost.refill_calls, HALF_ENTRIES
+        );
+        row(
+            "DMA refill (advance + BurstWriter)",
+            per_step,
+            "step",
+            target,
+            ok,
+        );
     }
 
     /// 1000 NOPs: checks 40 instructions per tick and the baseline.
@@ -396,6 +428,21 @@ mod bench {
             (isr + planner) as f32 / ramp_f32 as f32
         );
 
+        // ---- the timer + DMA engine's CPU share: the refill (designed,
+        // not yet used by the firmware: docs/firmware.md)
+        let _ = writeln!(
+            c,
+            "-- the same move by the timer + DMA engine's refill side (workloads/src/dma_refill.rs)"
+        );
+        refill_row(
+            "DMA refill: final position",
+            RAMP_MOVE_STEPS,
+            simulate_dma_move(i64::from(RAMP_MOVE_STEPS), MOVE_RAMP, systick_now),
+            overhead,
+            Some(20),
+            &mut ok,
+        );
+
         // ---- the same on a faster move, for information (no target)
         let _ = writeln!(
             c,
@@ -408,6 +455,15 @@ mod bench {
             simulate_move_with(i64::from(SEED_MOVE_STEPS), SEED_RAMP, systick_now),
             overhead,
             [None, None],
+            &mut ok,
+        );
+
+        refill_row(
+            "seed move by DMA refill: final position",
+            SEED_MOVE_STEPS,
+            simulate_dma_move(i64::from(SEED_MOVE_STEPS), SEED_RAMP, systick_now),
+            overhead,
+            None,
             &mut ok,
         );
 

@@ -506,4 +506,5 @@ pub fn simulate_move_with(target: i64, ramp: Ramp, clock: fn() -> u32) -> MoveCo
     cost
 }
 
+pub mod dma_refill;
 pub mod per_step;

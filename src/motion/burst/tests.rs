@@ -141,6 +141,22 @@ fn a_cruise_that_runs_dry_continues_on_time() {
 }
 
 #[test]
+fn a_dry_refill_closes_the_pulse_with_the_interval_just_written() {
+    // a slow first step, then a cruise: the pulse entry open when the
+    // schedule runs dry is closed with the cruise's interval, not the
+    // first step's, so the cruise goes on on time
+    let mut steps = vec![(5_000u32, true)];
+    steps.extend(std::iter::repeat_n((300u32, true), 100));
+    let (out, w) = write(shape(), &steps, 4, |k| k == 50);
+    let pulses = play(&out, shape());
+    assert_eq!(pulses.len(), 101);
+    for p in pulses[1..].windows(2) {
+        assert_eq!(p[1].0 - p[0].0, 300);
+    }
+    assert_eq!(w.late(), 0);
+}
+
+#[test]
 fn a_step_the_schedule_gives_too_late_is_counted() {
     // a ramp up that runs dry: the provisional entry (the last, longer
     // interval) overruns the next, shorter one
