@@ -86,7 +86,7 @@ impl Rig {
             bytes,
             parity_error: false,
         };
-        match self.slave.handle(rx, 1, &mut regs, &mut reply).response {
+        match self.slave.handle(rx, 1, &mut regs, &mut reply).response() {
             Response::Reply(n) => Some(reply[..n].to_vec()),
             Response::Silent => None,
         }
@@ -218,5 +218,5 @@ fn a_frame_event_shorter_than_four_bytes_is_not_trusted() {
     for bytes in [&[][..], &[1], &[1, 3], &[1, 3, 0]] {
         assert_eq!(rig.frame(bytes), None);
     }
-    assert_eq!(rig.slave.counters().bus_errors, 4);
+    assert_eq!(rig.slave.counters().bus_errors(), 4);
 }

@@ -31,12 +31,9 @@ fn single_pdu(address: u16, value: u16) -> Vec<u8> {
 fn send_with_parity_error(bus: &mut Bus, frame: &[u8], bad: usize) -> Vec<Vec<u8>> {
     bus.idle(20_000);
     let before = bus.sent.len();
-    let tc = bus.timing().tc_us;
+    let tc = bus.timing().tc_us();
     for (i, &b) in frame.iter().enumerate() {
-        let flags = RxFlags {
-            parity: i == bad,
-            ..RxFlags::NONE
-        };
+        let flags = RxFlags::new(i == bad, false, false);
         bus.push(b, bus.now_us() + tc, flags);
     }
     bus.idle(20_000);
@@ -147,7 +144,7 @@ fn code_6_busy_while_a_storage_operation_runs() {
     assert_eq!(code(&mut bus, &single_pdu(0x6083, 7)), 6);
     assert_eq!(code(&mut bus, &read_pdu(0x0064, 60)), 6);
     assert_eq!(bus.device.od().acceleration, 0);
-    assert_eq!(bus.device.slave().counters().busy, 3);
+    assert_eq!(bus.device.slave().counters().busy(), 3);
     bus.device.set_storage_busy(false);
     assert_eq!(bus.write_single(0x6083, 7), Ok(()));
 }
@@ -221,7 +218,7 @@ fn code_9_parity_error_for_our_address() {
     assert!(send_with_parity_error(&mut bus, &with_crc(&other[..6]), 2).is_empty());
     other[0] = 0;
     assert!(send_with_parity_error(&mut bus, &with_crc(&other[..6]), 2).is_empty());
-    assert_eq!(bus.device.slave().counters().bus_errors, 6);
+    assert_eq!(bus.device.slave().counters().bus_errors(), 6);
 }
 
 #[test]
@@ -396,7 +393,7 @@ fn strict_modbus_pa54_0_is_silent_on_frame_errors() {
     assert_eq!(bus.send(&f), None);
     let f = hex("01 03 60 7A 00 02 FB D2");
     assert!(send_with_parity_error(&mut bus, &f, 0).is_empty());
-    assert_eq!(bus.device.slave().counters().bus_errors, 2);
+    assert_eq!(bus.device.slave().counters().bus_errors(), 2);
     // Other exceptions are still answered.
     assert_eq!(code(&mut bus, &read_pdu(0x6090, 1)), 11);
 }

@@ -83,9 +83,34 @@ pub enum RecordError {
 /// One complete parameter set: what EE-Set saves and EE-rd loads.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ParamSet {
-    pub pa: Params,
+    pa: Params,
     /// Only the saved fields are meaningful (not 0x6040, 0x6060, 0x607A).
-    pub od: OdValues,
+    od: OdValues,
+}
+
+impl ParamSet {
+    #[inline]
+    pub const fn pa(&self) -> &Params {
+        &self.pa
+    }
+
+    /// Only the saved fields are meaningful (not 0x6040, 0x6060, 0x607A).
+    #[inline]
+    pub const fn od(&self) -> &OdValues {
+        &self.od
+    }
+
+    /// The parameters, to change before the set is saved.
+    #[inline]
+    pub fn pa_mut(&mut self) -> &mut Params {
+        &mut self.pa
+    }
+
+    /// The register values, to change before the set is saved.
+    #[inline]
+    pub fn od_mut(&mut self) -> &mut OdValues {
+        &mut self.od
+    }
 }
 
 impl ParamSet {

@@ -113,8 +113,8 @@ impl AssemblerFeed {
         Self {
             assembler: FrameAssembler::new(timing),
             now_us: 0,
-            tc_us: timing.tc_us,
-            t35_us: timing.t35_us,
+            tc_us: timing.tc_us(),
+            t35_us: timing.t35_us(),
             frame,
             push,
             poll,

@@ -147,13 +147,13 @@ struct PageLine<'f> {
 impl Line for PageLine<'_> {
     fn receive(&mut self) -> Option<Request<'_>> {
         let bytes = self.frame.take()?;
-        Some(Request {
-            event: RxEvent::Frame {
+        Some(Request::new(
+            RxEvent::Frame {
                 bytes,
                 parity_error: false,
             },
-            last_byte_us: None,
-        })
+            None,
+        ))
     }
 
     fn send(&mut self, bytes: &[u8], _at_us: u64) {
@@ -312,11 +312,11 @@ mod tests {
         let mut port = Slave::new();
         let _ = transact(&mut b, &mut port, &Pdu::read(0x6041, 1), 0);
         let _ = transact(&mut b, &mut port, &Pdu::write_single(0x6060, 2), 0);
-        assert_eq!(b.device.slave().counters().bus_messages, 0);
-        assert_eq!(b.device.slave().counters().exceptions, 0);
-        assert_eq!(port.counters().bus_messages, 2);
-        assert_eq!(port.counters().slave_messages, 2);
-        assert_eq!(port.counters().exceptions, 1);
+        assert_eq!(b.device.slave().counters().bus_messages(), 0);
+        assert_eq!(b.device.slave().counters().exceptions(), 0);
+        assert_eq!(port.counters().bus_messages(), 2);
+        assert_eq!(port.counters().slave_messages(), 2);
+        assert_eq!(port.counters().exceptions(), 1);
     }
 
     #[test]

@@ -61,13 +61,13 @@ fn counters(c: &Counters) -> String {
     format!(
         "{{\"bus_messages\":{},\"bus_errors\":{},\"exceptions\":{},\"slave_messages\":{},\
          \"no_response\":{},\"busy\":{},\"overruns\":{}}}",
-        c.bus_messages,
-        c.bus_errors,
-        c.exceptions,
-        c.slave_messages,
-        c.no_response,
-        c.busy,
-        c.overruns
+        c.bus_messages(),
+        c.bus_errors(),
+        c.exceptions(),
+        c.slave_messages(),
+        c.no_response(),
+        c.busy(),
+        c.overruns()
     )
 }
 
