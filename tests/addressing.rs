@@ -11,9 +11,9 @@ use modbus_drive::rtu::{CharFormat, LineConfig};
 fn broadcast_writes_are_executed_and_never_answered() {
     let mut bus = Bus::new();
     assert_eq!(bus.request(0, &[0x06, 0x60, 0x83, 0x00, 0x64]), None);
-    assert_eq!(bus.device.od().acceleration, 100);
+    assert_eq!(bus.device.od().acceleration(), 100);
     assert_eq!(bus.request(0, &write_pdu(0x607A, &[0x0003, 0x0D40])), None);
-    assert_eq!(bus.device.od().target_position, 200_000);
+    assert_eq!(bus.device.od().target_position(), 200_000);
     assert!(bus.sent.is_empty());
     let c = bus.device.slave().counters().clone();
     assert_eq!(
@@ -76,7 +76,7 @@ fn foreign_addresses_are_silent_even_with_a_bad_crc() {
         // a request that would be an exception at our address
         assert_eq!(bus.request(address, &[0x03, 0x60, 0x90, 0x00, 0x01]), None);
     }
-    assert_eq!(bus.device.od().acceleration, 0);
+    assert_eq!(bus.device.od().acceleration(), 0);
     let c = bus.device.slave().counters().clone();
     assert_eq!(c.bus_messages(), 12, "good frames on the bus");
     assert_eq!(c.bus_errors(), 6, "CRC errors on the bus");

@@ -13,11 +13,8 @@ const PA22: u16 = 0x0064 + 22;
 
 /// (power stage, brake released)
 fn out(rig: &Rig) -> (bool, bool) {
-    let Outputs {
-        power_stage,
-        brake_released,
-    } = rig.bus.device.drive().outputs();
-    (power_stage, brake_released)
+    let o: Outputs = rig.bus.device.drive().outputs();
+    (o.power_stage(), o.brake_released())
 }
 
 fn sequenced(release_ms: u16, engage_ms: u16) -> Rig {

@@ -88,9 +88,9 @@ fn listen_only_mode_swallows_everything_until_restart() {
     assert!(bus.events().contains(&Event::ListenOnly(true)));
     // Nothing acts, nothing answers — not even exceptions or CRC errors.
     assert_eq!(bus.request(1, &[0x06, 0x60, 0x83, 0x00, 0x64]), None);
-    assert_eq!(bus.device.od().acceleration, 0);
+    assert_eq!(bus.device.od().acceleration(), 0);
     assert_eq!(bus.request(0, &[0x06, 0x60, 0x83, 0x00, 0x64]), None);
-    assert_eq!(bus.device.od().acceleration, 0, "broadcasts neither");
+    assert_eq!(bus.device.od().acceleration(), 0, "broadcasts neither");
     assert_eq!(bus.request(1, &[0x03, 0x60, 0x90, 0x00, 0x01]), None);
     let mut bad = frame(1, &[0x03, 0x60, 0x00, 0x00, 0x01]);
     bad[3] ^= 1;

@@ -44,8 +44,8 @@ impl DriveLayer for Double {
     }
     fn values_written(&mut self, cfg: Config<'_>) {
         self.calls.push(Call::Values {
-            target: cfg.od.target_position,
-            velocity: cfg.od.profile_velocity,
+            target: cfg.od().target_position(),
+            velocity: cfg.od().profile_velocity(),
         });
     }
     fn mode_written(&mut self, mode: i16, _cfg: Config<'_>) {
@@ -54,7 +54,7 @@ impl DriveLayer for Double {
     fn controlword_written(&mut self, cw: u16, cfg: Config<'_>) {
         self.calls.push(Call::Controlword {
             cw,
-            target: cfg.od.target_position,
+            target: cfg.od().target_position(),
         });
     }
 }
@@ -113,7 +113,7 @@ fn live_entries_are_read_from_the_drive_layer_in_both_word_orders() {
             &[0x03, 12, 0x16, 0x37, 0x00, 0x06, 0xFF, 0xFC, 0xF2, 0xC0, 0xFF, 0xFF, 0xFD, 0xA8]
         ))
     );
-    rig.od.word_order = 1;
+    rig.od.set_word_order(1);
     assert_eq!(
         rig.frame(&read),
         Some(frame(

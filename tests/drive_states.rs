@@ -43,7 +43,7 @@ fn cia402_sequence_and_outputs() {
     );
     let out = |r: &Rig| {
         let o = r.bus.device.drive().outputs();
-        (o.brake_released, o.power_stage)
+        (o.brake_released(), o.power_stage())
     };
     assert_eq!(out(&rig), (false, false));
     cw(&mut rig, 0x0006);
@@ -103,7 +103,7 @@ fn quick_stop_distance(code: i16) -> i64 {
     // stays in quick stop active until enabled again
     rig.run_us(10_000);
     assert_eq!(rig.statusword() & 0x006F, 0x0007);
-    assert!(rig.bus.device.drive().outputs().power_stage);
+    assert!(rig.bus.device.drive().outputs().power_stage());
     cw(&mut rig, 0x000F);
     assert_eq!(rig.statusword() & 0x006F, 0x0027, "operation enabled again");
     rig.axis.position() - from
@@ -204,7 +204,7 @@ fn refused_set_points_set_the_warning() {
     rig.run_us(10_000);
     // still running to the first target
     assert_eq!(
-        rig.bus.device.drive().monitor().command_position,
+        rig.bus.device.drive().monitor().command_position(),
         2_000_000_000
     );
     // drop it: leave operation enabled and come back
@@ -284,7 +284,7 @@ fn both_limits_are_a_fault_reset_only_when_gone() {
     control_with(&mut rig, both);
     assert_eq!(rig.statusword(), 0x0028 | CW | CCW, "fault (bit 5 = 1)");
     assert_eq!(rig.error_register(), 0x0001);
-    assert!(!rig.bus.device.drive().outputs().power_stage);
+    assert!(!rig.bus.device.drive().outputs().power_stage());
     // cause still there: no reset
     rig.bus.write_single(0x6040, 0x0080).unwrap();
     control_with(&mut rig, both);
@@ -392,7 +392,7 @@ mod random {
                             let before = rig.axis.steps;
                             rig.run_us(1000);
                             if rig.axis.steps > before + 1 {
-                                prop_assert!(rig.bus.device.drive().outputs().power_stage);
+                                prop_assert!(rig.bus.device.drive().outputs().power_stage());
                             }
                         }
                     }

@@ -143,7 +143,7 @@ fn code_6_busy_while_a_storage_operation_runs() {
     assert_eq!(code(&mut bus, &read_pdu(0x6041, 1)), 6);
     assert_eq!(code(&mut bus, &single_pdu(0x6083, 7)), 6);
     assert_eq!(code(&mut bus, &read_pdu(0x0064, 60)), 6);
-    assert_eq!(bus.device.od().acceleration, 0);
+    assert_eq!(bus.device.od().acceleration(), 0);
     assert_eq!(bus.device.slave().counters().busy(), 3);
     bus.device.set_storage_busy(false);
     assert_eq!(bus.write_single(0x6083, 7), Ok(()));
@@ -227,7 +227,7 @@ fn code_10_crc_error_for_our_address() {
     let mut f = hex("01 06 60 83 00 64 67 C9");
     f[7] ^= 0xFF;
     assert_eq!(bus.send(&f), Some(exception(1, 0x06, 10)));
-    assert_eq!(bus.device.od().acceleration, 0, "not executed");
+    assert_eq!(bus.device.od().acceleration(), 0, "not executed");
     // A 4-byte frame is examined; the function byte is echoed | 0x80.
     assert_eq!(
         bus.send(&[0x01, 0x42, 0x00, 0x00]),
@@ -351,7 +351,7 @@ fn busy_drive_refuses_valid_requests_with_6() {
     bus.device.set_storage_busy(true);
     assert_eq!(code(&mut bus, &write_pdu(0x6083, &[1, 2, 3])), 6);
     assert_eq!(code(&mut bus, &[0x08, 0x00, 0x00, 0x12, 0x34]), 6);
-    assert_eq!(bus.device.od().acceleration, 0);
+    assert_eq!(bus.device.od().acceleration(), 0);
     bus.device.set_storage_busy(false);
     assert_eq!(
         bus.request(1, &[0x08, 0x00, 0x00, 0x12, 0x34]),
@@ -415,9 +415,9 @@ fn a_rejected_write_stores_nothing() {
     assert_eq!(bus.write(0x605A, &[7, 0x000F, 6]), Ok(()));
     assert_eq!(
         (
-            bus.device.od().quick_stop_option,
-            bus.device.od().controlword,
-            bus.device.od().mode
+            bus.device.od().quick_stop_option(),
+            bus.device.od().controlword(),
+            bus.device.od().mode()
         ),
         (7, 0x000F, 6)
     );
@@ -432,8 +432,8 @@ fn word_order_in_force_at_arrival_applies_to_the_whole_request() {
     let mut bus = Bus::new();
     // 0x6000, 0x605A, 0x6040, 0x6060, 0x6081 (hi, lo)
     assert_eq!(bus.write(0x6000, &[1, 0, 0, 1, 0x0001, 0x0002]), Ok(()));
-    assert_eq!(bus.device.od().word_order, 1);
-    assert_eq!(bus.device.od().profile_velocity, 0x0001_0002);
+    assert_eq!(bus.device.od().word_order(), 1);
+    assert_eq!(bus.device.od().profile_velocity(), 0x0001_0002);
     // The next request reads with the new order: low word first.
     assert_eq!(bus.read(0x6081, 2), Ok(vec![0x0002, 0x0001]));
 }

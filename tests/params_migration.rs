@@ -27,8 +27,8 @@ fn numbered_set(n: u16) -> ParamSet {
     let mut s = ParamSet::defaults();
     s.pa_mut().set_unchecked(10, 200 + n);
     s.pa_mut().set_unchecked(51, 1 + n % 247);
-    s.od_mut().home_offset = i32::from(n) << 12;
-    s.od_mut().acceleration = n;
+    s.od_mut().set_home_offset(i32::from(n) << 12);
+    s.od_mut().set_acceleration(n);
     s
 }
 

@@ -60,10 +60,10 @@ fn numbered_set(n: u16) -> ParamSet {
     s.pa_mut().set_unchecked(12, 1 + n % 6000);
     s.pa_mut().set_unchecked(51, 1 + n % 247);
     s.pa_mut().set_unchecked(40, n.wrapping_mul(7)); // reserved, stored as is
-    s.od_mut().profile_velocity = -i32::from(n) * 3;
-    s.od_mut().home_offset = i32::from(n) << 12;
-    s.od_mut().homing_speed = u32::from(n) * 11;
-    s.od_mut().acceleration = n;
+    s.od_mut().set_profile_velocity(-i32::from(n) * 3);
+    s.od_mut().set_home_offset(i32::from(n) << 12);
+    s.od_mut().set_homing_speed(u32::from(n) * 11);
+    s.od_mut().set_acceleration(n);
     s
 }
 

@@ -227,12 +227,11 @@ impl Device {
         self.address = self.pa.address();
         self.line = self.pa.line();
         self.driver_enable = self.pa.driver_enable();
-        self.store_status = StoreStatus {
-            defaulted_blank: boot.outcome() == BootOutcome::Blank,
-            defaulted_unreadable: matches!(boot.outcome(), BootOutcome::Unreadable(_)),
-            flash_failed: false,
-            reset_cause: self.store_status.reset_cause,
-        };
+        self.store_status = StoreStatus::booted(
+            boot.outcome() == BootOutcome::Blank,
+            matches!(boot.outcome(), BootOutcome::Unreadable(_)),
+            self.store_status.reset_cause(),
+        );
         self.push_event(Event::ParamsLoaded(boot.outcome()));
         self.configuration_changed();
     }
@@ -240,7 +239,7 @@ impl Device {
     /// Why the chip last reset, as DP-rES (0x0017) shows it: the glue's
     /// code (docs/parameters.md), read from the chip at boot.
     pub fn set_reset_cause(&mut self, code: u16) {
-        self.store_status.reset_cause = code;
+        self.store_status.set_reset_cause(code);
     }
 
     /// Runs the waiting EE operation (if any) on `store` and returns its
@@ -282,17 +281,13 @@ impl Device {
     ) -> Response {
         let refused = result == Err(EeError::StepsRunning);
         if !refused {
-            let s = &mut self.store_status;
-            s.flash_failed = matches!(result, Err(EeError::Storage(_)));
-            let saved = matches!(
-                pending.op(),
-                EeOp::Save | EeOp::RestoreBackup | EeOp::RestoreDefaults
-            );
-            if result.is_ok() && saved {
-                // The store holds a valid saved set now.
-                s.defaulted_blank = false;
-                s.defaulted_unreadable = false;
-            }
+            let saved = result.is_ok()
+                && matches!(
+                    pending.op(),
+                    EeOp::Save | EeOp::RestoreBackup | EeOp::RestoreDefaults
+                );
+            self.store_status
+                .ee_done(matches!(result, Err(EeError::Storage(_))), saved);
         }
         self.push_event(Event::EeDone {
             op: pending.op(),
@@ -329,10 +324,7 @@ impl Device {
     /// The working set was replaced (boot, EE-rd / EE-rS / EE-dEF): the
     /// drive layer re-reads PA10..14, PA20 and the profile values.
     fn configuration_changed(&mut self) {
-        let cfg = Config {
-            od: &self.od,
-            pa: &self.pa,
-        };
+        let cfg = Config::new(&self.od, &self.pa);
         self.drive.values_written(cfg);
     }
 
@@ -452,10 +444,7 @@ impl Device {
         schedule: &StepSchedule,
         sink: &mut S,
     ) {
-        let cfg = Config {
-            od: &self.od,
-            pa: &self.pa,
-        };
+        let cfg = Config::new(&self.od, &self.pa);
         self.drive
             .control(now_us, switches, edges, schedule, sink, cfg);
         self.last_control_us = Some(now_us);

@@ -25,15 +25,26 @@ pub const POLARITY_HOME: u16 = 1 << 2;
 
 /// The three switch inputs.
 pub struct SwitchInputs<Cw, Ccw, Home> {
-    pub cw_limit: Cw,
-    pub ccw_limit: Ccw,
-    pub home: Home,
+    cw_limit: Cw,
+    ccw_limit: Ccw,
+    home: Home,
 }
 
 fn active<P: InputPin>(pin: &mut P, normally_closed: bool) -> bool {
     match pin.is_high() {
         Ok(high) => high != normally_closed,
         Err(_) => true,
+    }
+}
+
+impl<Cw, Ccw, Home> SwitchInputs<Cw, Ccw, Home> {
+    #[inline]
+    pub const fn new(cw_limit: Cw, ccw_limit: Ccw, home: Home) -> Self {
+        Self {
+            cw_limit,
+            ccw_limit,
+            home,
+        }
     }
 }
 
@@ -50,8 +61,15 @@ impl<Cw: InputPin, Ccw: InputPin, Home: InputPin> SwitchInputs<Cw, Ccw, Home> {
 
 /// ENABLE and BRAKE.
 pub struct PowerOutputs<Enable, Brake> {
-    pub enable: Enable,
-    pub brake: Brake,
+    enable: Enable,
+    brake: Brake,
+}
+
+impl<Enable, Brake> PowerOutputs<Enable, Brake> {
+    #[inline]
+    pub const fn new(enable: Enable, brake: Brake) -> Self {
+        Self { enable, brake }
+    }
 }
 
 impl<Enable: OutputPin, Brake: OutputPin> PowerOutputs<Enable, Brake> {
@@ -71,7 +89,14 @@ impl<Enable: OutputPin, Brake: OutputPin> PowerOutputs<Enable, Brake> {
 
 /// DIR.
 pub struct DirectionOutput<Dir> {
-    pub dir: Dir,
+    dir: Dir,
+}
+
+impl<Dir> DirectionOutput<Dir> {
+    #[inline]
+    pub const fn new(dir: Dir) -> Self {
+        Self { dir }
+    }
 }
 
 impl<Dir: OutputPin> DirectionOutput<Dir> {
@@ -157,10 +182,7 @@ mod tests {
             enable: Out(false),
             brake: Out(false),
         };
-        assert!(p.apply(Outputs {
-            power_stage: true,
-            brake_released: false
-        }));
+        assert!(p.apply(Outputs::new(true, false)));
         assert!(p.enable.0 && !p.brake.0);
         let mut d = DirectionOutput { dir: Out(false) };
         d.set(true, false);

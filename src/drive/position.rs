@@ -43,9 +43,9 @@ impl Drive {
             return; // bit 12 = 0: ignored
         };
         let target = if controlword & cw::RELATIVE != 0 {
-            base + i64::from(od.target_position)
+            base + i64::from(od.target_position())
         } else {
-            i64::from(od.target_position)
+            i64::from(od.target_position())
         };
         let ramp = self.s.profile_ramp(od);
         let current = self.active.map_or(self.user_position(), |a| a.target);

@@ -43,7 +43,7 @@ impl Drive {
     pub(super) fn quick_stop(&mut self, od: &OdValues) {
         self.set_state(PowerState::QuickStopActive);
         self.drop_set_points();
-        let decel = match od.quick_stop_option {
+        let decel = match od.quick_stop_option() {
             1 => self.s.decel(od),
             2 => self.s.quick_stop_decel(od),
             _ => 0, // 0, 3..=32767: at once

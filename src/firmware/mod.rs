@@ -162,10 +162,7 @@ async fn main(spawner: Spawner) {
     // From here on a hung thread resets the chip (fault.rs).
     let watchdog = fault::Watchdog::start();
     control::run(
-        control::PowerPins {
-            enable: parts.enable,
-            brake: parts.brake,
-        },
+        control::PowerPins::new(parts.enable, parts.brake),
         schedule,
         watchdog,
         encoder::EncoderInput::new(parts.encoder),

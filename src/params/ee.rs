@@ -153,12 +153,12 @@ mod tests {
     fn set_then_rd_restores_the_saved_values() {
         let mut r = Rig::new();
         r.pa.set_unchecked(10, 400);
-        r.od.acceleration = 50;
+        r.od.set_acceleration(50);
         r.run(EeOp::Save).unwrap();
         r.pa.set_unchecked(10, 800);
-        r.od.acceleration = 60;
+        r.od.set_acceleration(60);
         r.run(EeOp::Reload).unwrap();
-        assert_eq!((r.pa.get(10), r.od.acceleration), (400, 50));
+        assert_eq!((r.pa.get(10), r.od.acceleration()), (400, 50));
     }
 
     #[test]

@@ -284,7 +284,7 @@ mod tests {
     fn the_view_lists_every_entry_and_parameter_with_its_value() {
         let mut d = Device::new(Identity::new("t"));
         d.configure(|pa, od| {
-            od.target_position = -7;
+            od.set_target_position(-7);
             pa.set_unchecked(12, 1234);
         });
         let port = Slave::new();
