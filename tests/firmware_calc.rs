@@ -357,8 +357,8 @@ impl Isr {
             let source = &mut self.source;
             let p = self.shaper.next_period(|| {
                 source.advance(sched).map(|n| Step {
-                    forward: n.forward,
-                    interval_ticks: n.delay_ticks,
+                    forward: n.forward(),
+                    interval_ticks: n.delay_ticks(),
                 })
             });
             let len = u32::from(p.arr) + 1;
@@ -380,15 +380,7 @@ impl Isr {
 const ONE: u64 = 1 << 32;
 
 fn segment(interval_ticks: u64, count: u32, forward: bool) -> Segment {
-    Segment {
-        interval: interval_ticks * ONE,
-        add: 0,
-        add2: 0,
-        add3: 0,
-        add4: 0,
-        count,
-        forward,
-    }
+    Segment::new(interval_ticks * ONE, 0, 0, 0, 0, count, forward)
 }
 
 #[test]
@@ -427,7 +419,7 @@ fn a_limit_brakes_in_the_step_interrupt_within_the_quick_stop_distance_spec_8_7(
         after.last().is_some_and(|&(gap, _)| gap > 1000),
         "{after:?}"
     );
-    assert!(sched.limit_brake().is_some_and(|b| b.done && b.forward));
+    assert!(sched.limit_brake().is_some_and(|b| b.done() && b.forward()));
 }
 
 // ---------------------------------------------------------------- switches

@@ -268,7 +268,7 @@ fn pa10_scales_and_pa12_caps_the_move() {
             .windows(2)
             .map(|w| {
                 f64::from(rig.tick_hz) * common::axis::Q
-                    / w[1].exact.wrapping_sub(w[0].exact) as f64
+                    / w[1].exact().wrapping_sub(w[0].exact()) as f64
             })
             .fold(0.0, f64::max);
         assert!(

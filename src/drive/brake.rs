@@ -72,11 +72,13 @@ impl BrakeSequence {
         }
         if spec.power_stage {
             let delay = u64::from(t.release_delay_ms) * 1000;
-            Outputs::new(
-                true,
-                self.on_since
+            Outputs {
+                // on and in the hold window: it stays on
+                power_stage: true,
+                brake_released: self
+                    .on_since
                     .is_some_and(|since| now_us.saturating_sub(since) >= delay),
-            )
+            }
         } else {
             Outputs {
                 // not yet seen off by control, or holding the axis
@@ -98,9 +100,18 @@ impl BrakeSequence {
 mod tests {
     use super::*;
 
-    const ON: Outputs = Outputs::new(true, true);
-    const OFF: Outputs = Outputs::new(false, false);
-    const SWITCHED_ON: Outputs = Outputs::new(false, true);
+    const ON: Outputs = Outputs {
+        power_stage: true,
+        brake_released: true,
+    };
+    const OFF: Outputs = Outputs {
+        power_stage: false,
+        brake_released: false,
+    };
+    const SWITCHED_ON: Outputs = Outputs {
+        power_stage: false,
+        brake_released: true,
+    };
 
     #[test]
     fn zero_times_are_the_spec_outputs() {
@@ -128,7 +139,13 @@ mod tests {
         b.update(false, 0, t);
         assert_eq!(b.outputs(SWITCHED_ON, 0, t), OFF);
         // not yet timed: the brake stays applied
-        assert_eq!(b.outputs(ON, 0, t), Outputs::new(true, false));
+        assert_eq!(
+            b.outputs(ON, 0, t),
+            Outputs {
+                power_stage: true,
+                brake_released: false
+            }
+        );
         b.update(true, 1_000, t);
         for now in [1_000, 5_999] {
             assert!(b.holding(ON, now, t), "{now}");
@@ -137,9 +154,21 @@ mod tests {
         assert_eq!(b.outputs(ON, 6_000, t), ON);
         assert!(!b.holding(ON, 6_000, t));
         // disable at 10 ms: brake at once, power until 13 ms
-        assert_eq!(b.outputs(OFF, 10_000, t), Outputs::new(true, false));
+        assert_eq!(
+            b.outputs(OFF, 10_000, t),
+            Outputs {
+                power_stage: true,
+                brake_released: false
+            }
+        );
         b.update(false, 10_000, t);
-        assert_eq!(b.outputs(OFF, 12_999, t), Outputs::new(true, false));
+        assert_eq!(
+            b.outputs(OFF, 12_999, t),
+            Outputs {
+                power_stage: true,
+                brake_released: false
+            }
+        );
         assert_eq!(b.outputs(OFF, 13_000, t), OFF);
         b.update(false, 13_000, t);
         assert_eq!(b.outputs(OFF, 20_000, t), OFF);
@@ -155,7 +184,13 @@ mod tests {
         b.update(true, 0, t);
         b.update(false, 5_000, t);
         b.update(true, 7_000, t);
-        assert_eq!(b.outputs(ON, 8_000, t), Outputs::new(true, false));
+        assert_eq!(
+            b.outputs(ON, 8_000, t),
+            Outputs {
+                power_stage: true,
+                brake_released: false
+            }
+        );
         assert_eq!(b.outputs(ON, 9_000, t), ON);
     }
 }

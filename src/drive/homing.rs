@@ -28,8 +28,8 @@ impl Drive {
             HomingState::Searching(h) => {
                 let p = h.phase();
                 Some(Goal::Run {
-                    forward: !p.left,
-                    ramp: self.s.homing_ramp(od, h.method(), p.slow),
+                    forward: !p.left(),
+                    ramp: self.s.homing_ramp(od, h.method(), p.slow()),
                 })
             }
             HomingState::Offset { target } => {

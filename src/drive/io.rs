@@ -51,11 +51,11 @@ impl<Cw, Ccw, Home> SwitchInputs<Cw, Ccw, Home> {
 impl<Cw: InputPin, Ccw: InputPin, Home: InputPin> SwitchInputs<Cw, Ccw, Home> {
     /// Logical states with the polarity bits of PA13.
     pub fn read(&mut self, polarity: u16) -> Switches {
-        Switches {
-            cw_limit: active(&mut self.cw_limit, polarity & POLARITY_CW != 0),
-            ccw_limit: active(&mut self.ccw_limit, polarity & POLARITY_CCW != 0),
-            home: active(&mut self.home, polarity & POLARITY_HOME != 0),
-        }
+        Switches::new(
+            active(&mut self.cw_limit, polarity & POLARITY_CW != 0),
+            active(&mut self.ccw_limit, polarity & POLARITY_CCW != 0),
+            active(&mut self.home, polarity & POLARITY_HOME != 0),
+        )
     }
 }
 
@@ -157,22 +157,11 @@ mod tests {
             home: Pin(None),
         };
         // normally open: high = active
-        assert_eq!(
-            sw.read(0),
-            Switches {
-                cw_limit: true,
-                ccw_limit: false,
-                home: true
-            }
-        );
+        assert_eq!(sw.read(0), Switches::new(true, false, true));
         // CW and CCW normally closed: low = active
         assert_eq!(
             sw.read(POLARITY_CW | POLARITY_CCW),
-            Switches {
-                cw_limit: false,
-                ccw_limit: true,
-                home: true
-            }
+            Switches::new(false, true, true)
         );
     }
 

@@ -374,11 +374,11 @@ impl Drive {
     ) {
         self.s.update(cfg);
         self.now_us = now_us;
-        let sw = Switches {
-            cw_limit: switches.cw_limit && self.s.cw_limit_enabled(),
-            ccw_limit: switches.ccw_limit && self.s.ccw_limit_enabled(),
-            home: switches.home,
-        };
+        let sw = Switches::new(
+            switches.cw_limit() && self.s.cw_limit_enabled(),
+            switches.ccw_limit() && self.s.ccw_limit_enabled(),
+            switches.home(),
+        );
         self.switches = sw;
         self.raw_position = self.planner.actual_position(sched);
         if self.frame_seen {
@@ -392,7 +392,7 @@ impl Drive {
 
         // §8.7 faults
         if self.fault.is_none() {
-            if sw.cw_limit && sw.ccw_limit {
+            if sw.cw_limit() && sw.ccw_limit() {
                 self.enter_fault(FaultCause::BothLimits, cfg.od());
             } else if self.state == PowerState::OperationEnabled
                 && self.s.comm_loss_ms > 0
@@ -564,16 +564,16 @@ impl DriveLayer for Drive {
             MODE_VELOCITY => i64::from(self.s.profile_velocity) * 6,
             _ => self
                 .active
-                .map_or(0, |a| div_i64(a.ramp.velocity as i64 * 6, spr)),
+                .map_or(0, |a| div_i64(a.ramp.velocity() as i64 * 6, spr)),
         };
         let out = self.outputs();
         DriveMonitor::new(
             command as i32,
             div_i64(self.velocity, 10) as i32,
             speed_command as i32,
-            u16::from(self.switches.cw_limit)
-                | u16::from(self.switches.ccw_limit) << 1
-                | u16::from(self.switches.home) << 2,
+            u16::from(self.switches.cw_limit())
+                | u16::from(self.switches.ccw_limit()) << 1
+                | u16::from(self.switches.home()) << 2,
             u16::from(out.power_stage) | u16::from(out.brake_released) << 1,
             self.following_error_steps(),
         )

@@ -89,11 +89,11 @@ impl Settings {
 
     /// The profile ramp of 0x6081/0x6083/0x6084, clamped (SPEC §8.4).
     pub(super) fn profile_ramp(&self, od: &OdValues) -> Ramp {
-        Ramp {
-            velocity: self.steps(od.profile_velocity().unsigned_abs()),
-            accel: self.steps(u32::from(od.acceleration())),
-            decel: self.steps(u32::from(od.deceleration())),
-        }
+        Ramp::new(
+            self.steps(od.profile_velocity().unsigned_abs()),
+            self.steps(u32::from(od.acceleration())),
+            self.steps(u32::from(od.deceleration())),
+        )
         .clamped(self.max_velocity, self.accel_cap)
     }
 
@@ -107,12 +107,7 @@ impl Settings {
         };
         let accel = self.steps(u32::from(od.homing_acceleration()));
         let cap = self.rpm_to_velocity(u64::from(method.max_rpm()));
-        Ramp {
-            velocity: self.steps(reg),
-            accel,
-            decel: accel,
-        }
-        .clamped(self.max_velocity.min(cap), self.accel_cap)
+        Ramp::new(self.steps(reg), accel, accel).clamped(self.max_velocity.min(cap), self.accel_cap)
     }
 
     pub(super) fn decel(&self, od: &OdValues) -> u64 {

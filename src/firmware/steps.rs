@@ -194,8 +194,8 @@ fn on_update(s: &mut Stepper) {
     let Stepper { shaper, source, .. } = s;
     let Period { arr, ccr, dir } = shaper.next_period(|| {
         source.advance(&SCHEDULE).map(|n| Step {
-            forward: n.forward,
-            interval_ticks: n.delay_ticks,
+            forward: n.forward(),
+            interval_ticks: n.delay_ticks(),
         })
     });
     t.arr().write(|w| w.set_arr(arr));

@@ -276,11 +276,7 @@ impl RemoteDrive {
             following_error: self.has_following_error().then(|| self.word32(0x05)),
             listen_only: false,
             busy: false,
-            switches: Switches {
-                cw_limit: inputs & 1 != 0,
-                ccw_limit: inputs & 2 != 0,
-                home: inputs & 4 != 0,
-            },
+            switches: Switches::new(inputs & 1 != 0, inputs & 2 != 0, inputs & 4 != 0),
             axis: None,
             bus_counters: self.counters_read.then(|| Counters::from_reads(*c)),
             page_counters: Some(self.master.tally().as_counters()),

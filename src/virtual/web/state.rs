@@ -162,7 +162,9 @@ fn opt<T>(v: Option<T>, f: impl Fn(T) -> String) -> String {
 fn switches_json(s: Switches) -> String {
     format!(
         "{{\"cw\":{},\"ccw\":{},\"home\":{}}}",
-        s.cw_limit, s.ccw_limit, s.home
+        s.cw_limit(),
+        s.ccw_limit(),
+        s.home()
     )
 }
 
