@@ -33,11 +33,7 @@ fn main() {
     // register units are 0.1 steps/s and 0.1 steps/s²
     let goal = Goal::Move {
         target: n(1) as i64,
-        ramp: Ramp {
-            velocity: n(2) * 10,
-            accel: n(3) * 10,
-            decel: n(4) * 10,
-        },
+        ramp: Ramp::new(n(2) * 10, n(3) * 10, n(4) * 10),
         end_velocity: 0,
     };
     assert!(planner.set_goal(goal), "goal refused");
@@ -47,7 +43,7 @@ fn main() {
         let _: Fill = planner.fill_with(now_us, &sched, &mut axis);
         axis.kick(&sched);
         let until = axis.us_to_ticks(now_us + PERIOD_US);
-        while axis.run_until(&sched, until, |s| ticks.push(s.tick)) == RunStop::SwitchChanged {}
+        while axis.run_until(&sched, until, |s| ticks.push(s.tick())) == RunStop::SwitchChanged {}
         now_us += PERIOD_US;
         if planner.at_rest(&sched) || now_us > 60_000_000 {
             break;

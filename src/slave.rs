@@ -41,8 +41,20 @@ pub enum Response {
 /// What [`Slave::handle`] produced.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Outcome {
-    pub response: Response,
-    pub event: Option<Event>,
+    response: Response,
+    event: Option<Event>,
+}
+
+impl Outcome {
+    #[inline]
+    pub const fn response(&self) -> Response {
+        self.response
+    }
+
+    #[inline]
+    pub const fn event(&self) -> Option<Event> {
+        self.event
+    }
 }
 
 impl Outcome {
@@ -89,9 +101,9 @@ impl Slave {
     /// `Device::poll_storage`) is counted (§6).
     pub fn count_deferred_exception(&mut self, exception: Exception) {
         let c = &mut self.counters;
-        c.exceptions = c.exceptions.wrapping_add(1);
+        c.count_exception();
         if exception == Exception::Busy {
-            c.busy = c.busy.wrapping_add(1);
+            c.count_busy();
         }
     }
 
@@ -136,7 +148,7 @@ impl Slave {
             None
         };
         if let Some(e) = frame_error {
-            self.counters.bus_errors = self.counters.bus_errors.wrapping_add(1);
+            self.counters.count_bus_error();
             let code = e
                 .code(standard)
                 .filter(|_| ours && !self.listen_only && regs.pa.answer_frame_errors());
@@ -147,7 +159,7 @@ impl Slave {
             };
             let response = match code {
                 Some(code) => {
-                    self.counters.exceptions = self.counters.exceptions.wrapping_add(1);
+                    self.counters.count_exception();
                     Response::Reply(exception_reply(reply, address, bytes[1], code))
                 }
                 None => Response::Silent,
@@ -162,16 +174,16 @@ impl Slave {
             };
         }
 
-        self.counters.bus_messages = self.counters.bus_messages.wrapping_add(1);
+        self.counters.count_bus_message();
         if !ours && address != BROADCAST {
             return Outcome::SILENT; // §2: not even counted as ours
         }
-        self.counters.slave_messages = self.counters.slave_messages.wrapping_add(1);
+        self.counters.count_slave_message();
         let pdu = &bytes[1..bytes.len() - 2];
         let function = pdu[0];
 
         if self.listen_only {
-            self.counters.no_response = self.counters.no_response.wrapping_add(1);
+            self.counters.count_no_response();
             // §2: a broadcast never acts outside 0x06/0x10, not even here.
             let event = if ours {
                 self.listen_only_request(pdu)
@@ -185,7 +197,7 @@ impl Slave {
         }
 
         if address == BROADCAST {
-            self.counters.no_response = self.counters.no_response.wrapping_add(1);
+            self.counters.count_no_response();
             if !matches!(
                 function,
                 function::WRITE_SINGLE_REGISTER | function::WRITE_MULTIPLE_REGISTERS
@@ -225,7 +237,7 @@ impl Slave {
                 }
             }
             Ok(Reply::None) => {
-                self.counters.no_response = self.counters.no_response.wrapping_add(1);
+                self.counters.count_no_response();
                 Outcome {
                     response: Response::Silent,
                     event: Some(Event::ListenOnly(true)),
@@ -248,8 +260,8 @@ impl Slave {
     fn lost(&mut self, kind: FrameError) -> Outcome {
         let c = &mut self.counters;
         match kind {
-            FrameError::Overrun => c.overruns = c.overruns.wrapping_add(1),
-            _ => c.bus_errors = c.bus_errors.wrapping_add(1),
+            FrameError::Overrun => c.count_overrun(),
+            _ => c.count_bus_error(),
         }
         Outcome {
             response: Response::Silent,
@@ -264,9 +276,9 @@ impl Slave {
     /// Counts a refused request (§6: broadcast refusals count too).
     fn refused(&mut self, function: u8, exception: Exception, answered: bool) -> Event {
         let c = &mut self.counters;
-        c.exceptions = c.exceptions.wrapping_add(1);
+        c.count_exception();
         if exception == Exception::Busy {
-            c.busy = c.busy.wrapping_add(1);
+            c.count_busy();
         }
         Event::Exception {
             function,

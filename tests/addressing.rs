@@ -11,12 +11,15 @@ use modbus_drive::rtu::{CharFormat, LineConfig};
 fn broadcast_writes_are_executed_and_never_answered() {
     let mut bus = Bus::new();
     assert_eq!(bus.request(0, &[0x06, 0x60, 0x83, 0x00, 0x64]), None);
-    assert_eq!(bus.device.od().acceleration, 100);
+    assert_eq!(bus.device.od().acceleration(), 100);
     assert_eq!(bus.request(0, &write_pdu(0x607A, &[0x0003, 0x0D40])), None);
-    assert_eq!(bus.device.od().target_position, 200_000);
+    assert_eq!(bus.device.od().target_position(), 200_000);
     assert!(bus.sent.is_empty());
     let c = bus.device.slave().counters().clone();
-    assert_eq!((c.slave_messages, c.no_response, c.exceptions), (2, 2, 0));
+    assert_eq!(
+        (c.slave_messages(), c.no_response(), c.exceptions()),
+        (2, 2, 0)
+    );
 }
 
 #[test]
@@ -27,7 +30,7 @@ fn a_broadcast_that_fails_validation_changes_nothing_and_is_counted() {
     assert_eq!(bus.request(0, &[0x06, 0x60, 0x41, 0x00, 0x00]), None); // RO
     assert_eq!(bus.device.od(), &OdValues::default());
     assert!(bus.sent.is_empty());
-    assert_eq!(bus.device.slave().counters().exceptions, 2);
+    assert_eq!(bus.device.slave().counters().exceptions(), 2);
     let refused: Vec<_> = bus
         .events()
         .into_iter()
@@ -53,7 +56,10 @@ fn broadcast_reads_and_other_functions_are_ignored() {
     assert_eq!(bus.request(0, &[0x2B, 0x0E, 0x01, 0x00]), None);
     assert_eq!(bus.request(0, &[0x41]), None, "no exception 1 either");
     let c = bus.device.slave().counters().clone();
-    assert_eq!((c.slave_messages, c.no_response, c.exceptions), (4, 4, 0));
+    assert_eq!(
+        (c.slave_messages(), c.no_response(), c.exceptions()),
+        (4, 4, 0)
+    );
     // Still answering unicast.
     assert_eq!(bus.read(0x6000, 1), Ok(vec![0]));
 }
@@ -70,11 +76,11 @@ fn foreign_addresses_are_silent_even_with_a_bad_crc() {
         // a request that would be an exception at our address
         assert_eq!(bus.request(address, &[0x03, 0x60, 0x90, 0x00, 0x01]), None);
     }
-    assert_eq!(bus.device.od().acceleration, 0);
+    assert_eq!(bus.device.od().acceleration(), 0);
     let c = bus.device.slave().counters().clone();
-    assert_eq!(c.bus_messages, 12, "good frames on the bus");
-    assert_eq!(c.bus_errors, 6, "CRC errors on the bus");
-    assert_eq!(c.slave_messages, 0);
+    assert_eq!(c.bus_messages(), 12, "good frames on the bus");
+    assert_eq!(c.bus_errors(), 6, "CRC errors on the bus");
+    assert_eq!(c.slave_messages(), 0);
     assert!(bus.events().iter().all(|e| matches!(
         e,
         Event::FrameError {
@@ -165,20 +171,14 @@ fn baud_change_takes_effect_after_the_reply() {
     assert_eq!(bus.send(&req), Some(req.clone()));
     let sent = bus.sent.last().unwrap().clone();
     assert_eq!(sent.start_us - sent.request_end_us, 1750, "old t3.5");
-    assert_eq!(
-        bus.device.line(),
-        LineConfig {
-            baud: 9600,
-            format: CharFormat::N1
-        }
-    );
-    assert_eq!(bus.timing().t35_us, 3646);
+    assert_eq!(bus.device.line(), LineConfig::new(9600, CharFormat::N1));
+    assert_eq!(bus.timing().t35_us(), 3646);
     assert_eq!(bus.read(0x0098, 1), Ok(vec![0]));
     let sent = bus.sent.last().unwrap().clone();
     assert_eq!(sent.start_us - sent.request_end_us, 3646, "new t3.5");
     // A format change (PA53 = 1, 8E1) is deferred the same way.
     assert_eq!(bus.write_single(0x0099, 1), Ok(()));
-    assert_eq!(bus.device.line().format, CharFormat::E1);
+    assert_eq!(bus.device.line().format(), CharFormat::E1);
 }
 
 #[test]

@@ -42,9 +42,9 @@ fn every_board_has_its_own_limits_within_the_ceiling() {
     use modbus_drive::motion::PlannerConfig;
     for board in Board::ALL {
         let cfg = PlannerConfig::for_board(board);
-        assert_eq!(cfg.tick_hz, board.step_tick_hz());
-        assert_eq!(cfg.max_step_rate, board.max_step_rate());
-        assert_eq!(cfg.max_accel, board.max_accel());
+        assert_eq!(cfg.tick_hz(), board.step_tick_hz());
+        assert_eq!(cfg.max_step_rate(), board.max_step_rate());
+        assert_eq!(cfg.max_accel(), board.max_accel());
         assert!(board.max_step_rate() <= MAX_STEP_RATE, "{board:?}");
         assert!(board.max_accel() <= MAX_ACCEL, "{board:?}");
     }
@@ -115,7 +115,7 @@ fn move_at_the_limits(board: Board, velocity_reg: i32, target: i32) {
     let top = rig
         .steps
         .windows(2)
-        .map(|w| f64::from(tick) / (w[1].tick - w[0].tick) as f64)
+        .map(|w| f64::from(tick) / (w[1].tick() - w[0].tick()) as f64)
         .fold(0.0, f64::max);
     assert!(top > 0.99 * v, "{board:?}: cruise at {top} steps/s");
 }
@@ -143,7 +143,7 @@ fn a_set_point_at_any_phase_of_the_control_period_starts() {
             rig.run_until(200_000, |r| r.at_rest() && r.statusword() & REACHED != 0);
             assert_eq!(rig.axis.position(), 500, "{board:?} phase {phase_us}");
             let tick = board.step_tick_hz();
-            let first = rig.steps[0].tick as f64 / f64::from(tick);
+            let first = rig.steps[0].tick() as f64 / f64::from(tick);
             let want = t0_us as f64 * 1e-6 + (2.0 / board.max_accel() as f64).sqrt();
             assert!(
                 (first - want).abs() < 1e-6,
@@ -209,7 +209,7 @@ fn the_limit_brake_at_the_deceleration_limit_stops_on_every_board() {
             rig.control();
         }
         let sw = rig.axis.switches();
-        rig.sched.set_limits(sw.cw_limit, sw.ccw_limit);
+        rig.sched.set_limits(sw.cw_limit(), sw.ccw_limit());
         let until = rig.axis.now_ticks() + rig.axis.us_to_ticks(200_000);
         let steps = &mut rig.steps;
         rig.axis.run_until(&rig.sched, until, |s| steps.push(s));
@@ -273,7 +273,7 @@ fn homing_at_the_speed_and_acceleration_limits_on_every_board() {
             let top = rig
                 .steps
                 .windows(2)
-                .map(|w| f64::from(tick) / (w[1].tick - w[0].tick) as f64)
+                .map(|w| f64::from(tick) / (w[1].tick() - w[0].tick()) as f64)
                 .fold(0.0, f64::max);
             assert!(
                 top > 0.99 * v_cap,

@@ -13,11 +13,8 @@ const PA22: u16 = 0x0064 + 22;
 
 /// (power stage, brake released)
 fn out(rig: &Rig) -> (bool, bool) {
-    let Outputs {
-        power_stage,
-        brake_released,
-    } = rig.bus.device.drive().outputs();
-    (power_stage, brake_released)
+    let o: Outputs = rig.bus.device.drive().outputs();
+    (o.power_stage(), o.brake_released())
 }
 
 fn sequenced(release_ms: u16, engage_ms: u16) -> Rig {
@@ -152,11 +149,7 @@ fn a_fault_engages_the_brake_when_the_reaction_ends_and_holds_pa23() {
     rig.controlword(0x000F);
     rig.start_position_move(1_000_000);
     rig.run_us(200_000);
-    let both = Switches {
-        cw_limit: true,
-        ccw_limit: true,
-        home: false,
-    };
+    let both = Switches::new(true, true, false);
     // the both-limits fault: fault reaction (0x6085 ramp, brake released),
     // then fault
     let mut ramp_ms = 0;

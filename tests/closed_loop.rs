@@ -77,7 +77,7 @@ fn writes_to_the_new_entries_and_their_exceptions() {
     // word order 1 applies (§5.1)
     assert_eq!(bus.write_single(0x6000, 1), Ok(()));
     assert_eq!(bus.write(0x6065, &[0x86A0, 0x0001]), Ok(()));
-    assert_eq!(bus.device.od().following_error_window, 100_000);
+    assert_eq!(bus.device.od().following_error_window(), 100_000);
 }
 
 #[test]

@@ -44,8 +44,8 @@ impl DriveLayer for Double {
     }
     fn values_written(&mut self, cfg: Config<'_>) {
         self.calls.push(Call::Values {
-            target: cfg.od.target_position,
-            velocity: cfg.od.profile_velocity,
+            target: cfg.od().target_position(),
+            velocity: cfg.od().profile_velocity(),
         });
     }
     fn mode_written(&mut self, mode: i16, _cfg: Config<'_>) {
@@ -54,7 +54,7 @@ impl DriveLayer for Double {
     fn controlword_written(&mut self, cw: u16, cfg: Config<'_>) {
         self.calls.push(Call::Controlword {
             cw,
-            target: cfg.od.target_position,
+            target: cfg.od().target_position(),
         });
     }
 }
@@ -86,7 +86,7 @@ impl Rig {
             bytes,
             parity_error: false,
         };
-        match self.slave.handle(rx, 1, &mut regs, &mut reply).response {
+        match self.slave.handle(rx, 1, &mut regs, &mut reply).response() {
             Response::Reply(n) => Some(reply[..n].to_vec()),
             Response::Silent => None,
         }
@@ -113,7 +113,7 @@ fn live_entries_are_read_from_the_drive_layer_in_both_word_orders() {
             &[0x03, 12, 0x16, 0x37, 0x00, 0x06, 0xFF, 0xFC, 0xF2, 0xC0, 0xFF, 0xFF, 0xFD, 0xA8]
         ))
     );
-    rig.od.word_order = 1;
+    rig.od.set_word_order(1);
     assert_eq!(
         rig.frame(&read),
         Some(frame(
@@ -218,5 +218,5 @@ fn a_frame_event_shorter_than_four_bytes_is_not_trusted() {
     for bytes in [&[][..], &[1], &[1, 3], &[1, 3, 0]] {
         assert_eq!(rig.frame(bytes), None);
     }
-    assert_eq!(rig.slave.counters().bus_errors, 4);
+    assert_eq!(rig.slave.counters().bus_errors(), 4);
 }

@@ -43,7 +43,7 @@ fn cia402_sequence_and_outputs() {
     );
     let out = |r: &Rig| {
         let o = r.bus.device.drive().outputs();
-        (o.brake_released, o.power_stage)
+        (o.brake_released(), o.power_stage())
     };
     assert_eq!(out(&rig), (false, false));
     cw(&mut rig, 0x0006);
@@ -72,13 +72,13 @@ fn disable_while_moving_stops_step_output_at_once() {
         rig.run_us(300_000);
         assert!(rig.velocity_rpm() > 0);
         cw(&mut rig, leave);
-        let at = rig.axis.steps;
+        let at = rig.axis.steps();
         rig.run_us(1_000);
         // at most the one step already on the timer
         assert!(
-            rig.axis.steps <= at + 1,
+            rig.axis.steps() <= at + 1,
             "{leave:#06x}: {} steps after",
-            rig.axis.steps - at
+            rig.axis.steps() - at
         );
         assert!(rig.at_rest());
         // enabling again does not resume the dropped set-point
@@ -103,7 +103,7 @@ fn quick_stop_distance(code: i16) -> i64 {
     // stays in quick stop active until enabled again
     rig.run_us(10_000);
     assert_eq!(rig.statusword() & 0x006F, 0x0007);
-    assert!(rig.bus.device.drive().outputs().power_stage);
+    assert!(rig.bus.device.drive().outputs().power_stage());
     cw(&mut rig, 0x000F);
     assert_eq!(rig.statusword() & 0x006F, 0x0027, "operation enabled again");
     rig.axis.position() - from
@@ -204,7 +204,7 @@ fn refused_set_points_set_the_warning() {
     rig.run_us(10_000);
     // still running to the first target
     assert_eq!(
-        rig.bus.device.drive().monitor().command_position,
+        rig.bus.device.drive().monitor().command_position(),
         2_000_000_000
     );
     // drop it: leave operation enabled and come back
@@ -275,25 +275,18 @@ fn control_with(rig: &mut Rig, sw: Switches) {
 fn both_limits_are_a_fault_reset_only_when_gone() {
     let mut rig = rig();
     cw(&mut rig, 0x000F);
-    let both = Switches {
-        cw_limit: true,
-        ccw_limit: true,
-        home: false,
-    };
+    let both = Switches::new(true, true, false);
     control_with(&mut rig, both);
     control_with(&mut rig, both);
     assert_eq!(rig.statusword(), 0x0028 | CW | CCW, "fault (bit 5 = 1)");
     assert_eq!(rig.error_register(), 0x0001);
-    assert!(!rig.bus.device.drive().outputs().power_stage);
+    assert!(!rig.bus.device.drive().outputs().power_stage());
     // cause still there: no reset
     rig.bus.write_single(0x6040, 0x0080).unwrap();
     control_with(&mut rig, both);
     assert_eq!(rig.statusword() & 0x006F, 0x0028);
     // cause gone, but no rising edge of bit 7
-    let one = Switches {
-        cw_limit: true,
-        ..Switches::default()
-    };
+    let one = Switches::new(true, false, false);
     control_with(&mut rig, one);
     rig.bus.write_single(0x6040, 0x0080).unwrap();
     assert_eq!(rig.statusword() & 0x006F, 0x0028);
@@ -389,17 +382,17 @@ mod random {
                     }
                     Act::Wait(ms) => {
                         for _ in 0..ms {
-                            let before = rig.axis.steps;
+                            let before = rig.axis.steps();
                             rig.run_us(1000);
-                            if rig.axis.steps > before + 1 {
-                                prop_assert!(rig.bus.device.drive().outputs().power_stage);
+                            if rig.axis.steps() > before + 1 {
+                                prop_assert!(rig.bus.device.drive().outputs().power_stage());
                             }
                         }
                     }
                 }
             }
             let raw = i64::from(rig.sched.position());
-            let net: i64 = rig.steps.iter().map(|s| if s.forward { 1 } else { -1 }).sum();
+            let net: i64 = rig.steps.iter().map(|s| if s.forward() { 1 } else { -1 }).sum();
             prop_assert_eq!(rig.axis.position(), net);
             prop_assert_eq!(raw, net);
         }
@@ -516,7 +509,7 @@ fn relative_set_point_after_a_mode_change_counts_from_rest() {
         if let Some(rest) = rest {
             assert_eq!(end, rest + 1000);
         }
-        assert!(rig.steps.iter().all(|s| s.forward), "never backwards");
+        assert!(rig.steps.iter().all(|s| s.forward()), "never backwards");
         ends.push(end);
     }
     assert_eq!(ends[0], ends[1], "latched during the stop or after it");

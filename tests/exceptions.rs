@@ -31,12 +31,9 @@ fn single_pdu(address: u16, value: u16) -> Vec<u8> {
 fn send_with_parity_error(bus: &mut Bus, frame: &[u8], bad: usize) -> Vec<Vec<u8>> {
     bus.idle(20_000);
     let before = bus.sent.len();
-    let tc = bus.timing().tc_us;
+    let tc = bus.timing().tc_us();
     for (i, &b) in frame.iter().enumerate() {
-        let flags = RxFlags {
-            parity: i == bad,
-            ..RxFlags::NONE
-        };
+        let flags = RxFlags::new(i == bad, false, false);
         bus.push(b, bus.now_us() + tc, flags);
     }
     bus.idle(20_000);
@@ -146,8 +143,8 @@ fn code_6_busy_while_a_storage_operation_runs() {
     assert_eq!(code(&mut bus, &read_pdu(0x6041, 1)), 6);
     assert_eq!(code(&mut bus, &single_pdu(0x6083, 7)), 6);
     assert_eq!(code(&mut bus, &read_pdu(0x0064, 60)), 6);
-    assert_eq!(bus.device.od().acceleration, 0);
-    assert_eq!(bus.device.slave().counters().busy, 3);
+    assert_eq!(bus.device.od().acceleration(), 0);
+    assert_eq!(bus.device.slave().counters().busy(), 3);
     bus.device.set_storage_busy(false);
     assert_eq!(bus.write_single(0x6083, 7), Ok(()));
 }
@@ -221,7 +218,7 @@ fn code_9_parity_error_for_our_address() {
     assert!(send_with_parity_error(&mut bus, &with_crc(&other[..6]), 2).is_empty());
     other[0] = 0;
     assert!(send_with_parity_error(&mut bus, &with_crc(&other[..6]), 2).is_empty());
-    assert_eq!(bus.device.slave().counters().bus_errors, 6);
+    assert_eq!(bus.device.slave().counters().bus_errors(), 6);
 }
 
 #[test]
@@ -230,7 +227,7 @@ fn code_10_crc_error_for_our_address() {
     let mut f = hex("01 06 60 83 00 64 67 C9");
     f[7] ^= 0xFF;
     assert_eq!(bus.send(&f), Some(exception(1, 0x06, 10)));
-    assert_eq!(bus.device.od().acceleration, 0, "not executed");
+    assert_eq!(bus.device.od().acceleration(), 0, "not executed");
     // A 4-byte frame is examined; the function byte is echoed | 0x80.
     assert_eq!(
         bus.send(&[0x01, 0x42, 0x00, 0x00]),
@@ -354,7 +351,7 @@ fn busy_drive_refuses_valid_requests_with_6() {
     bus.device.set_storage_busy(true);
     assert_eq!(code(&mut bus, &write_pdu(0x6083, &[1, 2, 3])), 6);
     assert_eq!(code(&mut bus, &[0x08, 0x00, 0x00, 0x12, 0x34]), 6);
-    assert_eq!(bus.device.od().acceleration, 0);
+    assert_eq!(bus.device.od().acceleration(), 0);
     bus.device.set_storage_busy(false);
     assert_eq!(
         bus.request(1, &[0x08, 0x00, 0x00, 0x12, 0x34]),
@@ -396,7 +393,7 @@ fn strict_modbus_pa54_0_is_silent_on_frame_errors() {
     assert_eq!(bus.send(&f), None);
     let f = hex("01 03 60 7A 00 02 FB D2");
     assert!(send_with_parity_error(&mut bus, &f, 0).is_empty());
-    assert_eq!(bus.device.slave().counters().bus_errors, 2);
+    assert_eq!(bus.device.slave().counters().bus_errors(), 2);
     // Other exceptions are still answered.
     assert_eq!(code(&mut bus, &read_pdu(0x6090, 1)), 11);
 }
@@ -418,9 +415,9 @@ fn a_rejected_write_stores_nothing() {
     assert_eq!(bus.write(0x605A, &[7, 0x000F, 6]), Ok(()));
     assert_eq!(
         (
-            bus.device.od().quick_stop_option,
-            bus.device.od().controlword,
-            bus.device.od().mode
+            bus.device.od().quick_stop_option(),
+            bus.device.od().controlword(),
+            bus.device.od().mode()
         ),
         (7, 0x000F, 6)
     );
@@ -435,8 +432,8 @@ fn word_order_in_force_at_arrival_applies_to_the_whole_request() {
     let mut bus = Bus::new();
     // 0x6000, 0x605A, 0x6040, 0x6060, 0x6081 (hi, lo)
     assert_eq!(bus.write(0x6000, &[1, 0, 0, 1, 0x0001, 0x0002]), Ok(()));
-    assert_eq!(bus.device.od().word_order, 1);
-    assert_eq!(bus.device.od().profile_velocity, 0x0001_0002);
+    assert_eq!(bus.device.od().word_order(), 1);
+    assert_eq!(bus.device.od().profile_velocity(), 0x0001_0002);
     // The next request reads with the new order: low word first.
     assert_eq!(bus.read(0x6081, 2), Ok(vec![0x0002, 0x0001]));
 }

@@ -24,7 +24,7 @@ const G431_TICK_HZ: u32 = 10_000_000;
 const F103_TICK_HZ: u32 = 8_000_000;
 
 fn line(baud: u32, format: CharFormat) -> LineConfig {
-    LineConfig { baud, format }
+    LineConfig::new(baud, format)
 }
 
 // ---------------------------------------------------------------- serial line
@@ -45,7 +45,7 @@ fn receiver_timeout_is_t35_in_bit_times_spec_1() {
         ] {
             let l = line(baud, format);
             let rto_ns = u64::from(t35_rto_bits(l)) * 1_000_000_000 / u64::from(baud);
-            let t35_ns = u64::from(l.timing().t35_us) * 1000;
+            let t35_ns = u64::from(l.timing().t35_us()) * 1000;
             let bit_ns = 1_000_000_000 / u64::from(baud);
             assert!(rto_ns + 1000 >= t35_ns, "{l:?}: {rto_ns} ns < t3.5");
             assert!(rto_ns <= t35_ns + bit_ns, "{l:?}: {rto_ns} ns too long");
@@ -357,8 +357,8 @@ impl Isr {
             let source = &mut self.source;
             let p = self.shaper.next_period(|| {
                 source.advance(sched).map(|n| Step {
-                    forward: n.forward,
-                    interval_ticks: n.delay_ticks,
+                    forward: n.forward(),
+                    interval_ticks: n.delay_ticks(),
                 })
             });
             let len = u32::from(p.arr) + 1;
@@ -380,15 +380,7 @@ impl Isr {
 const ONE: u64 = 1 << 32;
 
 fn segment(interval_ticks: u64, count: u32, forward: bool) -> Segment {
-    Segment {
-        interval: interval_ticks * ONE,
-        add: 0,
-        add2: 0,
-        add3: 0,
-        add4: 0,
-        count,
-        forward,
-    }
+    Segment::new(interval_ticks * ONE, 0, 0, 0, 0, count, forward)
 }
 
 #[test]
@@ -427,7 +419,7 @@ fn a_limit_brakes_in_the_step_interrupt_within_the_quick_stop_distance_spec_8_7(
         after.last().is_some_and(|&(gap, _)| gap > 1000),
         "{after:?}"
     );
-    assert!(sched.limit_brake().is_some_and(|b| b.done && b.forward));
+    assert!(sched.limit_brake().is_some_and(|b| b.done() && b.forward()));
 }
 
 // ---------------------------------------------------------------- switches
@@ -718,7 +710,7 @@ fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_its_page_is_repaired(
         .with_read_fault(take_ecc_report);
     let mut store = ParamStore::new(region, 0..4096).unwrap();
     let mut set = ParamSet::defaults();
-    set.pa.set_unchecked(11, 1);
+    set.pa_mut().set_unchecked(11, 1);
     store.save(Slot::Saved, &set).unwrap();
     assert_eq!(store.load(Slot::Saved).unwrap().unwrap().0, set);
     assert_eq!(
@@ -735,7 +727,7 @@ fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_its_page_is_repaired(
     // a power cut left a double word of a second entry unreadable: the
     // journal skips it and keeps the set before it (SPEC §9)
     let mut newer = set.clone();
-    newer.pa.set_unchecked(12, 1500);
+    newer.pa_mut().set_unchecked(12, 1500);
     store.save(Slot::Saved, &newer).unwrap();
     ECC_BAD_AT.store(4096 + 8 + 176 + 16, Ordering::Relaxed);
     assert_eq!(
@@ -744,12 +736,12 @@ fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_its_page_is_repaired(
         "the garbage is not returned as data"
     );
     let boot = store.boot();
-    assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 0 });
-    assert_eq!(boot.set, set, "the set before the unreadable entry");
+    assert_eq!(boot.outcome(), BootOutcome::Loaded { fixed: 0 });
+    assert_eq!(*boot.set(), set, "the set before the unreadable entry");
     // the next save goes to the other page (erased first); the unreadable
     // page is erased when the ring comes back to it
     store.save(Slot::Saved, &newer).unwrap();
-    assert_eq!(store.boot().set, newer);
+    assert_eq!(*store.boot().set(), newer);
 
     // an unreadable page header (a cut while a page was taken into use):
     // the region cannot be read; the firmware erases that page and the
@@ -758,22 +750,22 @@ fn an_ecc_error_in_the_parameter_pages_is_a_read_error_and_its_page_is_repaired(
     let boot = store.boot();
     assert!(
         matches!(
-            boot.outcome,
+            boot.outcome(),
             BootOutcome::Unreadable(StorageError::Flash(_))
         ),
         "{:?}",
-        boot.outcome
+        boot.outcome()
     );
-    assert_eq!(boot.set, ParamSet::defaults());
+    assert_eq!(*boot.set(), ParamSet::defaults());
     assert_eq!(store.flash().erase_faulted_page(), Ok(Some(2048)));
     assert_eq!(store.flash().erase_faulted_page(), Ok(None), "once");
     // (the double at the first page's second entry reads again: the model
     // has one bad double word at a time, so that entry is `newer`)
     let boot = store.boot();
-    assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 0 });
-    assert_eq!(boot.set, newer);
+    assert_eq!(boot.outcome(), BootOutcome::Loaded { fixed: 0 });
+    assert_eq!(*boot.set(), newer);
     store.save(Slot::Saved, &set).unwrap();
-    assert_eq!(store.boot().set, set);
+    assert_eq!(*store.boot().set(), set);
 }
 
 #[test]

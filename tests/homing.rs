@@ -312,7 +312,7 @@ impl Firmware {
     fn new(rig: &Rig, latch: bool) -> Self {
         let s = rig.axis.switches();
         Self {
-            sw: [s.cw_limit, s.ccw_limit, s.home].map(LatchedSwitch::new),
+            sw: [s.cw_limit(), s.ccw_limit(), s.home()].map(LatchedSwitch::new),
             latch,
         }
     }
@@ -320,7 +320,7 @@ impl Firmware {
     /// The EXTI handler (and the control loop's own pin reading).
     fn read(&mut self, rig: &Rig) -> [bool; 3] {
         let s = rig.axis.switches();
-        let raw = [s.cw_limit, s.ccw_limit, s.home];
+        let raw = [s.cw_limit(), s.ccw_limit(), s.home()];
         for (l, r) in self.sw.iter_mut().zip(raw) {
             l.edge(r, rig.sched.position());
         }
@@ -338,17 +338,9 @@ impl Firmware {
         rig.now_us = next;
         let raw = self.read(rig);
         let [cw, ccw, home] = [0, 1, 2].map(|i| self.sw[i].sample(raw[i]).flatten());
-        let states = Switches {
-            cw_limit: self.sw[0].state(),
-            ccw_limit: self.sw[1].state(),
-            home: self.sw[2].state(),
-        };
+        let states = Switches::new(self.sw[0].state(), self.sw[1].state(), self.sw[2].state());
         let edges = if self.latch {
-            SwitchEdges {
-                cw_limit: cw,
-                ccw_limit: ccw,
-                home,
-            }
+            SwitchEdges::new(cw, ccw, home)
         } else {
             SwitchEdges::default()
         };
@@ -419,18 +411,11 @@ fn without_the_latch_the_origin_is_late() {
     }
 }
 
-const NONE: Switches = Switches {
-    cw_limit: false,
-    ccw_limit: false,
-    home: false,
-};
-const HOME_ON: Switches = Switches { home: true, ..NONE };
+const NONE: Switches = Switches::new(false, false, false);
+const HOME_ON: Switches = Switches::new(false, false, true);
 
 fn home_edge(at: i32) -> SwitchEdges {
-    SwitchEdges {
-        home: Some(at),
-        ..SwitchEdges::default()
-    }
+    SwitchEdges::new(None, None, Some(at))
 }
 
 /// Method 1 searching left from 0 finds the CW limit at the call at -520:
@@ -439,10 +424,7 @@ fn home_edge(at: i32) -> SwitchEdges {
 /// at the call is then, as without a latch).
 #[test]
 fn latched_edge_counts_only_on_the_current_leg() {
-    let cw_on = Switches {
-        cw_limit: true,
-        ..NONE
-    };
+    let cw_on = Switches::new(true, false, false);
     for (edge, origin) in [
         (Some(-480), -480),
         (Some(0), 0),
@@ -459,11 +441,8 @@ fn latched_edge_counts_only_on_the_current_leg() {
             h.update(NONE, SwitchEdges::default(), -500),
             HomingStep::Continue
         );
-        let edges = SwitchEdges {
-            cw_limit: edge,
-            ccw_limit: Some(-510), // not the deciding switch
-            home: Some(-510),
-        };
+        // the CCW limit's edge is not the deciding switch's
+        let edges = SwitchEdges::new(edge, Some(-510), Some(-510));
         assert_eq!(
             h.update(cw_on, edges, -520),
             HomingStep::Origin(origin),
@@ -520,18 +499,12 @@ fn edges_passed_while_braking_are_stale() {
 #[test]
 fn latched_edge_across_the_i32_wrap() {
     let p = 1i64 << 31;
-    let ccw_on = Switches {
-        ccw_limit: true,
-        ..NONE
-    };
+    let ccw_on = Switches::new(false, true, false);
     let mut h = Homing::start(HomingMethod::CcwLimit, NONE);
     assert_eq!(
         h.update(NONE, SwitchEdges::default(), p - 100),
         HomingStep::Continue
     );
-    let edges = SwitchEdges {
-        ccw_limit: Some((p + 5) as i32),
-        ..SwitchEdges::default()
-    };
+    let edges = SwitchEdges::new(None, Some((p + 5) as i32), None);
     assert_eq!(h.update(ccw_on, edges, p + 10), HomingStep::Origin(p + 5));
 }

@@ -31,7 +31,7 @@ fn moving(rig: &mut Rig, target: i32) {
 /// The firmware's EXTI handler: the enabled limits, at once.
 fn exti(rig: &Rig) {
     let sw = rig.axis.switches();
-    rig.sched.set_limits(sw.cw_limit, sw.ccw_limit);
+    rig.sched.set_limits(sw.cw_limit(), sw.ccw_limit());
 }
 
 /// Runs the control loop every millisecond until the axis reaches a
@@ -134,7 +134,7 @@ fn homing_reverses_at_the_limit_with_the_brake_disarmed_spec_8_6() {
     rig.write_i32(0x607C, 1000);
     cw(&mut rig, 0x001F);
     run_to_edge(&mut rig, 5_000_000); // into the CW limit
-    assert!(rig.axis.switches().cw_limit);
+    assert!(rig.axis.switches().cw_limit());
     for _ in 0..3 {
         rig.now_us = rig.axis.now_us();
         rig.control();
@@ -171,7 +171,7 @@ fn a_limit_stops_at_the_edge_step_with_the_quick_stop_distance_in_the_virtual_dr
     rig.bus.write_single(0x6060, 3).unwrap(); // profile velocity mode
     rig.write(0x6083, &[1000, 1000, 500]); // 100 r/s², 100 r/s², 0x6085 = 50 r/s²
     rig.write_i32(0x6081, 45); // 4.5 r/s
-    rig.run_until(2_000_000, |r| r.axis.switches().ccw_limit);
+    rig.run_until(2_000_000, |r| r.axis.switches().ccw_limit());
     let edge = 10_000;
     let v_edge = rig.speed_at(edge);
     assert!(

@@ -15,20 +15,12 @@ use proptest::prelude::*;
 
 /// `v` steps/s, `a`/`d` steps/s² → the planner's 0.1 units.
 fn ramp(v: f64, a: f64, d: f64) -> Ramp {
-    Ramp {
-        velocity: (v * 10.0) as u64,
-        accel: (a * 10.0) as u64,
-        decel: (d * 10.0) as u64,
-    }
+    Ramp::new((v * 10.0) as u64, (a * 10.0) as u64, (d * 10.0) as u64)
 }
 
 fn single_move(tick_hz: u32, dist: i64, v10: u64, a10: u64, d10: u64) {
     let mut run = PlannerRun::new(tick_hz, 1000);
-    let r = Ramp {
-        velocity: v10,
-        accel: a10,
-        decel: d10,
-    };
+    let r = Ramp::new(v10, a10, d10);
     run.control();
     assert!(run.planner.set_goal(Goal::Move {
         target: dist,
@@ -110,8 +102,8 @@ proptest! {
         let dur = dist as f64 / v + v / a + v / d;
         prop_assume!(dur < 20.0);
         let r = ramp(v, a, d);
-        prop_assume!(r.velocity > 0 && r.accel > 0 && r.decel > 0);
-        single_move(tick, if neg { -dist } else { dist }, r.velocity, r.accel, r.decel);
+        prop_assume!(r.velocity() > 0 && r.accel() > 0 && r.decel() > 0);
+        single_move(tick, if neg { -dist } else { dist }, r.velocity(), r.accel(), r.decel());
     }
 
     /// Random changes of target while moving (bit 5 semantics: continue
@@ -155,7 +147,7 @@ proptest! {
         }
         assert!(run.planner.set_goal(Goal::Stop { decel: (a * 10.0) as u64 }));
         run.run_until_rest(600_000_000);
-        let net: i64 = run.steps.iter().map(|s| if s.forward { 1 } else { -1 }).sum();
+        let net: i64 = run.steps.iter().map(|s| if s.forward() { 1 } else { -1 }).sum();
         prop_assert_eq!(run.axis.position(), net);
         prop_assert_eq!(i64::from(run.sched.position()), net);
         if vmax > 0.0 {
@@ -192,9 +184,9 @@ fn goal_changes(targets: &[(i64, u64)], v: f64, a: f64, d: f64) -> PlannerRun {
     let mut run = PlannerRun::new(tick, 1000);
     let r = ramp(v, a, d);
     let (vr, ar, dr) = (
-        r.velocity as f64 / 10.0,
-        r.accel as f64 / 10.0,
-        r.decel as f64 / 10.0,
+        r.velocity() as f64 / 10.0,
+        r.accel() as f64 / 10.0,
+        r.decel() as f64 / 10.0,
     );
     run.control();
     let mut last = 0;
@@ -241,11 +233,7 @@ fn goal_changes(targets: &[(i64, u64)], v: f64, a: f64, d: f64) -> PlannerRun {
 fn seed_move_precision_margins() {
     let tick_hz = 10_000_000;
     let mut run = PlannerRun::new(tick_hz, 1000);
-    let r = Ramp {
-        velocity: 500_000,
-        accel: 1_000_000,
-        decel: 1_000_000,
-    };
+    let r = Ramp::new(500_000, 1_000_000, 1_000_000);
     run.control();
     assert!(run.planner.set_goal(Goal::Move {
         target: 200_000,
@@ -260,8 +248,8 @@ fn seed_move_precision_margins() {
     let (mut a_max, mut v_max, mut t_err) = (0.0f64, 0.0f64, 0.0f64);
     let s = &run.steps;
     for i in 1..s.len() - 1 {
-        let dt0 = s[i].exact.wrapping_sub(s[i - 1].exact) as f64 / q / f;
-        let dt1 = s[i + 1].exact.wrapping_sub(s[i].exact) as f64 / q / f;
+        let dt0 = s[i].exact().wrapping_sub(s[i - 1].exact()) as f64 / q / f;
+        let dt1 = s[i + 1].exact().wrapping_sub(s[i].exact()) as f64 / q / f;
         if i > 10 {
             a_max = a_max.max((1.0 / dt1 - 1.0 / dt0).abs() / ((dt0 + dt1) / 2.0));
         }
@@ -269,7 +257,7 @@ fn seed_move_precision_margins() {
     }
     for (i, st) in s.iter().enumerate() {
         let want = trapezoid_time(200_000.0, 50_000.0, 100_000.0, 100_000.0, (i + 1) as f64);
-        t_err = t_err.max(((st.tick - t0) as f64 / f - want).abs());
+        t_err = t_err.max(((st.tick() - t0) as f64 / f - want).abs());
     }
     assert_eq!(run.axis.position(), 200_000);
     assert!(t_err <= 0.25e-6, "time error {t_err}");
@@ -319,7 +307,7 @@ fn a_new_goal_takes_effect_within_the_horizon() {
     let fitted = run.planner.segments_fitted() - fitted_before;
     assert!(fitted <= 4, "{fitted} segments for 100 cruise steps");
     let now_s = run.now_us as f64 * 1e-6;
-    assert!(run.planner.set_goal(Goal::Stop { decel: r.decel }));
+    assert!(run.planner.set_goal(Goal::Stop { decel: r.decel() }));
     run.run_until_rest(10_000_000);
     // the first interval longer than the cruise's 2 ms marks the stop
     let f = f64::from(tick_hz);
@@ -327,20 +315,21 @@ fn a_new_goal_takes_effect_within_the_horizon() {
         .steps
         .windows(2)
         .find(|w| {
-            w[0].tick as f64 / f > now_s
-                && w[1].exact.wrapping_sub(w[0].exact) as f64 / common::axis::Q / f > 0.002 * 1.0001
+            w[0].tick() as f64 / f > now_s
+                && w[1].exact().wrapping_sub(w[0].exact()) as f64 / common::axis::Q / f
+                    > 0.002 * 1.0001
         })
         .expect("a deceleration");
     // it begins at the step before it: after what was pushed (≤ the 3 ms
     // horizon) and at most one more cruise step (a stop ends on a whole
     // step, so it may cruise up to one step before it brakes)
-    let late = first_slow[0].tick as f64 / f - now_s;
+    let late = first_slow[0].tick() as f64 / f - now_s;
     assert!(late <= 0.003 + 0.002 * 1.01, "stop began {late} s late");
     // and it is the commanded stop: 500²/(2·5000) = 25 steps
     let made_after = run
         .steps
         .iter()
-        .filter(|s| s.tick as f64 / f > now_s)
+        .filter(|s| s.tick() as f64 / f > now_s)
         .count();
     assert!(
         (25..=30).contains(&made_after),
@@ -426,7 +415,7 @@ fn a_cut_segment_continues_the_steps_made() {
         let net: i64 = run
             .steps
             .iter()
-            .map(|s| if s.forward { 1 } else { -1 })
+            .map(|s| if s.forward() { 1 } else { -1 })
             .sum();
         assert_eq!(run.axis.position(), net);
         check_dynamics(&run.steps, tick, 49_233.039_954_760_105, a);

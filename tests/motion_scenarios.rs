@@ -22,14 +22,14 @@ const HALT: u16 = 1 << 8;
 fn power_up(rig: &mut Rig) {
     rig.send_ok("01 06 60 40 00 01 57 DE");
     assert_eq!(rig.statusword(), READY);
-    assert!(!rig.bus.device.drive().outputs().brake_released);
+    assert!(!rig.bus.device.drive().outputs().brake_released());
     rig.send_ok("01 06 60 40 00 03 D6 1F");
     assert_eq!(rig.statusword(), SWITCHED_ON);
-    assert!(rig.bus.device.drive().outputs().brake_released);
-    assert!(!rig.bus.device.drive().outputs().power_stage);
+    assert!(rig.bus.device.drive().outputs().brake_released());
+    assert!(!rig.bus.device.drive().outputs().power_stage());
     rig.send_ok("01 06 60 40 00 0F D6 1A");
     assert_eq!(rig.statusword(), ENABLED);
-    assert!(rig.bus.device.drive().outputs().power_stage);
+    assert!(rig.bus.device.drive().outputs().power_stage());
 }
 
 fn position_mode() -> Rig {
@@ -268,7 +268,7 @@ fn pa10_scales_and_pa12_caps_the_move() {
             .windows(2)
             .map(|w| {
                 f64::from(rig.tick_hz) * common::axis::Q
-                    / w[1].exact.wrapping_sub(w[0].exact) as f64
+                    / w[1].exact().wrapping_sub(w[0].exact()) as f64
             })
             .fold(0.0, f64::max);
         assert!(

@@ -192,11 +192,11 @@ fn pa57_pa58_driver_enable_lead_and_tail() {
     assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 1]));
 
     let mut old = ParamSet::defaults();
-    old.pa.set_unchecked(57, 500);
-    old.pa.set_unchecked(58, 7);
+    old.pa_mut().set_unchecked(57, 500);
+    old.pa_mut().set_unchecked(58, 7);
     s.save(Slot::Saved, &old).unwrap();
     let boot = s.boot();
-    assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 1 });
+    assert_eq!(boot.outcome(), BootOutcome::Loaded { fixed: 1 });
     let mut bus = booted(&mut s);
     assert_eq!(bus.read(pa_addr(57), 2), Ok(vec![1, 7]));
 }
@@ -218,13 +218,13 @@ fn address_change_is_answered_from_the_old_address_then_effective() {
 #[test]
 fn baud_change_takes_effect_after_the_reply() {
     let mut bus = Bus::new();
-    let t35_115200 = bus.timing().t35_us;
+    let t35_115200 = bus.timing().t35_us();
     assert_eq!(bus.write_single(pa_addr(52), 0), Ok(()));
     let sent = bus.sent.last().unwrap().clone();
     // The reply still went out on the old line: t3.5 of 115200 baud.
     assert_eq!(sent.start_us.wrapping_sub(sent.request_end_us), t35_115200);
-    assert_eq!(bus.device.line().baud, 9_600);
-    assert_eq!(bus.timing().t35_us, 3_646, "3.5 × 10 bits at 9600 baud");
+    assert_eq!(bus.device.line().baud(), 9_600);
+    assert_eq!(bus.timing().t35_us(), 3_646, "3.5 × 10 bits at 9600 baud");
     // The next request is at 9600 baud and is answered after its t3.5.
     assert_eq!(bus.read(pa_addr(52), 1), Ok(vec![0]));
     let sent = bus.sent.last().unwrap();
@@ -235,14 +235,17 @@ fn baud_change_takes_effect_after_the_reply() {
 fn format_change_takes_effect_after_the_reply() {
     let mut bus = Bus::new();
     assert_eq!(bus.write_single(pa_addr(53), 1), Ok(()));
-    assert_eq!(bus.device.line().format, modbus_drive::rtu::CharFormat::E1);
+    assert_eq!(
+        bus.device.line().format(),
+        modbus_drive::rtu::CharFormat::E1
+    );
 }
 
 #[test]
 fn pa56_delays_the_reply() {
     let mut bus = Bus::new();
     assert_eq!(bus.write_single(pa_addr(56), 20), Ok(()));
-    let t35 = bus.timing().t35_us;
+    let t35 = bus.timing().t35_us();
     assert_eq!(bus.read(pa_addr(56), 1), Ok(vec![20]));
     let sent = bus.sent.last().unwrap();
     assert_eq!(
@@ -445,7 +448,7 @@ fn ee_rd_changing_address_and_baud_answers_first_then_takes_effect() {
     let reply = ee(&mut bus, &mut s, &ee_old(3, 2));
     assert_eq!(reply, Some(ee_old(3, 2)));
     assert_eq!(bus.device.address(), 9);
-    assert_eq!(bus.device.line().baud, 38_400);
+    assert_eq!(bus.device.line().baud(), 38_400);
     assert_eq!(bus.request(3, &[0x03, 0x00, 0x97, 0x00, 0x01]), None);
     assert_eq!(bus.read(pa_addr(51), 1), Ok(vec![9]));
 }
@@ -521,7 +524,7 @@ fn other_requests_during_an_ee_operation_get_exception_6() {
         "nothing stored while busy"
     );
     assert_eq!(
-        bus.device.slave().counters().busy,
+        bus.device.slave().counters().busy(),
         8,
         "counters not cleared"
     );
@@ -590,7 +593,7 @@ fn broadcast_ee_operations_run_without_a_reply() {
     assert_eq!(bus.send(&ee_old(0, 5)), None);
     assert_eq!(bus.poll_storage(&mut s), None);
     assert_eq!(bus.device.params().get(10), 10_000, "EE-dEF ran");
-    assert_eq!(s.boot().outcome, BootOutcome::Loaded { fixed: 0 });
+    assert_eq!(s.boot().outcome(), BootOutcome::Loaded { fixed: 0 });
 }
 
 #[test]
@@ -617,7 +620,7 @@ fn boot_with_saved_address_and_line_uses_them_at_once() {
     let boot = s.boot();
     bus2.device.apply_boot(&boot);
     assert_eq!(bus2.device.address(), 33);
-    assert_eq!(bus2.device.line().baud, 19_200);
+    assert_eq!(bus2.device.line().baud(), 19_200);
     assert!(bus2
         .events()
         .contains(&Event::ParamsLoaded(BootOutcome::Loaded { fixed: 0 })));

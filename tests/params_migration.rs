@@ -25,10 +25,10 @@ type F103 = SimFlash<4, 1024, 2>;
 /// A recognisable set.
 fn numbered_set(n: u16) -> ParamSet {
     let mut s = ParamSet::defaults();
-    s.pa.set_unchecked(10, 200 + n);
-    s.pa.set_unchecked(51, 1 + n % 247);
-    s.od.home_offset = i32::from(n) << 12;
-    s.od.acceleration = n;
+    s.pa_mut().set_unchecked(10, 200 + n);
+    s.pa_mut().set_unchecked(51, 1 + n % 247);
+    s.od_mut().set_home_offset(i32::from(n) << 12);
+    s.od_mut().set_acceleration(n);
     s
 }
 
@@ -66,10 +66,10 @@ fn check_takeover<const P: usize, const S: usize, const W: usize>() {
             let mut store = ParamStore::new(flash, REGION).unwrap();
             let boot = store.boot();
             if history == 0 {
-                assert_eq!(boot.outcome, BootOutcome::Blank, "{what}");
+                assert_eq!(boot.outcome(), BootOutcome::Blank, "{what}");
             } else {
-                assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 0 }, "{what}");
-                assert_eq!(boot.set, numbered_set(history - 1), "{what}");
+                assert_eq!(boot.outcome(), BootOutcome::Loaded { fixed: 0 }, "{what}");
+                assert_eq!(*boot.set(), numbered_set(history - 1), "{what}");
             }
             let want_backup = backup.then(|| (numbered_set(BACKUP), 0));
             assert_eq!(store.load(Slot::Backup).unwrap(), want_backup, "{what}");
@@ -79,7 +79,7 @@ fn check_takeover<const P: usize, const S: usize, const W: usize>() {
                 store.save(Slot::Saved, &numbered_set(100 + n)).unwrap();
             }
             let mut store = ParamStore::new(store.into_inner(), REGION).unwrap();
-            assert_eq!(store.boot().set, numbered_set(129), "{what}");
+            assert_eq!(*store.boot().set(), numbered_set(129), "{what}");
             assert_eq!(store.load(Slot::Backup).unwrap(), want_backup, "{what}");
         }
     }
@@ -113,8 +113,8 @@ fn a_version_1_record_in_the_old_map_is_kept() {
     block_on(map.store_item(&mut buf, &0u8, &&v1[..])).unwrap();
     let mut store = ParamStore::new(flash, REGION).unwrap();
     let boot = store.boot();
-    assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 0 });
-    assert_eq!(boot.set, set);
+    assert_eq!(boot.outcome(), BootOutcome::Loaded { fixed: 0 });
+    assert_eq!(*boot.set(), set);
 }
 
 fn crc16_modbus(bytes: &[u8]) -> u16 {
@@ -153,15 +153,15 @@ fn cut_takeover<const P: usize, const S: usize, const W: usize>() -> u32 {
             flash.power_up();
             let mut store = ParamStore::new(flash, REGION).unwrap();
             let boot = store.boot();
-            assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 0 }, "{what}");
-            assert_eq!(boot.set, numbered_set(history - 1), "{what}");
+            assert_eq!(boot.outcome(), BootOutcome::Loaded { fixed: 0 }, "{what}");
+            assert_eq!(*boot.set(), numbered_set(history - 1), "{what}");
             assert_eq!(
                 store.load(Slot::Backup).unwrap(),
                 Some((numbered_set(BACKUP), 0)),
                 "{what}"
             );
             store.save(Slot::Saved, &numbered_set(777)).unwrap();
-            assert_eq!(store.boot().set, numbered_set(777), "{what}");
+            assert_eq!(*store.boot().set(), numbered_set(777), "{what}");
             cuts += 1;
         }
     }
@@ -195,13 +195,13 @@ fn cut_old_save<F: NorFlash + Default + Clone + Cut>() -> u32 {
             let mut store = ParamStore::new(flash, REGION).unwrap();
             let boot = store.boot();
             match &old {
-                None if boot.outcome == BootOutcome::Blank => {}
+                None if boot.outcome() == BootOutcome::Blank => {}
                 _ => {
-                    assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 0 }, "{what}");
+                    assert_eq!(boot.outcome(), BootOutcome::Loaded { fixed: 0 }, "{what}");
                     assert!(
-                        Some(&boot.set) == old.as_ref() || boot.set == new,
+                        Some(boot.set()) == old.as_ref() || *boot.set() == new,
                         "{what}: {:?}",
-                        boot.set
+                        boot.set()
                     );
                 }
             }

@@ -56,14 +56,14 @@ impl<const P: usize, const S: usize, const W: usize> Geometry for SimFlash<P, S,
 /// A recognisable set: every saved field derived from `n`.
 fn numbered_set(n: u16) -> ParamSet {
     let mut s = ParamSet::defaults();
-    s.pa.set_unchecked(10, 200 + n);
-    s.pa.set_unchecked(12, 1 + n % 6000);
-    s.pa.set_unchecked(51, 1 + n % 247);
-    s.pa.set_unchecked(40, n.wrapping_mul(7)); // reserved, stored as is
-    s.od.profile_velocity = -i32::from(n) * 3;
-    s.od.home_offset = i32::from(n) << 12;
-    s.od.homing_speed = u32::from(n) * 11;
-    s.od.acceleration = n;
+    s.pa_mut().set_unchecked(10, 200 + n);
+    s.pa_mut().set_unchecked(12, 1 + n % 6000);
+    s.pa_mut().set_unchecked(51, 1 + n % 247);
+    s.pa_mut().set_unchecked(40, n.wrapping_mul(7)); // reserved, stored as is
+    s.od_mut().set_profile_velocity(-i32::from(n) * 3);
+    s.od_mut().set_home_offset(i32::from(n) << 12);
+    s.od_mut().set_homing_speed(u32::from(n) * 11);
+    s.od_mut().set_acceleration(n);
     s
 }
 
@@ -101,7 +101,10 @@ fn expected(op: EeOp, before: &ParamSet, working_set: &ParamSet) -> ParamSet {
 /// Cuts `op` at every operation of the flash.
 fn cut_everywhere<G: Geometry>(op: EeOp, history: u16, strict: bool) -> Sweep {
     let base: G = prepared(history, strict);
-    let old = ParamStore::new(base.clone(), REGION).unwrap().boot().set;
+    let old = ParamStore::new(base.clone(), REGION)
+        .unwrap()
+        .boot()
+        .into_set();
     let new_working = numbered_set(5000 + history);
     let new = expected(op, &old, &new_working);
     // (EE-dEF on a blank store saves what the blank store already means.)
@@ -132,16 +135,16 @@ fn cut_everywhere<G: Geometry>(op: EeOp, history: u16, strict: bool) -> Sweep {
         let boot = store.boot();
         let what = format!(
             "{op:?} history {history} cut {cut}/{total}: {:?}",
-            boot.outcome
+            boot.outcome()
         );
-        if history == 0 && boot.outcome == BootOutcome::Blank {
+        if history == 0 && boot.outcome() == BootOutcome::Blank {
             // Nothing was saved before: "old" is the blank store.
         } else {
-            assert_eq!(boot.outcome, BootOutcome::Loaded { fixed: 0 }, "{what}");
+            assert_eq!(boot.outcome(), BootOutcome::Loaded { fixed: 0 }, "{what}");
             assert!(
-                boot.set == old || boot.set == new,
+                *boot.set() == old || *boot.set() == new,
                 "{what}: neither the old nor the new set: {:?}",
-                boot.set
+                boot.set()
             );
         }
         assert_eq!(
@@ -151,11 +154,11 @@ fn cut_everywhere<G: Geometry>(op: EeOp, history: u16, strict: bool) -> Sweep {
         );
         // The store still works after the cut.
         match store.save(Slot::Saved, &numbered_set(7777)) {
-            Ok(()) => assert_eq!(store.boot().set, numbered_set(7777), "{what}"),
+            Ok(()) => assert_eq!(*store.boot().set(), numbered_set(7777), "{what}"),
             Err(e) if strict => {
                 stuck += 1;
                 // Even a store that cannot write any more loads a whole set.
-                let set = store.boot().set;
+                let set = store.boot().into_set();
                 assert!(
                     set == old || set == new || set == ParamSet::defaults(),
                     "{what}"
@@ -270,7 +273,7 @@ fn wear<const P: usize, const S: usize, const W: usize>() {
     println!(
         "wear: 10000 EE-Set on {P} x {S} B pages: erases per page {erases:?} (budget {ERASE_BUDGET})"
     );
-    assert_eq!(store.boot().set.pa.get(10), 200 + 9_999);
+    assert_eq!(store.boot().set().pa().get(10), 200 + 9_999);
     for e in erases {
         assert!(e > 0, "every page is used");
         assert!(

@@ -100,7 +100,7 @@ proptest! {
         order in 0u16..=1,
     ) {
         let mut bus = Bus::new();
-        bus.device.configure(|_, od| od.word_order = order);
+        bus.device.configure(|_, od| od.set_word_order(order));
         bus.device.set_storage_busy(busy);
         let pdu = if single {
             let mut p = vec![0x06];

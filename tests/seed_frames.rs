@@ -40,14 +40,18 @@ fn programming_example_writes_nine_words_in_table_order() {
         "01 10 60 40 00 09 1F DB",
     );
     let od = bus.device.od();
-    assert_eq!(od.controlword, 0x000F);
-    assert_eq!(od.mode, 1);
-    assert_eq!(od.profile_velocity, 100);
+    assert_eq!(od.controlword(), 0x000F);
+    assert_eq!(od.mode(), 1);
+    assert_eq!(od.profile_velocity(), 100);
     assert_eq!(
-        (od.acceleration, od.deceleration, od.quick_stop_deceleration),
+        (
+            od.acceleration(),
+            od.deceleration(),
+            od.quick_stop_deceleration()
+        ),
         (100, 100, 100)
     );
-    assert_eq!(od.target_position, 200_000);
+    assert_eq!(od.target_position(), 200_000);
     // The RW entries read back, walking the same table order (0x6081..0x607A).
     assert_eq!(
         bus.read(0x6081, 7),
@@ -72,7 +76,7 @@ fn target_position_in_word_order_0() {
         "01 10 60 7A 00 02 04 00 03 0D 40 29 96",
         "01 10 60 7A 00 02 7E 11",
     );
-    assert_eq!(bus.device.od().target_position, 200_000);
+    assert_eq!(bus.device.od().target_position(), 200_000);
     exchange(
         &mut bus,
         "01 03 60 7A 00 02 FB D2",
@@ -90,7 +94,7 @@ fn target_position_in_word_order_1() {
         "01 10 60 7A 00 02 04 0D 40 00 03 9F 8F",
         "01 10 60 7A 00 02 7E 11",
     );
-    assert_eq!(bus.device.od().target_position, 200_000);
+    assert_eq!(bus.device.od().target_position(), 200_000);
     exchange(
         &mut bus,
         "01 03 60 7A 00 02 FB D2",
@@ -141,17 +145,17 @@ fn position_mode_program() {
         ),
     ] {
         written(&mut bus, "01 10 60 81 00 02 04 00 00 00 32 13 D4");
-        assert_eq!(bus.device.od().profile_velocity, 50);
+        assert_eq!(bus.device.od().profile_velocity(), 50);
         written(&mut bus, "01 10 60 7A 00 02 04 00 03 0D 40 29 96");
         echo(&mut bus, set);
         echo(&mut bus, reset);
         written(&mut bus, "01 10 60 81 00 02 04 00 00 00 64 93 EA");
-        assert_eq!(bus.device.od().profile_velocity, 100);
+        assert_eq!(bus.device.od().profile_velocity(), 100);
         written(&mut bus, "01 10 60 7A 00 02 04 00 09 27 C0 17 54");
-        assert_eq!(bus.device.od().target_position, 600_000);
+        assert_eq!(bus.device.od().target_position(), 600_000);
         echo(&mut bus, last);
         assert_eq!(
-            bus.device.od().controlword,
+            bus.device.od().controlword(),
             u16::from_be_bytes([hex(last)[4], hex(last)[5]])
         );
     }
@@ -175,7 +179,7 @@ fn velocity_mode_program() {
     ] {
         echo(&mut bus, f);
     }
-    assert_eq!(bus.device.od().mode, 3);
+    assert_eq!(bus.device.od().mode(), 3);
 }
 
 #[test]
@@ -197,10 +201,14 @@ fn homing_mode_program() {
     written(&mut bus, "01 10 60 7C 00 02 04 00 00 03 E8 5C 62");
     let od = bus.device.od();
     assert_eq!(
-        (od.homing_method, od.homing_acceleration, od.homing_speed),
+        (
+            od.homing_method(),
+            od.homing_acceleration(),
+            od.homing_speed()
+        ),
         (1, 1000, 100)
     );
-    assert_eq!((od.homing_zero_speed, od.home_offset), (100, 1000));
+    assert_eq!((od.homing_zero_speed(), od.home_offset()), (100, 1000));
 
     // The same parameters in one request: 0x607C (2), 0x6098, 0x6099 (2),
     // 0x609A, 0x609B (2) = 8 words in table order.
@@ -211,10 +219,13 @@ fn homing_mode_program() {
     );
     let od = bus.device.od();
     assert_eq!(
-        (od.home_offset, od.homing_method, od.homing_speed),
+        (od.home_offset(), od.homing_method(), od.homing_speed()),
         (1000, 1, 100)
     );
-    assert_eq!((od.homing_acceleration, od.homing_zero_speed), (1000, 100));
+    assert_eq!(
+        (od.homing_acceleration(), od.homing_zero_speed()),
+        (1000, 100)
+    );
     echo(&mut bus, "01 06 60 40 00 1F D7 D6");
     echo(&mut bus, "01 06 60 40 01 1F D6 46");
 }
@@ -263,8 +274,8 @@ fn misprinted_frames_are_crc_errors() {
             "request {f}"
         );
     }
-    assert_eq!(bus.device.od().profile_velocity, 0, "nothing stored");
-    assert_eq!(bus.device.slave().counters().bus_errors, 4);
+    assert_eq!(bus.device.od().profile_velocity(), 0, "nothing stored");
+    assert_eq!(bus.device.slave().counters().bus_errors(), 4);
 }
 
 #[test]
@@ -274,14 +285,14 @@ fn misprinted_frames_are_silent_with_pa54_0() {
     for f in MISPRINTED {
         assert_eq!(bus.send(&hex(f)), None, "request {f}");
     }
-    assert_eq!(bus.device.slave().counters().bus_errors, 4);
+    assert_eq!(bus.device.slave().counters().bus_errors(), 4);
 }
 
 #[test]
 fn seed_frames_at_9600_baud_too() {
     // The same exchange on the slowest line (PA52 = 0).
     let mut bus = Bus::with_params(|pa| pa.set_unchecked(52, 0));
-    assert_eq!(bus.timing().t35_us, 3646);
+    assert_eq!(bus.timing().t35_us(), 3646);
     exchange(
         &mut bus,
         "01 10 60 7A 00 02 04 00 03 0D 40 29 96",

@@ -36,11 +36,7 @@ fn burst_move(tick_hz: u32, dist: i64, v: f64, a: f64, d: f64, chunk: usize) {
     run.control();
     assert!(run.planner.set_goal(Goal::Move {
         target: dist,
-        ramp: Ramp {
-            velocity: (v * 10.0) as u64,
-            accel: (a * 10.0) as u64,
-            decel: (d * 10.0) as u64,
-        },
+        ramp: Ramp::new((v * 10.0) as u64, (a * 10.0) as u64, (d * 10.0) as u64),
         end_velocity: 0,
     }));
     run.control();
@@ -59,9 +55,9 @@ fn burst_move(tick_hz: u32, dist: i64, v: f64, a: f64, d: f64, chunk: usize) {
         w.fill(&mut buf, || {
             let s = steps.get(k)?;
             k += 1;
-            let delay = s.tick - prev;
-            prev = s.tick;
-            Some((delay as u32, s.forward))
+            let delay = s.tick() - prev;
+            prev = s.tick();
+            Some((delay as u32, s.forward()))
         });
         entries.extend_from_slice(&buf);
     }
@@ -70,17 +66,17 @@ fn burst_move(tick_hz: u32, dist: i64, v: f64, a: f64, d: f64, chunk: usize) {
     assert_eq!(w.late(), 0);
     let pulses = play(&entries);
     assert_eq!(pulses.len(), steps.len(), "one pulse per step");
-    let (p0, s0) = (pulses[0].0, steps[0].tick);
+    let (p0, s0) = (pulses[0].0, steps[0].tick());
     for (i, (p, s)) in pulses.iter().zip(steps).enumerate() {
         assert_eq!(
             p.0 - p0,
-            s.tick - s0,
+            s.tick() - s0,
             "step {}: on its schedule tick",
             i + 1
         );
-        assert_eq!(p.1, s.forward, "step {}: DIR", i + 1);
+        assert_eq!(p.1, s.forward(), "step {}: DIR", i + 1);
         // the schedule tick within half a tick of the core's exact time
-        let off = s.exact.wrapping_sub(s.tick << 32) as i64 as f64 / Q;
+        let off = s.exact().wrapping_sub(s.tick() << 32) as i64 as f64 / Q;
         assert!(
             off.abs() <= 0.5,
             "step {}: {off} ticks from the exact time",
@@ -91,10 +87,7 @@ fn burst_move(tick_hz: u32, dist: i64, v: f64, a: f64, d: f64, chunk: usize) {
     let pin: Vec<StepRecord> = pulses
         .iter()
         .zip(steps)
-        .map(|(p, s)| StepRecord {
-            tick: p.0 - p0 + s0,
-            ..*s
-        })
+        .map(|(p, s)| StepRecord::new(p.0 - p0 + s0, s.exact(), s.position(), s.forward()))
         .collect();
     check_times(&pin, tick_hz, t0, |x| {
         trapezoid_time(dist.abs() as f64, v, a, d, x)

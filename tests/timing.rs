@@ -31,13 +31,13 @@ fn reply_of_the_reference_read() {
 fn a_gap_over_t15_breaks_the_frame_it_is_discarded_and_counted() {
     for pa52 in [0, 4] {
         let mut bus = bus_at(pa52);
-        let t15 = bus.timing().t15_us;
+        let t15 = bus.timing().t15_us();
         bus.idle(50_000);
         assert!(bus.feed_gapped(with_gap(4, t15 + 1)).is_empty());
         bus.idle(50_000);
         assert!(bus.sent.is_empty(), "PA52 = {pa52}");
-        assert_eq!(bus.device.slave().counters().bus_errors, 1);
-        assert_eq!(bus.device.slave().counters().bus_messages, 0);
+        assert_eq!(bus.device.slave().counters().bus_errors(), 1);
+        assert_eq!(bus.device.slave().counters().bus_messages(), 0);
         assert!(bus.events().contains(&Event::FrameError {
             kind: FrameError::Broken,
             address: None,
@@ -50,7 +50,7 @@ fn a_gap_over_t15_breaks_the_frame_it_is_discarded_and_counted() {
 fn a_gap_just_under_t15_keeps_the_frame() {
     for pa52 in [0, 1, 2, 4] {
         let mut bus = bus_at(pa52);
-        let t15 = bus.timing().t15_us;
+        let t15 = bus.timing().t15_us();
         bus.idle(50_000);
         bus.feed_gapped(with_gap(4, t15 - 1));
         bus.idle(50_000);
@@ -63,7 +63,7 @@ fn a_gap_just_under_t15_keeps_the_frame() {
 fn two_frames_separated_by_exactly_t35_are_both_answered() {
     for pa52 in [0, 4] {
         let mut bus = bus_at(pa52);
-        let t35 = bus.timing().t35_us;
+        let t35 = bus.timing().t35_us();
         bus.idle(50_000);
         let mut bytes: Vec<(u8, u32)> = hex(REQ).into_iter().map(|b| (b, 0)).collect();
         let second = hex("01 06 60 83 00 64 67 C9");
@@ -84,7 +84,7 @@ fn two_frames_separated_by_exactly_t35_are_both_answered() {
 fn a_gap_between_t15_and_t35_never_starts_a_new_frame() {
     // Two requests separated by t3.5 − 1: one broken frame, no reply.
     let mut bus = Bus::new();
-    let t35 = bus.timing().t35_us;
+    let t35 = bus.timing().t35_us();
     bus.idle(50_000);
     let mut bytes: Vec<(u8, u32)> = hex(REQ).into_iter().map(|b| (b, 0)).collect();
     bytes.extend(
@@ -96,7 +96,7 @@ fn a_gap_between_t15_and_t35_never_starts_a_new_frame() {
     bus.feed_gapped(bytes);
     bus.idle(50_000);
     assert!(bus.sent.is_empty());
-    assert_eq!(bus.device.slave().counters().bus_errors, 1);
+    assert_eq!(bus.device.slave().counters().bus_errors(), 1);
 }
 
 #[test]
@@ -126,7 +126,7 @@ fn short_and_overlong_frames_are_dropped_and_counted() {
     assert_eq!(bus.send(&[0x01, 0x03, 0x60]), None);
     assert_eq!(bus.send(&[0x01; 257]), None);
     let c = bus.device.slave().counters().clone();
-    assert_eq!((c.bus_errors, c.overruns), (1, 1));
+    assert_eq!((c.bus_errors(), c.overruns()), (1, 1));
     // A 256-byte frame is examined (here: a CRC error at our address).
     let reply = bus.send(&[0x01; 256]);
     assert_eq!(reply, Some(exception(1, 0x01, 10)));

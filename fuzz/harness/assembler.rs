@@ -49,7 +49,7 @@ struct Model {
 
 impl Model {
     fn silence_us(&self, now_us: u32) -> i64 {
-        i64::from(now_us.wrapping_sub(self.last_us)) - i64::from(self.timing.tc_us)
+        i64::from(now_us.wrapping_sub(self.last_us)) - i64::from(self.timing.tc_us())
     }
 
     fn close(&mut self) -> Expected {
@@ -70,9 +70,9 @@ impl Model {
         let mut closed = None;
         if self.open {
             let silence = self.silence_us(at_us);
-            if silence >= i64::from(self.timing.t35_us) {
+            if silence >= i64::from(self.timing.t35_us()) {
                 closed = Some(self.close());
-            } else if silence > i64::from(self.timing.t15_us) {
+            } else if silence > i64::from(self.timing.t15_us()) {
                 self.broken = true;
             }
         }
@@ -89,28 +89,28 @@ impl Model {
         }
         self.bytes.push(byte);
         self.last_us = at_us;
-        self.parity |= flags.parity;
-        self.broken |= flags.framing;
-        self.overrun |= flags.overrun;
+        self.parity |= flags.parity();
+        self.broken |= flags.framing();
+        self.overrun |= flags.overrun();
         closed
     }
 
     fn poll(&mut self, now_us: u32) -> Option<Expected> {
         // poll measures from the end of the last character: silence is Δt
         let since_last = i64::from(now_us.wrapping_sub(self.last_us));
-        (self.open && since_last >= i64::from(self.timing.t35_us)).then(|| self.close())
+        (self.open && since_last >= i64::from(self.timing.t35_us())).then(|| self.close())
     }
 }
 
 fn line(sel: u8) -> LineConfig {
     let baud = [9600, 19_200, 38_400, 57_600, 115_200][usize::from(sel % 5)];
     let format = CharFormat::from_pa53(u16::from(sel / 5 % 4)).unwrap_or(CharFormat::N1);
-    LineConfig { baud, format }
+    LineConfig::new(baud, format)
 }
 
 /// The gap before an operation: around every threshold, and wild ones.
 fn gap_us(class: u8, value: u8, t: FrameTiming) -> u32 {
-    let (tc, t15, t35) = (t.tc_us, t.t15_us, t.t35_us);
+    let (tc, t15, t35) = (t.tc_us(), t.t15_us(), t.t35_us());
     match class {
         0..=3 => tc,
         4 => tc + t15,
@@ -151,11 +151,7 @@ pub fn run(data: &[u8]) {
                 let flags = if op & 0x80 == 0 {
                     RxFlags::NONE
                 } else {
-                    RxFlags {
-                        parity: op & 0x40 != 0,
-                        framing: value & 1 != 0,
-                        overrun: value & 2 != 0,
-                    }
+                    RxFlags::new(op & 0x40 != 0, value & 1 != 0, value & 2 != 0)
                 };
                 (
                     assembler.push(value, now_us, flags).map(owned),

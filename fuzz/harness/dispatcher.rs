@@ -77,7 +77,7 @@ fn configure(device: &mut Device, cfg: u8, address_byte: u8) {
     device.configure(|pa, od| {
         pa.set_answer_frame_errors(cfg & 1 != 0);
         pa.set_standard_exceptions(cfg >> 1 & 1 != 0);
-        od.word_order = u16::from(cfg >> 2 & 1);
+        od.set_word_order(u16::from(cfg >> 2 & 1));
         pa.set_address(address);
     });
     assert_eq!(device.address(), address); // in force at once

@@ -94,7 +94,7 @@ pub fn run(data: &[u8]) {
     let mut input = Input::new(data);
     let layout = input.u8();
     let cfg = PlannerConfig::default();
-    let mut axis = SimAxis::new(cfg.tick_hz);
+    let mut axis = SimAxis::new(cfg.tick_hz());
     if layout & 1 != 0 {
         axis = axis.with_cw_limit(-i64::from(input.u8()) * 50);
     }
@@ -143,14 +143,18 @@ pub fn run(data: &[u8]) {
                     now_us = device.poll_at();
                     let on_step = |step: modbus_drive::motion::sim::StepRecord| {
                         if let Some((tick, exact)) = last_step {
-                            assert!(step.tick >= tick, "step at tick {} after {tick}", step.tick);
                             assert!(
-                                step.exact.wrapping_sub(exact) as i64 >= 0,
+                                step.tick() >= tick,
+                                "step at tick {} after {tick}",
+                                step.tick()
+                            );
+                            assert!(
+                                step.exact().wrapping_sub(exact) as i64 >= 0,
                                 "step scheduled at {:#x} after {exact:#x}",
-                                step.exact
+                                step.exact()
                             );
                         }
-                        last_step = Some((step.tick, step.exact));
+                        last_step = Some((step.tick(), step.exact()));
                     };
                     SimHost::new(&mut device, &mut axis, &sched).run_to(now_us, on_step);
                     while device.take_event().is_some() {}

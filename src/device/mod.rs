@@ -181,17 +181,17 @@ impl Device {
         let busy = self.busy();
         let mut regs = Registers::new(&mut self.od, &mut self.pa, &mut self.drive, &self.identity)
             .with_store(busy, self.store_status);
-        let messages = self.slave.counters().slave_messages;
+        let messages = self.slave.counters().slave_messages();
         let outcome = self.slave.handle(rx, self.address, &mut regs, reply);
         let ee_request = regs.ee_request();
-        if self.slave.counters().slave_messages != messages {
+        if self.slave.counters().slave_messages() != messages {
             // a valid frame for us (or a broadcast): PA20 timer (SPEC §8.7)
             self.drive.frame_received();
         }
-        if let Some(event) = outcome.event {
+        if let Some(event) = outcome.event() {
             self.push_event(event);
         }
-        match (ee_request, outcome.response) {
+        match (ee_request, outcome.response()) {
             // SPEC §9: the reply comes once the operation is done.
             (Some(op), Response::Reply(n)) => {
                 self.ee_pending = Some(PendingEe::new(op, Some(&reply[..n])));
@@ -215,7 +215,7 @@ impl Device {
     /// The EE operation waiting, if any (the glue may log it or decide when
     /// to run it).
     pub fn pending_ee(&self) -> Option<EeOp> {
-        self.ee_pending.map(|p| p.op)
+        self.ee_pending.map(|p| p.op())
     }
 
     /// At power-up, before the first frame: takes the set the store found
@@ -223,24 +223,23 @@ impl Device {
     /// once, reports how it was obtained (event, DP-Err) and tells the
     /// drive layer.
     pub fn apply_boot(&mut self, boot: &Boot) {
-        boot.set.apply_to(&mut self.pa, &mut self.od);
+        boot.set().apply_to(&mut self.pa, &mut self.od);
         self.address = self.pa.address();
         self.line = self.pa.line();
         self.driver_enable = self.pa.driver_enable();
-        self.store_status = StoreStatus {
-            defaulted_blank: boot.outcome == BootOutcome::Blank,
-            defaulted_unreadable: matches!(boot.outcome, BootOutcome::Unreadable(_)),
-            flash_failed: false,
-            reset_cause: self.store_status.reset_cause,
-        };
-        self.push_event(Event::ParamsLoaded(boot.outcome));
+        self.store_status = StoreStatus::booted(
+            boot.outcome() == BootOutcome::Blank,
+            matches!(boot.outcome(), BootOutcome::Unreadable(_)),
+            self.store_status.reset_cause(),
+        );
+        self.push_event(Event::ParamsLoaded(boot.outcome()));
         self.configuration_changed();
     }
 
     /// Why the chip last reset, as DP-rES (0x0017) shows it: the glue's
     /// code (docs/parameters.md), read from the chip at boot.
     pub fn set_reset_cause(&mut self, code: u16) {
-        self.store_status.reset_cause = code;
+        self.store_status.set_reset_cause(code);
     }
 
     /// Runs the waiting EE operation (if any) on `store` and returns its
@@ -260,7 +259,7 @@ impl Device {
             return self.refuse_storage(reply);
         }
         let pending = self.ee_pending.take()?;
-        let result = execute(pending.op, &mut self.pa, &mut self.od, store);
+        let result = execute(pending.op(), &mut self.pa, &mut self.od, store);
         Some(self.finish_ee(pending, result, reply))
     }
 
@@ -282,23 +281,19 @@ impl Device {
     ) -> Response {
         let refused = result == Err(EeError::StepsRunning);
         if !refused {
-            let s = &mut self.store_status;
-            s.flash_failed = matches!(result, Err(EeError::Storage(_)));
-            let saved = matches!(
-                pending.op,
-                EeOp::Save | EeOp::RestoreBackup | EeOp::RestoreDefaults
-            );
-            if result.is_ok() && saved {
-                // The store holds a valid saved set now.
-                s.defaulted_blank = false;
-                s.defaulted_unreadable = false;
-            }
+            let saved = result.is_ok()
+                && matches!(
+                    pending.op(),
+                    EeOp::Save | EeOp::RestoreBackup | EeOp::RestoreDefaults
+                );
+            self.store_status
+                .ee_done(matches!(result, Err(EeError::Storage(_))), saved);
         }
         self.push_event(Event::EeDone {
-            op: pending.op,
+            op: pending.op(),
             error: result.err(),
         });
-        if result.is_ok() && pending.op != EeOp::Save && pending.op != EeOp::Backup {
+        if result.is_ok() && pending.op() != EeOp::Save && pending.op() != EeOp::Backup {
             self.configuration_changed();
         }
         let Some(ok_reply) = pending.reply() else {
@@ -329,10 +324,7 @@ impl Device {
     /// The working set was replaced (boot, EE-rd / EE-rS / EE-dEF): the
     /// drive layer re-reads PA10..14, PA20 and the profile values.
     fn configuration_changed(&mut self) {
-        let cfg = Config {
-            od: &self.od,
-            pa: &self.pa,
-        };
+        let cfg = Config::new(&self.od, &self.pa);
         self.drive.values_written(cfg);
     }
 
@@ -363,7 +355,7 @@ impl Device {
     /// Earliest start of a reply after the request's last byte: t3.5 of the
     /// line in force plus the response delay PA56 (SPEC §1).
     pub fn reply_delay_us(&self) -> u32 {
-        self.line.timing().t35_us + u32::from(self.pa.response_delay_ms()) * 1000
+        self.line.timing().t35_us() + u32::from(self.pa.response_delay_ms()) * 1000
     }
 
     /// Our unicast address in force (PA51 once the reply that changed it
@@ -452,10 +444,7 @@ impl Device {
         schedule: &StepSchedule,
         sink: &mut S,
     ) {
-        let cfg = Config {
-            od: &self.od,
-            pa: &self.pa,
-        };
+        let cfg = Config::new(&self.od, &self.pa);
         self.drive
             .control(now_us, switches, edges, schedule, sink, cfg);
         self.last_control_us = Some(now_us);

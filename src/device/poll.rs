@@ -27,11 +27,36 @@ use crate::slave::Response;
 /// A frame (or frame error) the host's assembler closed.
 #[derive(Debug)]
 pub struct Request<'a> {
-    pub event: RxEvent<'a>,
+    event: RxEvent<'a>,
     /// When its last byte ended (µs, the host's clock); `None` on a
     /// transport without the serial line's reply delay (Modbus TCP, a web
     /// page): the reply may leave at once.
-    pub last_byte_us: Option<u64>,
+    last_byte_us: Option<u64>,
+}
+
+impl<'a> Request<'a> {
+    /// `event` closed by the host's assembler, its last byte ended at
+    /// `last_byte_us` (see [`Self::last_byte_us`]).
+    #[inline]
+    pub const fn new(event: RxEvent<'a>, last_byte_us: Option<u64>) -> Self {
+        Self {
+            event,
+            last_byte_us,
+        }
+    }
+
+    /// The frame or frame error.
+    #[inline]
+    pub const fn event(&self) -> &RxEvent<'a> {
+        &self.event
+    }
+
+    /// When its last byte ended (µs, the host's clock); `None` on a
+    /// transport without the serial line's reply delay.
+    #[inline]
+    pub const fn last_byte_us(&self) -> Option<u64> {
+        self.last_byte_us
+    }
 }
 
 /// The host's side of one line (or connection) to this drive.
@@ -56,6 +81,7 @@ pub trait Storage {
     fn ready(&mut self) -> bool {
         true
     }
+
     /// Time (µs) the last operation keeps the flash busy after it returned:
     /// a simulated flash's chip time. 0 on hardware, where the operation
     /// itself took that long.
@@ -264,7 +290,7 @@ mod tests {
         assert_eq!(wire.sent[0].0[1..3], [0x90, 0x06]);
         assert!(d.pending_ee().is_none());
         // nothing was written: the store holds no saved set
-        assert!(busy.0.boot().outcome == crate::params::BootOutcome::Blank);
+        assert!(busy.0.boot().outcome() == crate::params::BootOutcome::Blank);
     }
 
     #[test]

@@ -31,37 +31,135 @@ use crate::rtu::Exception;
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct OdValues {
     /// 0x6000: 0 = high word first, 1 = low word first.
-    pub word_order: u16,
+    word_order: u16,
     /// 0x605A quick stop option code (§8.3), ≥ 0.
-    pub quick_stop_option: i16,
+    quick_stop_option: i16,
     /// 0x6040 controlword, as last written.
-    pub controlword: u16,
+    controlword: u16,
     /// 0x6060 mode of operation, as last written (0 = none yet).
-    pub mode: i16,
+    mode: i16,
     /// 0x6081 profile velocity, 0.1 rev/s (signed in velocity mode).
-    pub profile_velocity: i32,
+    profile_velocity: i32,
     /// 0x6083 acceleration, 0.1 rev/s².
-    pub acceleration: u16,
+    acceleration: u16,
     /// 0x6084 deceleration, 0.1 rev/s².
-    pub deceleration: u16,
+    deceleration: u16,
     /// 0x6085 quick stop deceleration, 0.1 rev/s².
-    pub quick_stop_deceleration: u16,
+    quick_stop_deceleration: u16,
     /// 0x607A target position, steps.
-    pub target_position: i32,
+    target_position: i32,
     /// 0x607C home offset, steps.
-    pub home_offset: i32,
+    home_offset: i32,
     /// 0x6098 homing method 1..=8 (0 = none).
-    pub homing_method: i16,
+    homing_method: i16,
     /// 0x6099 homing search (fast) speed, 0.1 rev/s.
-    pub homing_speed: u32,
+    homing_speed: u32,
     /// 0x609A homing acceleration, 0.1 rev/s².
-    pub homing_acceleration: u16,
+    homing_acceleration: u16,
     /// 0x609B homing zero (slow) speed, 0.1 rev/s.
-    pub homing_zero_speed: u32,
+    homing_zero_speed: u32,
     /// 0x6065 following error window, steps (SPEC §8.8; `u32::MAX` = off).
-    pub following_error_window: u32,
+    following_error_window: u32,
     /// 0x6066 following error time out, ms.
-    pub following_error_timeout: u16,
+    following_error_timeout: u16,
+}
+
+impl OdValues {
+    /// 0x6000: 0 = high word first, 1 = low word first.
+    #[inline]
+    pub const fn word_order(&self) -> u16 {
+        self.word_order
+    }
+
+    /// 0x605A quick stop option code (§8.3), ≥ 0.
+    #[inline]
+    pub const fn quick_stop_option(&self) -> i16 {
+        self.quick_stop_option
+    }
+
+    /// 0x6040 controlword, as last written.
+    #[inline]
+    pub const fn controlword(&self) -> u16 {
+        self.controlword
+    }
+
+    /// 0x6060 mode of operation, as last written (0 = none yet).
+    #[inline]
+    pub const fn mode(&self) -> i16 {
+        self.mode
+    }
+
+    /// 0x6081 profile velocity, 0.1 rev/s (signed in velocity mode).
+    #[inline]
+    pub const fn profile_velocity(&self) -> i32 {
+        self.profile_velocity
+    }
+
+    /// 0x6083 acceleration, 0.1 rev/s².
+    #[inline]
+    pub const fn acceleration(&self) -> u16 {
+        self.acceleration
+    }
+
+    /// 0x6084 deceleration, 0.1 rev/s².
+    #[inline]
+    pub const fn deceleration(&self) -> u16 {
+        self.deceleration
+    }
+
+    /// 0x6085 quick stop deceleration, 0.1 rev/s².
+    #[inline]
+    pub const fn quick_stop_deceleration(&self) -> u16 {
+        self.quick_stop_deceleration
+    }
+
+    /// 0x607A target position, steps.
+    #[inline]
+    pub const fn target_position(&self) -> i32 {
+        self.target_position
+    }
+
+    /// 0x607C home offset, steps.
+    #[inline]
+    pub const fn home_offset(&self) -> i32 {
+        self.home_offset
+    }
+
+    /// 0x6098 homing method 1..=8 (0 = none).
+    #[inline]
+    pub const fn homing_method(&self) -> i16 {
+        self.homing_method
+    }
+
+    /// 0x6099 homing search (fast) speed, 0.1 rev/s.
+    #[inline]
+    pub const fn homing_speed(&self) -> u32 {
+        self.homing_speed
+    }
+
+    /// 0x609A homing acceleration, 0.1 rev/s².
+    #[inline]
+    pub const fn homing_acceleration(&self) -> u16 {
+        self.homing_acceleration
+    }
+
+    /// 0x609B homing zero (slow) speed, 0.1 rev/s.
+    #[inline]
+    pub const fn homing_zero_speed(&self) -> u32 {
+        self.homing_zero_speed
+    }
+
+    /// 0x6065 following error window, steps (SPEC §8.8; `u32::MAX` = off).
+    #[inline]
+    pub const fn following_error_window(&self) -> u32 {
+        self.following_error_window
+    }
+
+    /// 0x6066 following error time out, ms.
+    #[inline]
+    pub const fn following_error_timeout(&self) -> u16 {
+        self.following_error_timeout
+    }
 }
 
 impl OdValues {
@@ -87,11 +185,107 @@ impl OdValues {
     };
 }
 
+/// Setters for glue and tests that preset values without a request: each
+/// stores what a write of its register would, without the dictionary's
+/// range checks (a value the table refuses is the caller's to avoid).
+impl OdValues {
+    /// Stores 0x6000.
+    #[inline]
+    pub fn set_word_order(&mut self, value: u16) {
+        self.word_order = value;
+    }
+
+    /// Stores 0x6040.
+    #[inline]
+    pub fn set_controlword(&mut self, value: u16) {
+        self.controlword = value;
+    }
+
+    /// Stores 0x6060.
+    #[inline]
+    pub fn set_mode(&mut self, value: i16) {
+        self.mode = value;
+    }
+
+    /// Stores 0x6081.
+    #[inline]
+    pub fn set_profile_velocity(&mut self, value: i32) {
+        self.profile_velocity = value;
+    }
+
+    /// Stores 0x6083.
+    #[inline]
+    pub fn set_acceleration(&mut self, value: u16) {
+        self.acceleration = value;
+    }
+
+    /// Stores 0x607A.
+    #[inline]
+    pub fn set_target_position(&mut self, value: i32) {
+        self.target_position = value;
+    }
+
+    /// Stores 0x607C.
+    #[inline]
+    pub fn set_home_offset(&mut self, value: i32) {
+        self.home_offset = value;
+    }
+
+    /// Stores 0x6098.
+    #[inline]
+    pub fn set_homing_method(&mut self, value: i16) {
+        self.homing_method = value;
+    }
+
+    /// Stores 0x6099.
+    #[inline]
+    pub fn set_homing_speed(&mut self, value: u32) {
+        self.homing_speed = value;
+    }
+
+    /// Stores 0x609B.
+    #[inline]
+    pub fn set_homing_zero_speed(&mut self, value: u32) {
+        self.homing_zero_speed = value;
+    }
+
+    /// Stores 0x6065.
+    #[inline]
+    pub fn set_following_error_window(&mut self, value: u32) {
+        self.following_error_window = value;
+    }
+
+    /// Stores 0x6066.
+    #[inline]
+    pub fn set_following_error_timeout(&mut self, value: u16) {
+        self.following_error_timeout = value;
+    }
+}
+
 /// Everything the master configures, as the drive layer sees it.
 #[derive(Clone, Copy)]
 pub struct Config<'a> {
-    pub od: &'a OdValues,
-    pub pa: &'a Params,
+    od: &'a OdValues,
+    pa: &'a Params,
+}
+
+impl<'a> Config<'a> {
+    #[inline]
+    pub const fn new(od: &'a OdValues, pa: &'a Params) -> Self {
+        Self { od, pa }
+    }
+
+    /// The register values.
+    #[inline]
+    pub const fn od(&self) -> &'a OdValues {
+        self.od
+    }
+
+    /// The parameters.
+    #[inline]
+    pub const fn pa(&self) -> &'a Params {
+        self.pa
+    }
 }
 
 /// What the dictionary needs from the drive layer (implemented by
@@ -147,11 +341,31 @@ pub const STATUS_STEPS_RUNNING: u16 = 1 << 9;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Identity {
     /// Device name (0x1008).
-    pub product: &'static str,
+    product: &'static str,
     /// Hardware version (0x1009): the board, e.g. "STM32G431CB" or "virtual".
-    pub hardware: &'static str,
+    hardware: &'static str,
     /// Software version (0x100A).
-    pub software: &'static str,
+    software: &'static str,
+}
+
+impl Identity {
+    /// Device name (0x1008).
+    #[inline]
+    pub const fn product(&self) -> &'static str {
+        self.product
+    }
+
+    /// Hardware version (0x1009): the board, e.g. "STM32G431CB" or "virtual".
+    #[inline]
+    pub const fn hardware(&self) -> &'static str {
+        self.hardware
+    }
+
+    /// Software version (0x100A).
+    #[inline]
+    pub const fn software(&self) -> &'static str {
+        self.software
+    }
 }
 
 impl Identity {
@@ -473,10 +687,7 @@ impl<D: DriveLayer> Registers<'_, D> {
     }
 
     fn notify(&mut self, mode: Option<i16>, controlword: Option<u16>) {
-        let cfg = Config {
-            od: self.od,
-            pa: self.pa,
-        };
+        let cfg = Config::new(self.od, self.pa);
         self.drive.values_written(cfg);
         if let Some(m) = mode {
             self.drive.mode_written(m, cfg);

@@ -84,18 +84,77 @@ pub const DP_RES: u16 = 0x0017;
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct DriveMonitor {
     /// Where the running (or last) move is commanded to, steps.
-    pub command_position: i32,
+    command_position: i32,
     /// Steps per second being generated now, signed.
-    pub step_rate_steps_per_s: i32,
+    step_rate_steps_per_s: i32,
     /// Speed the profile commands now (before ramps), r/min, signed.
-    pub speed_command_rpm: i32,
+    speed_command_rpm: i32,
     /// Switch inputs, 1 = active (after PA13 polarity): bit 0 CW limit,
     /// bit 1 CCW limit, bit 2 home.
-    pub inputs: u16,
+    inputs: u16,
     /// Outputs: bit 0 power stage enabled, bit 1 brake released (§8.1).
-    pub outputs: u16,
+    outputs: u16,
     /// Commanded − measured position, steps (0x60F4, SPEC §8.8).
-    pub following_error: i32,
+    following_error: i32,
+}
+
+impl DriveMonitor {
+    /// The drive's report; each argument as its getter says.
+    #[inline]
+    pub const fn new(
+        command_position: i32,
+        step_rate_steps_per_s: i32,
+        speed_command_rpm: i32,
+        inputs: u16,
+        outputs: u16,
+        following_error: i32,
+    ) -> Self {
+        Self {
+            command_position,
+            step_rate_steps_per_s,
+            speed_command_rpm,
+            inputs,
+            outputs,
+            following_error,
+        }
+    }
+
+    /// Where the running (or last) move is commanded to, steps.
+    #[inline]
+    pub const fn command_position(&self) -> i32 {
+        self.command_position
+    }
+
+    /// Steps per second being generated now, signed.
+    #[inline]
+    pub const fn step_rate_steps_per_s(&self) -> i32 {
+        self.step_rate_steps_per_s
+    }
+
+    /// Speed the profile commands now (before ramps), r/min, signed.
+    #[inline]
+    pub const fn speed_command_rpm(&self) -> i32 {
+        self.speed_command_rpm
+    }
+
+    /// Switch inputs, 1 = active (after PA13 polarity): bit 0 CW limit,
+    /// bit 1 CCW limit, bit 2 home.
+    #[inline]
+    pub const fn inputs(&self) -> u16 {
+        self.inputs
+    }
+
+    /// Outputs: bit 0 power stage enabled, bit 1 brake released (§8.1).
+    #[inline]
+    pub const fn outputs(&self) -> u16 {
+        self.outputs
+    }
+
+    /// Commanded − measured position, steps (0x60F4, SPEC §8.8).
+    #[inline]
+    pub const fn following_error(&self) -> i32 {
+        self.following_error
+    }
 }
 
 /// State of the parameter store as DP-Err reports it (bits 8..10).
@@ -103,14 +162,72 @@ pub struct DriveMonitor {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct StoreStatus {
     /// At boot the store was blank: defaults are in use.
-    pub defaulted_blank: bool,
+    defaulted_blank: bool,
     /// At boot the saved set could not be read: defaults are in use.
-    pub defaulted_unreadable: bool,
+    defaulted_unreadable: bool,
     /// The last EE operation failed in the flash.
-    pub flash_failed: bool,
+    flash_failed: bool,
     /// DP-rES: why the chip last reset (the glue's code; 0, power-on, for
     /// a drive that does not say).
-    pub reset_cause: u16,
+    reset_cause: u16,
+}
+
+impl StoreStatus {
+    /// After power-up: how the store's set was obtained, and DP-rES.
+    #[inline]
+    pub const fn booted(
+        defaulted_blank: bool,
+        defaulted_unreadable: bool,
+        reset_cause: u16,
+    ) -> Self {
+        Self {
+            defaulted_blank,
+            defaulted_unreadable,
+            flash_failed: false,
+            reset_cause,
+        }
+    }
+
+    /// DP-rES: the glue's code for why the chip last reset.
+    #[inline]
+    pub fn set_reset_cause(&mut self, code: u16) {
+        self.reset_cause = code;
+    }
+
+    /// An EE operation ran: `flash_failed` if the flash failed, `saved`
+    /// if the store holds a valid saved set now (no longer defaults).
+    pub fn ee_done(&mut self, flash_failed: bool, saved: bool) {
+        self.flash_failed = flash_failed;
+        if saved {
+            self.defaulted_blank = false;
+            self.defaulted_unreadable = false;
+        }
+    }
+
+    /// At boot the store was blank: defaults are in use.
+    #[inline]
+    pub const fn defaulted_blank(&self) -> bool {
+        self.defaulted_blank
+    }
+
+    /// At boot the saved set could not be read: defaults are in use.
+    #[inline]
+    pub const fn defaulted_unreadable(&self) -> bool {
+        self.defaulted_unreadable
+    }
+
+    /// The last EE operation failed in the flash.
+    #[inline]
+    pub const fn flash_failed(&self) -> bool {
+        self.flash_failed
+    }
+
+    /// DP-rES: why the chip last reset (the glue's code; 0, power-on, for
+    /// a drive that does not say).
+    #[inline]
+    pub const fn reset_cause(&self) -> u16 {
+        self.reset_cause
+    }
 }
 
 impl StoreStatus {

@@ -64,13 +64,13 @@ impl Drive {
             .min(u64::from(u32::MAX)) as u32;
         fb.last_us = Some(now_us);
         fb.monitor.configure(
-            cfg.od.following_error_window,
-            cfg.od.following_error_timeout,
+            cfg.od().following_error_window(),
+            cfg.od().following_error_timeout(),
         );
         let Some(raw) = fb.raw else {
             return;
         };
-        let pa = cfg.pa;
+        let pa = cfg.pa();
         let key = (
             pa.encoder_counts_per_rev(),
             pa.steps_per_rev(),
@@ -95,7 +95,7 @@ impl Drive {
         let enabled = self.state == PowerState::OperationEnabled;
         let verdict = fb.monitor.update(commanded, a.measured, dt_us, enabled);
         if verdict == FollowingState::Fault && self.fault.is_none() {
-            self.enter_fault(FaultCause::FollowingError, cfg.od);
+            self.enter_fault(FaultCause::FollowingError, cfg.od());
         }
     }
 

@@ -23,17 +23,17 @@ pub(super) enum HomingState {
 
 impl Drive {
     pub(super) fn homing_goal(&self, od: &OdValues) -> Option<Goal> {
-        let accel = self.s.steps(u32::from(od.homing_acceleration));
+        let accel = self.s.steps(u32::from(od.homing_acceleration()));
         match self.homing {
             HomingState::Searching(h) => {
                 let p = h.phase();
                 Some(Goal::Run {
-                    forward: !p.left,
-                    ramp: self.s.homing_ramp(od, h.method(), p.slow),
+                    forward: !p.left(),
+                    ramp: self.s.homing_ramp(od, h.method(), p.slow()),
                 })
             }
             HomingState::Offset { target } => {
-                let method = HomingMethod::from_register(od.homing_method)?;
+                let method = HomingMethod::from_register(od.homing_method())?;
                 Some(Goal::Move {
                     target,
                     ramp: self.s.homing_ramp(od, method, true),
@@ -58,7 +58,7 @@ impl Drive {
                 self.replan = true;
             }
             HomingStep::Origin(origin) => {
-                let target = origin + i64::from(od.home_offset);
+                let target = origin + i64::from(od.home_offset());
                 self.homing = HomingState::Offset { target };
                 self.event(DriveEvent::HomingAttained {
                     origin: origin as i32,
@@ -68,7 +68,7 @@ impl Drive {
             HomingStep::Failed(e) => {
                 self.homing = HomingState::Failed;
                 self.event(DriveEvent::HomingFailed(e));
-                let accel = self.s.steps(u32::from(od.homing_acceleration));
+                let accel = self.s.steps(u32::from(od.homing_acceleration()));
                 self.stop_with(accel);
             }
         }
@@ -78,14 +78,14 @@ impl Drive {
     }
 
     pub(super) fn start_homing(&mut self, od: &OdValues) {
-        let error = match HomingMethod::from_register(od.homing_method) {
+        let error = match HomingMethod::from_register(od.homing_method()) {
             None => Some(HomingError::NoMethod),
             Some(_)
-                if od.homing_speed == 0
-                    || od.homing_speed > HOMING_SPEED_MAX
-                    || od.homing_zero_speed == 0
-                    || od.homing_zero_speed > HOMING_SPEED_MAX
-                    || od.homing_acceleration == 0 =>
+                if od.homing_speed() == 0
+                    || od.homing_speed() > HOMING_SPEED_MAX
+                    || od.homing_zero_speed() == 0
+                    || od.homing_zero_speed() > HOMING_SPEED_MAX
+                    || od.homing_acceleration() == 0 =>
             {
                 Some(HomingError::BadSpeed)
             }

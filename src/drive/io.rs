@@ -25,9 +25,9 @@ pub const POLARITY_HOME: u16 = 1 << 2;
 
 /// The three switch inputs.
 pub struct SwitchInputs<Cw, Ccw, Home> {
-    pub cw_limit: Cw,
-    pub ccw_limit: Ccw,
-    pub home: Home,
+    cw_limit: Cw,
+    ccw_limit: Ccw,
+    home: Home,
 }
 
 fn active<P: InputPin>(pin: &mut P, normally_closed: bool) -> bool {
@@ -37,21 +37,39 @@ fn active<P: InputPin>(pin: &mut P, normally_closed: bool) -> bool {
     }
 }
 
+impl<Cw, Ccw, Home> SwitchInputs<Cw, Ccw, Home> {
+    #[inline]
+    pub const fn new(cw_limit: Cw, ccw_limit: Ccw, home: Home) -> Self {
+        Self {
+            cw_limit,
+            ccw_limit,
+            home,
+        }
+    }
+}
+
 impl<Cw: InputPin, Ccw: InputPin, Home: InputPin> SwitchInputs<Cw, Ccw, Home> {
     /// Logical states with the polarity bits of PA13.
     pub fn read(&mut self, polarity: u16) -> Switches {
-        Switches {
-            cw_limit: active(&mut self.cw_limit, polarity & POLARITY_CW != 0),
-            ccw_limit: active(&mut self.ccw_limit, polarity & POLARITY_CCW != 0),
-            home: active(&mut self.home, polarity & POLARITY_HOME != 0),
-        }
+        Switches::new(
+            active(&mut self.cw_limit, polarity & POLARITY_CW != 0),
+            active(&mut self.ccw_limit, polarity & POLARITY_CCW != 0),
+            active(&mut self.home, polarity & POLARITY_HOME != 0),
+        )
     }
 }
 
 /// ENABLE and BRAKE.
 pub struct PowerOutputs<Enable, Brake> {
-    pub enable: Enable,
-    pub brake: Brake,
+    enable: Enable,
+    brake: Brake,
+}
+
+impl<Enable, Brake> PowerOutputs<Enable, Brake> {
+    #[inline]
+    pub const fn new(enable: Enable, brake: Brake) -> Self {
+        Self { enable, brake }
+    }
 }
 
 impl<Enable: OutputPin, Brake: OutputPin> PowerOutputs<Enable, Brake> {
@@ -71,7 +89,14 @@ impl<Enable: OutputPin, Brake: OutputPin> PowerOutputs<Enable, Brake> {
 
 /// DIR.
 pub struct DirectionOutput<Dir> {
-    pub dir: Dir,
+    dir: Dir,
+}
+
+impl<Dir> DirectionOutput<Dir> {
+    #[inline]
+    pub const fn new(dir: Dir) -> Self {
+        Self { dir }
+    }
 }
 
 impl<Dir: OutputPin> DirectionOutput<Dir> {
@@ -132,22 +157,11 @@ mod tests {
             home: Pin(None),
         };
         // normally open: high = active
-        assert_eq!(
-            sw.read(0),
-            Switches {
-                cw_limit: true,
-                ccw_limit: false,
-                home: true
-            }
-        );
+        assert_eq!(sw.read(0), Switches::new(true, false, true));
         // CW and CCW normally closed: low = active
         assert_eq!(
             sw.read(POLARITY_CW | POLARITY_CCW),
-            Switches {
-                cw_limit: false,
-                ccw_limit: true,
-                home: true
-            }
+            Switches::new(false, true, true)
         );
     }
 
@@ -157,10 +171,7 @@ mod tests {
             enable: Out(false),
             brake: Out(false),
         };
-        assert!(p.apply(Outputs {
-            power_stage: true,
-            brake_released: false
-        }));
+        assert!(p.apply(Outputs::new(true, false)));
         assert!(p.enable.0 && !p.brake.0);
         let mut d = DirectionOutput { dir: Out(false) };
         d.set(true, false);

@@ -10,8 +10,8 @@ impl Drive {
     /// §8.7: an active limit blocks motion towards it with 0x6085.
     pub(super) fn check_limits(&mut self, od: &OdValues) {
         let heading = self.planner.heading();
-        let blocked_cw = self.switches.cw_limit && heading == Some(false);
-        let blocked_ccw = self.switches.ccw_limit && heading == Some(true);
+        let blocked_cw = self.switches.cw_limit() && heading == Some(false);
+        let blocked_ccw = self.switches.ccw_limit() && heading == Some(true);
         if blocked_cw || blocked_ccw {
             if !self.limit_stopping {
                 self.limit_stop(blocked_cw);
@@ -38,7 +38,7 @@ impl Drive {
     /// engaged, the drive reports the stop and the planner forgets its plan
     /// and takes the position back when the brake is over.
     pub(super) fn limit_brake(&mut self, sched: &StepSchedule, od: &OdValues) {
-        let tick_hz = self.planner.config().tick_hz;
+        let tick_hz = self.planner.config().tick_hz();
         sched.set_brake_rate(
             (self.mode != MODE_HOMING).then(|| brake_rate(self.s.quick_stop_decel(od), tick_hz)),
         );
@@ -48,7 +48,7 @@ impl Drive {
                 // the control loop may have seen the limit first (a call at
                 // the edge step, before the interrupt's next step): one stop
                 if !self.limit_stopping {
-                    self.limit_stop(!b.forward);
+                    self.limit_stop(!b.forward());
                 }
                 self.planner.stop_at_once(sched);
             }

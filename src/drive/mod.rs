@@ -77,8 +77,28 @@ impl PowerState {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Outputs {
-    pub power_stage: bool,
-    pub brake_released: bool,
+    power_stage: bool,
+    brake_released: bool,
+}
+
+impl Outputs {
+    #[inline]
+    pub const fn new(power_stage: bool, brake_released: bool) -> Self {
+        Self {
+            power_stage,
+            brake_released,
+        }
+    }
+
+    #[inline]
+    pub const fn power_stage(&self) -> bool {
+        self.power_stage
+    }
+
+    #[inline]
+    pub const fn brake_released(&self) -> bool {
+        self.brake_released
+    }
 }
 
 /// Why the drive is in fault (error register bit, SPEC §8.7).
@@ -229,7 +249,7 @@ impl Drive {
             // disabled by itself.
             state: PowerState::SwitchOnDisabled,
             planner: Planner::new(cfg),
-            s: Settings::from(Config { od: &od, pa: &pa }, cfg),
+            s: Settings::from(Config::new(&od, &pa), cfg),
             controlword: 0,
             mode: 0,
             halted: false,
@@ -299,16 +319,16 @@ impl Drive {
     /// ENABLE and BRAKE as SPEC §8.1 gives them for the state.
     fn state_outputs(&self) -> Outputs {
         use PowerState::*;
-        Outputs {
-            brake_released: matches!(
-                self.state,
-                SwitchedOn | OperationEnabled | QuickStopActive | FaultReactionActive
-            ),
-            power_stage: matches!(
+        Outputs::new(
+            matches!(
                 self.state,
                 OperationEnabled | QuickStopActive | FaultReactionActive
             ),
-        }
+            matches!(
+                self.state,
+                SwitchedOn | OperationEnabled | QuickStopActive | FaultReactionActive
+            ),
+        )
     }
 
     /// A valid frame for this drive (or a broadcast) arrived: restarts the
@@ -354,11 +374,11 @@ impl Drive {
     ) {
         self.s.update(cfg);
         self.now_us = now_us;
-        let sw = Switches {
-            cw_limit: switches.cw_limit && self.s.cw_limit_enabled(),
-            ccw_limit: switches.ccw_limit && self.s.ccw_limit_enabled(),
-            home: switches.home,
-        };
+        let sw = Switches::new(
+            switches.cw_limit() && self.s.cw_limit_enabled(),
+            switches.ccw_limit() && self.s.ccw_limit_enabled(),
+            switches.home(),
+        );
         self.switches = sw;
         self.raw_position = self.planner.actual_position(sched);
         if self.frame_seen {
@@ -367,19 +387,19 @@ impl Drive {
         }
 
         self.update_brake();
-        self.limit_brake(sched, cfg.od);
+        self.limit_brake(sched, cfg.od());
         self.update_feedback(now_us, cfg);
 
         // §8.7 faults
         if self.fault.is_none() {
-            if sw.cw_limit && sw.ccw_limit {
-                self.enter_fault(FaultCause::BothLimits, cfg.od);
+            if sw.cw_limit() && sw.ccw_limit() {
+                self.enter_fault(FaultCause::BothLimits, cfg.od());
             } else if self.state == PowerState::OperationEnabled
                 && self.s.comm_loss_ms > 0
                 && now_us.saturating_sub(self.last_frame_us)
                     >= u64::from(self.s.comm_loss_ms) * 1000
             {
-                self.enter_fault(FaultCause::CommunicationLoss, cfg.od);
+                self.enter_fault(FaultCause::CommunicationLoss, cfg.od());
             }
         }
 
@@ -387,9 +407,9 @@ impl Drive {
             if self.mode == MODE_HOMING {
                 // A disabled limit's edge is never used: the limit never
                 // meets a condition (Homing::update).
-                self.run_homing(edges, cfg.od);
+                self.run_homing(edges, cfg.od());
             } else {
-                self.check_limits(cfg.od);
+                self.check_limits(cfg.od());
             }
         }
 
@@ -400,7 +420,7 @@ impl Drive {
         // a goal waits while the brake is still applied (PA22)
         if self.replan && !self.brake_holding() {
             self.replan = false;
-            self.apply_goal(sched, cfg.od);
+            self.apply_goal(sched, cfg.od());
         }
         let underruns = self.planner.underruns();
         for _ in 0..8 {
@@ -544,19 +564,19 @@ impl DriveLayer for Drive {
             MODE_VELOCITY => i64::from(self.s.profile_velocity) * 6,
             _ => self
                 .active
-                .map_or(0, |a| div_i64(a.ramp.velocity as i64 * 6, spr)),
+                .map_or(0, |a| div_i64(a.ramp.velocity() as i64 * 6, spr)),
         };
         let out = self.outputs();
-        DriveMonitor {
-            command_position: command as i32,
-            step_rate_steps_per_s: div_i64(self.velocity, 10) as i32,
-            speed_command_rpm: speed_command as i32,
-            inputs: u16::from(self.switches.cw_limit)
-                | u16::from(self.switches.ccw_limit) << 1
-                | u16::from(self.switches.home) << 2,
-            outputs: u16::from(out.power_stage) | u16::from(out.brake_released) << 1,
-            following_error: self.following_error_steps(),
-        }
+        DriveMonitor::new(
+            command as i32,
+            div_i64(self.velocity, 10) as i32,
+            speed_command as i32,
+            u16::from(self.switches.cw_limit())
+                | u16::from(self.switches.ccw_limit()) << 1
+                | u16::from(self.switches.home()) << 2,
+            u16::from(out.power_stage) | u16::from(out.brake_released) << 1,
+            self.following_error_steps(),
+        )
     }
 
     fn values_written(&mut self, cfg: Config<'_>) {
@@ -581,7 +601,7 @@ impl DriveLayer for Drive {
         self.mode = mode;
         self.last_target = None;
         if self.state == PowerState::OperationEnabled {
-            let decel = self.s.decel(cfg.od);
+            let decel = self.s.decel(cfg.od());
             self.stop_with(decel);
             self.replan = mode == MODE_VELOCITY;
         }
@@ -589,6 +609,6 @@ impl DriveLayer for Drive {
 
     // As for `mode_written`: `self.s` is current.
     fn controlword_written(&mut self, controlword: u16, cfg: Config<'_>) {
-        self.apply_controlword(controlword, cfg.od);
+        self.apply_controlword(controlword, cfg.od());
     }
 }

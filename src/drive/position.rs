@@ -43,14 +43,14 @@ impl Drive {
             return; // bit 12 = 0: ignored
         };
         let target = if controlword & cw::RELATIVE != 0 {
-            base + i64::from(od.target_position)
+            base + i64::from(od.target_position())
         } else {
-            i64::from(od.target_position)
+            i64::from(od.target_position())
         };
         let ramp = self.s.profile_ramp(od);
         let current = self.active.map_or(self.user_position(), |a| a.target);
-        let towards_limit = (target < current && self.switches.cw_limit)
-            || (target > current && self.switches.ccw_limit);
+        let towards_limit = (target < current && self.switches.cw_limit())
+            || (target > current && self.switches.ccw_limit());
         if i32::try_from(target).is_err() || !ramp.runnable() || towards_limit {
             self.warning = true;
             self.event(DriveEvent::MotionRefused);
@@ -106,8 +106,8 @@ fn blend_velocity(sp: SetPoint, next: SetPoint, heading: Option<bool>) -> u64 {
     if dist == 0 || heading != Some(dist > 0) {
         return 0;
     }
-    let v = sp.ramp.velocity.min(next.ramp.velocity);
+    let v = sp.ramp.velocity().min(next.ramp.velocity());
     // v² ≤ 2·d·s in 0.1 units: V² ≤ 20·D·s
-    let limit = isqrt(20 * u128::from(next.ramp.decel) * u128::from(dist.unsigned_abs()));
+    let limit = isqrt(20 * u128::from(next.ramp.decel()) * u128::from(dist.unsigned_abs()));
     v.min(limit.min(u128::from(u64::MAX)) as u64)
 }

@@ -44,7 +44,7 @@ impl Settings {
     pub(super) fn from(cfg: Config<'_>, planner: PlannerConfig) -> Self {
         let mut s = Self {
             // not PA10's register: `update` derives the step figures
-            steps_per_rev_reg: cfg.pa.steps_per_rev().wrapping_add(1),
+            steps_per_rev_reg: cfg.pa().steps_per_rev().wrapping_add(1),
             velocity_cap: planner.velocity_cap(),
             accel_cap: planner.accel_cap(),
             ..Self::default()
@@ -64,8 +64,8 @@ impl Settings {
     /// Takes the values of `cfg`; the step figures of PA10/PA12 only when
     /// those registers changed.
     pub(super) fn update(&mut self, cfg: Config<'_>) {
-        let pa: &Params = cfg.pa;
-        self.profile_velocity = cfg.od.profile_velocity;
+        let pa: &Params = cfg.pa();
+        self.profile_velocity = cfg.od().profile_velocity();
         self.limit_enable = pa.limit_enable();
         self.comm_loss_ms = pa.comm_loss_ms();
         self.brake_times = BrakeTimes {
@@ -89,11 +89,11 @@ impl Settings {
 
     /// The profile ramp of 0x6081/0x6083/0x6084, clamped (SPEC §8.4).
     pub(super) fn profile_ramp(&self, od: &OdValues) -> Ramp {
-        Ramp {
-            velocity: self.steps(od.profile_velocity.unsigned_abs()),
-            accel: self.steps(u32::from(od.acceleration)),
-            decel: self.steps(u32::from(od.deceleration)),
-        }
+        Ramp::new(
+            self.steps(od.profile_velocity().unsigned_abs()),
+            self.steps(u32::from(od.acceleration())),
+            self.steps(u32::from(od.deceleration())),
+        )
         .clamped(self.max_velocity, self.accel_cap)
     }
 
@@ -101,26 +101,21 @@ impl Settings {
     /// per method (SPEC §8.6).
     pub(super) fn homing_ramp(&self, od: &OdValues, method: HomingMethod, slow: bool) -> Ramp {
         let reg = if slow {
-            od.homing_zero_speed
+            od.homing_zero_speed()
         } else {
-            od.homing_speed
+            od.homing_speed()
         };
-        let accel = self.steps(u32::from(od.homing_acceleration));
+        let accel = self.steps(u32::from(od.homing_acceleration()));
         let cap = self.rpm_to_velocity(u64::from(method.max_rpm()));
-        Ramp {
-            velocity: self.steps(reg),
-            accel,
-            decel: accel,
-        }
-        .clamped(self.max_velocity.min(cap), self.accel_cap)
+        Ramp::new(self.steps(reg), accel, accel).clamped(self.max_velocity.min(cap), self.accel_cap)
     }
 
     pub(super) fn decel(&self, od: &OdValues) -> u64 {
-        self.steps(u32::from(od.deceleration))
+        self.steps(u32::from(od.deceleration()))
     }
 
     pub(super) fn quick_stop_decel(&self, od: &OdValues) -> u64 {
-        self.steps(u32::from(od.quick_stop_deceleration))
+        self.steps(u32::from(od.quick_stop_deceleration()))
     }
 
     pub(super) fn cw_limit_enabled(&self) -> bool {
@@ -149,12 +144,10 @@ mod tests {
     fn settings_follow_every_pa10_and_pa12_change() {
         // SPEC §7 PA10 (steps/rev) and PA12 (max speed) are derived only
         // when they change (Settings::update); each change must show.
-        let od = OdValues {
-            profile_velocity: -7,
-            ..OdValues::default()
-        };
+        let mut od = OdValues::default();
+        od.set_profile_velocity(-7);
         let mut pa = Params::defaults();
-        let mut s = Settings::from(Config { od: &od, pa: &pa }, PlannerConfig::default());
+        let mut s = Settings::from(Config::new(&od, &pa), PlannerConfig::default());
         for (spr, rpm) in [
             (400, 3000),
             (400, 100),
@@ -164,12 +157,12 @@ mod tests {
         ] {
             pa.set_unchecked(10, spr);
             pa.set_unchecked(12, rpm);
-            s.update(Config { od: &od, pa: &pa });
+            s.update(Config::new(&od, &pa));
             let spr = u64::from(spr.max(1));
             assert_eq!(u64::from(s.steps_per_rev), spr);
             let v = (u64::from(rpm) * spr / 6).min(u64::from(Board::G431.max_step_rate()) * 10);
             assert_eq!(s.max_velocity, v, "PA10 {spr} PA12 {rpm}");
-            assert_eq!(s.profile_velocity, od.profile_velocity);
+            assert_eq!(s.profile_velocity, od.profile_velocity());
         }
     }
 
@@ -180,8 +173,8 @@ mod tests {
         let od = OdValues::default();
         let mut pa = Params::defaults();
         pa.set_unchecked(10, u16::MAX);
-        let mut s = Settings::from(Config { od: &od, pa: &pa }, PlannerConfig::default());
-        s.update(Config { od: &od, pa: &pa });
+        let mut s = Settings::from(Config::new(&od, &pa), PlannerConfig::default());
+        s.update(Config::new(&od, &pa));
         for reg in [0, 1, u32::from(u16::MAX), u32::MAX] {
             let want = u64::from(reg).saturating_mul(u64::from(u16::MAX));
             assert_eq!(s.steps(reg), want, "register {reg}");

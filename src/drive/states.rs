@@ -43,7 +43,7 @@ impl Drive {
     pub(super) fn quick_stop(&mut self, od: &OdValues) {
         self.set_state(PowerState::QuickStopActive);
         self.drop_set_points();
-        let decel = match od.quick_stop_option {
+        let decel = match od.quick_stop_option() {
             1 => self.s.decel(od),
             2 => self.s.quick_stop_decel(od),
             _ => 0, // 0, 3..=32767: at once
@@ -138,13 +138,13 @@ impl Drive {
         if self.following_error_latched() {
             w |= sw::BIT13;
         }
-        if self.switches.home {
+        if self.switches.home() {
             w |= sw::HOME_SWITCH;
         }
-        if self.switches.cw_limit {
+        if self.switches.cw_limit() {
             w |= sw::CW_LIMIT;
         }
-        if self.switches.ccw_limit {
+        if self.switches.ccw_limit() {
             w |= sw::CCW_LIMIT;
         }
         w
@@ -164,7 +164,7 @@ impl Drive {
                 // cause is gone (a frame arrived: communication is back).
                 let cause_gone = match self.fault {
                     Some(FaultCause::BothLimits) => {
-                        !(self.switches.cw_limit && self.switches.ccw_limit)
+                        !(self.switches.cw_limit() && self.switches.ccw_limit())
                     }
                     _ => true,
                 };

@@ -8,15 +8,16 @@ use crate::motion::Goal;
 impl Drive {
     pub(super) fn velocity_goal(&mut self, od: &OdValues) -> Goal {
         let ramp = self.s.profile_ramp(od);
-        let v = od.profile_velocity;
+        let v = od.profile_velocity();
         let forward = v > 0;
-        let blocked = (forward && self.switches.ccw_limit) || (!forward && self.switches.cw_limit);
+        let blocked =
+            (forward && self.switches.ccw_limit()) || (!forward && self.switches.cw_limit());
         if v == 0 || blocked || !ramp.runnable() {
             if v != 0 && (blocked || !ramp.runnable()) {
                 self.warning = true;
             }
-            let decel = if ramp.decel > 0 {
-                ramp.decel
+            let decel = if ramp.decel() > 0 {
+                ramp.decel()
             } else {
                 self.s.quick_stop_decel(od)
             };

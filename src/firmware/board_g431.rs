@@ -223,11 +223,11 @@ pub fn split(p: Peripherals, line: &usart::Config) -> Result<Parts, usart::Confi
             a: p.PB6,
             b: p.PB7,
         },
-        switches: SwitchInputs {
-            cw_limit: ExtiInput::new_blocking(p.PB12, p.EXTI12, Pull::Down, TriggerEdge::Any),
-            ccw_limit: ExtiInput::new_blocking(p.PB13, p.EXTI13, Pull::Down, TriggerEdge::Any),
-            home: ExtiInput::new_blocking(p.PB14, p.EXTI14, Pull::Down, TriggerEdge::Any),
-        },
+        switches: SwitchInputs::new(
+            ExtiInput::new_blocking(p.PB12, p.EXTI12, Pull::Down, TriggerEdge::Any),
+            ExtiInput::new_blocking(p.PB13, p.EXTI13, Pull::Down, TriggerEdge::Any),
+            ExtiInput::new_blocking(p.PB14, p.EXTI14, Pull::Down, TriggerEdge::Any),
+        ),
         param_flash: FlashRegion::new(
             Flash::new_blocking(p.FLASH),
             PARAM_FLASH_START,

@@ -18,10 +18,10 @@ use modbus_drive::rtu::{DriverEnable, LineConfig};
 /// Rounded up, so the frame never closes early.
 #[cfg_attr(not(feature = "board-g431"), allow(dead_code))] // F103: no receiver timeout
 pub fn t35_rto_bits(line: LineConfig) -> u32 {
-    if line.baud <= 19_200 {
-        (35 * line.format.bits_per_char()).div_ceil(10)
+    if line.baud() <= 19_200 {
+        (35 * line.format().bits_per_char()).div_ceil(10)
     } else {
-        modbus_drive::arith::div_ceil_u64(1750 * u64::from(line.baud), 1_000_000) as u32
+        modbus_drive::arith::div_ceil_u64(1750 * u64::from(line.baud()), 1_000_000) as u32
     }
 }
 
@@ -80,7 +80,7 @@ impl DeDrive {
             // what DEAT does not cover, rounded up (µs = samples / (baud·spb))
             // (u32: lead ≤ MAX_DE_BITS · 16 samples, so `rest` < 2^32)
             let rest = (lead - deat) * 1_000_000;
-            let per_s = line.baud.saturating_mul(samples_per_bit);
+            let per_s = line.baud().saturating_mul(samples_per_bit);
             (rest.div_ceil(per_s), de.tail_us(line))
         };
         Self {

@@ -150,10 +150,7 @@ impl<'a> Rs485Line<'a> {
 impl Line for Rs485Line<'_> {
     fn receive(&mut self) -> Option<Request<'_>> {
         let received = self.received.take()?;
-        Some(Request {
-            event: received.event(),
-            last_byte_us: Some(self.last_byte_us),
-        })
+        Some(Request::new(received.event(), Some(self.last_byte_us)))
     }
 
     fn send(&mut self, bytes: &[u8], at_us: u64) {

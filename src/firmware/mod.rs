@@ -95,7 +95,7 @@ async fn main(spawner: Spawner) {
         // one the journal skips, keeping the sets before it.
         #[cfg(feature = "board-g431")]
         if matches!(
-            boot.outcome,
+            boot.outcome(),
             modbus_drive::params::BootOutcome::Unreadable(_)
         ) {
             if let Ok(Some(page)) = store.flash().erase_faulted_page() {
@@ -138,7 +138,7 @@ async fn main(spawner: Spawner) {
         reset_cause,
         address,
         line,
-        line.timing().t35_us,
+        line.timing().t35_us(),
         range,
         capacity,
     );
@@ -162,10 +162,7 @@ async fn main(spawner: Spawner) {
     // From here on a hung thread resets the chip (fault.rs).
     let watchdog = fault::Watchdog::start();
     control::run(
-        control::PowerPins {
-            enable: parts.enable,
-            brake: parts.brake,
-        },
+        control::PowerPins::new(parts.enable, parts.brake),
         schedule,
         watchdog,
         encoder::EncoderInput::new(parts.encoder),

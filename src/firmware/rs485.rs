@@ -161,9 +161,9 @@ pub fn now_us() -> u32 {
 /// embassy-stm32 USART settings for a line (SPEC §7 PA52/PA53).
 pub fn usart_config(line: LineConfig) -> usart::Config {
     let mut c = usart::Config::default();
-    c.baudrate = line.baud;
+    c.baudrate = line.baud();
     c.data_bits = usart::DataBits::DataBits8;
-    (c.parity, c.stop_bits) = match line.format {
+    (c.parity, c.stop_bits) = match line.format() {
         CharFormat::N1 => (usart::Parity::ParityNone, usart::StopBits::STOP1),
         CharFormat::E1 => (usart::Parity::ParityEven, usart::StopBits::STOP1),
         CharFormat::O1 => (usart::Parity::ParityOdd, usart::StopBits::STOP1),
@@ -215,7 +215,7 @@ pub fn apply_line(
     uart.split_ref().1.set_config(&usart_config(line))?;
     let timing = line.timing();
     #[cfg(feature = "board-f103")]
-    T35_US.store(timing.t35_us, Ordering::Relaxed);
+    T35_US.store(timing.t35_us(), Ordering::Relaxed);
     let de_drive = DeDrive::new(de, line, de_samples_per_bit());
     // `send`'s copy: thread code only (the dispatcher, main before it)
     let lead = if de_drive.software {
@@ -405,11 +405,7 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
         }
     }
     if isr.rxne() {
-        let flags = RxFlags {
-            parity: isr.pe(),
-            framing: isr.fe() || isr.ne(),
-            overrun: isr.ore(),
-        };
+        let flags = RxFlags::new(isr.pe(), isr.fe() || isr.ne(), isr.ore());
         let byte = r.rdr().read().dr() as u8; // clears RXNE
                                               // only the flags read with this byte: one raised by the next byte
                                               // meanwhile stays for its own interrupt
@@ -457,11 +453,7 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
     }
     let sr = r.sr().read();
     if sr.rxne() || sr.ore() {
-        let flags = RxFlags {
-            parity: sr.pe(),
-            framing: sr.fe() || sr.ne(),
-            overrun: sr.ore(),
-        };
+        let flags = RxFlags::new(sr.pe(), sr.fe() || sr.ne(), sr.ore());
         // SR read then DR read clears RXNE, PE, FE, NE and ORE (RM0008)
         let byte = r.dr().read().dr() as u8;
         if sr.rxne() {

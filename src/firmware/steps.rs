@@ -102,7 +102,7 @@ pub fn start(dir: Output<'static>, prescaler: u16, dir_inverted: bool) -> &'stat
     SHAPE.store(shape.packed(), Ordering::Relaxed);
     // SAFETY: the step interrupt is not enabled yet: nothing else runs on it.
     let s = unsafe { STEPPER.get() };
-    let mut dir = DirectionOutput { dir };
+    let mut dir = DirectionOutput::new(dir);
     // the shaper starts out assuming the last step went forward
     dir.set(true, dir_inverted);
     s.dir = Some(dir);
@@ -194,8 +194,8 @@ fn on_update(s: &mut Stepper) {
     let Stepper { shaper, source, .. } = s;
     let Period { arr, ccr, dir } = shaper.next_period(|| {
         source.advance(&SCHEDULE).map(|n| Step {
-            forward: n.forward,
-            interval_ticks: n.delay_ticks,
+            forward: n.forward(),
+            interval_ticks: n.delay_ticks(),
         })
     });
     t.arr().write(|w| w.set_arr(arr));

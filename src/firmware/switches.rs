@@ -119,18 +119,18 @@ fn read(i: &mut Inputs) -> Switches {
         }
         position = now;
     };
-    let (mut cw, mut ccw) = (s.cw_limit, s.ccw_limit);
+    let (mut cw, mut ccw) = (s.cw_limit(), s.ccw_limit());
     if cw || ccw {
         cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000 * CONFIRM_US);
         let again = i.pins.read(polarity);
-        cw &= again.cw_limit;
-        ccw &= again.ccw_limit;
+        cw &= again.cw_limit();
+        ccw &= again.ccw_limit();
     }
     let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
     schedule.set_limits(cw && enabled & 1 != 0, ccw && enabled & 2 != 0);
-    i.cw.edge(s.cw_limit, position);
-    i.ccw.edge(s.ccw_limit, position);
-    i.home.edge(s.home, position);
+    i.cw.edge(s.cw_limit(), position);
+    i.ccw.edge(s.ccw_limit(), position);
+    i.home.edge(s.home(), position);
     s
 }
 
@@ -145,20 +145,12 @@ pub fn sample() -> (Switches, SwitchEdges, bool) {
         };
         let raw = read(i);
         let (cw, ccw, home) = (
-            i.cw.sample(raw.cw_limit),
-            i.ccw.sample(raw.ccw_limit),
-            i.home.sample(raw.home),
+            i.cw.sample(raw.cw_limit()),
+            i.ccw.sample(raw.ccw_limit()),
+            i.home.sample(raw.home()),
         );
-        let states = Switches {
-            cw_limit: i.cw.state(),
-            ccw_limit: i.ccw.state(),
-            home: i.home.state(),
-        };
-        let edges = SwitchEdges {
-            cw_limit: cw.flatten(),
-            ccw_limit: ccw.flatten(),
-            home: home.flatten(),
-        };
+        let states = Switches::new(i.cw.state(), i.ccw.state(), i.home.state());
+        let edges = SwitchEdges::new(cw.flatten(), ccw.flatten(), home.flatten());
         (states, edges, cw.or(ccw).or(home).is_some())
     })
 }

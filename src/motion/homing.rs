@@ -104,11 +104,34 @@ pub enum Until {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Phase {
-    pub left: bool,
-    pub slow: bool,
-    pub until: Until,
+    left: bool,
+    slow: bool,
+    until: Until,
     /// Meeting this phase's condition is the origin.
-    pub origin: bool,
+    origin: bool,
+}
+
+impl Phase {
+    #[inline]
+    pub const fn left(&self) -> bool {
+        self.left
+    }
+
+    #[inline]
+    pub const fn slow(&self) -> bool {
+        self.slow
+    }
+
+    #[inline]
+    pub const fn until(&self) -> Until {
+        self.until
+    }
+
+    /// Meeting this phase's condition is the origin.
+    #[inline]
+    pub const fn origin(&self) -> bool {
+        self.origin
+    }
 }
 
 const fn phase(left: bool, slow: bool, until: Until, origin: bool) -> Phase {

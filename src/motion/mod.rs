@@ -30,10 +30,39 @@ pub use schedule::{
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Switches {
     /// CW limit: the negative ("left") end of travel (SPEC §8.6).
-    pub cw_limit: bool,
+    cw_limit: bool,
     /// CCW limit: the positive ("right") end.
-    pub ccw_limit: bool,
-    pub home: bool,
+    ccw_limit: bool,
+    home: bool,
+}
+
+impl Switches {
+    /// The logical states (true = active).
+    #[inline]
+    pub const fn new(cw_limit: bool, ccw_limit: bool, home: bool) -> Self {
+        Self {
+            cw_limit,
+            ccw_limit,
+            home,
+        }
+    }
+
+    /// CW limit: the negative ("left") end of travel (SPEC §8.6).
+    #[inline]
+    pub const fn cw_limit(&self) -> bool {
+        self.cw_limit
+    }
+
+    /// CCW limit: the positive ("right") end.
+    #[inline]
+    pub const fn ccw_limit(&self) -> bool {
+        self.ccw_limit
+    }
+
+    #[inline]
+    pub const fn home(&self) -> bool {
+        self.home
+    }
 }
 
 /// Where each switch's current state began, latched by glue whose control
@@ -48,7 +77,34 @@ pub struct Switches {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SwitchEdges {
-    pub cw_limit: Option<i32>,
-    pub ccw_limit: Option<i32>,
-    pub home: Option<i32>,
+    cw_limit: Option<i32>,
+    ccw_limit: Option<i32>,
+    home: Option<i32>,
+}
+
+impl SwitchEdges {
+    /// Where each switch's current state began (`None`: not latched).
+    #[inline]
+    pub const fn new(cw_limit: Option<i32>, ccw_limit: Option<i32>, home: Option<i32>) -> Self {
+        Self {
+            cw_limit,
+            ccw_limit,
+            home,
+        }
+    }
+
+    #[inline]
+    pub const fn cw_limit(&self) -> Option<i32> {
+        self.cw_limit
+    }
+
+    #[inline]
+    pub const fn ccw_limit(&self) -> Option<i32> {
+        self.ccw_limit
+    }
+
+    #[inline]
+    pub const fn home(&self) -> Option<i32> {
+        self.home
+    }
 }

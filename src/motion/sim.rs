@@ -52,12 +52,47 @@ use super::Switches;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct StepRecord {
     /// Timer tick at which the step was made.
-    pub tick: u64,
+    tick: u64,
     /// The exact time the schedule asked for, Q32.32 ticks (wrapping).
-    pub exact: u64,
+    exact: u64,
     /// Physical position after the step.
-    pub position: i64,
-    pub forward: bool,
+    position: i64,
+    forward: bool,
+}
+
+impl StepRecord {
+    #[inline]
+    pub const fn new(tick: u64, exact: u64, position: i64, forward: bool) -> Self {
+        Self {
+            tick,
+            exact,
+            position,
+            forward,
+        }
+    }
+
+    /// Timer tick at which the step was made.
+    #[inline]
+    pub const fn tick(&self) -> u64 {
+        self.tick
+    }
+
+    /// The exact time the schedule asked for, Q32.32 ticks (wrapping).
+    #[inline]
+    pub const fn exact(&self) -> u64 {
+        self.exact
+    }
+
+    /// Physical position after the step.
+    #[inline]
+    pub const fn position(&self) -> i64 {
+        self.position
+    }
+
+    #[inline]
+    pub const fn forward(&self) -> bool {
+        self.forward
+    }
 }
 
 /// Why [`SimAxis::run_until`] returned.
@@ -84,11 +119,19 @@ pub struct SimAxis {
     /// The limit-switch interrupt with PA14's enable bits, if simulated.
     limit_interrupt: Option<u16>,
     /// Steps made.
-    pub steps: u64,
+    steps: u64,
     /// The exact-time record: per ring slot, the ring index (wrapping) of
     /// the step last pushed there and the fraction its time carries on
     /// ([`PushedSteps::fractions`]).
     exact: [(u32, u32); SCHEDULE_STEPS],
+}
+
+impl SimAxis {
+    /// Steps made.
+    #[inline]
+    pub const fn steps(&self) -> u64 {
+        self.steps
+    }
 }
 
 /// Half a tick, Q0.32: the carried fraction of a time that falls on a tick.
@@ -184,11 +227,11 @@ impl SimAxis {
 
     pub fn switches(&self) -> Switches {
         let p = self.position;
-        Switches {
-            cw_limit: self.cw_limit.is_some_and(|e| p <= e),
-            ccw_limit: self.ccw_limit.is_some_and(|e| p >= e),
-            home: self.home.is_some_and(|(a, b)| a <= p && p <= b),
-        }
+        Switches::new(
+            self.cw_limit.is_some_and(|e| p <= e),
+            self.ccw_limit.is_some_and(|e| p >= e),
+            self.home.is_some_and(|(a, b)| a <= p && p <= b),
+        )
     }
 
     /// Starts the idle interrupt if the schedule has work (see module docs).
@@ -198,7 +241,7 @@ impl SimAxis {
             self.next = self
                 .source
                 .advance(sched)
-                .map(|s| (now + u64::from(s.delay_ticks), s.forward));
+                .map(|s| (now + u64::from(s.delay_ticks()), s.forward()));
         }
     }
 
@@ -232,7 +275,7 @@ impl SimAxis {
             self.next = self
                 .source
                 .advance(sched)
-                .map(|s| (tick + u64::from(s.delay_ticks), s.forward));
+                .map(|s| (tick + u64::from(s.delay_ticks()), s.forward()));
             if self.switches() != before {
                 self.limit_interrupt(sched);
                 return RunStop::SwitchChanged;
@@ -276,15 +319,7 @@ mod tests {
     const ONE_TICK: u64 = 1 << 32;
 
     fn steps(interval: u64, count: u32) -> Segment {
-        Segment {
-            interval,
-            add: 0,
-            add2: 0,
-            add3: 0,
-            add4: 0,
-            count,
-            forward: true,
-        }
+        Segment::new(interval, 0, 0, 0, 0, count, true)
     }
 
     #[test]

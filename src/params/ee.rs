@@ -45,7 +45,7 @@ impl From<StorageError> for EeError {
 /// An EE operation accepted but not yet run, with the reply it will get.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PendingEe {
-    pub op: EeOp,
+    op: EeOp,
     /// The success reply the dispatcher built (the 0x10 reply, or the echo
     /// of the old 0x06 frame); `None` for a broadcast.
     reply: Option<([u8; EE_REPLY_MAX], u8)>,
@@ -57,6 +57,12 @@ pub const EE_REPLY_MAX: usize = 8;
 impl PendingEe {
     /// `reply`: the dispatcher's reply to the request, `None` when it was a
     /// broadcast. A reply longer than an EE reply is not kept.
+    /// The operation to run.
+    #[inline]
+    pub const fn op(&self) -> EeOp {
+        self.op
+    }
+
     pub fn new(op: EeOp, reply: Option<&[u8]>) -> Self {
         let reply = reply.filter(|r| r.len() <= EE_REPLY_MAX).map(|r| {
             let mut b = [0; EE_REPLY_MAX];
@@ -147,12 +153,12 @@ mod tests {
     fn set_then_rd_restores_the_saved_values() {
         let mut r = Rig::new();
         r.pa.set_unchecked(10, 400);
-        r.od.acceleration = 50;
+        r.od.set_acceleration(50);
         r.run(EeOp::Save).unwrap();
         r.pa.set_unchecked(10, 800);
-        r.od.acceleration = 60;
+        r.od.set_acceleration(60);
         r.run(EeOp::Reload).unwrap();
-        assert_eq!((r.pa.get(10), r.od.acceleration), (400, 50));
+        assert_eq!((r.pa.get(10), r.od.acceleration()), (400, 50));
     }
 
     #[test]
@@ -193,7 +199,7 @@ mod tests {
         r.run(EeOp::Save).unwrap();
         r.run(EeOp::RestoreDefaults).unwrap();
         assert_eq!(r.pa, Params::defaults());
-        assert_eq!(r.store.boot().set, ParamSet::defaults());
+        assert_eq!(*r.store.boot().set(), ParamSet::defaults());
         r.run(EeOp::RestoreBackup).unwrap();
         assert_eq!(r.pa.get(51), 9);
     }

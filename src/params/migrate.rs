@@ -38,9 +38,23 @@ use embedded_storage::nor_flash::NorFlash;
 /// take first without losing any of them.
 pub(super) struct OldSets {
     /// Per slot (0 saved, 1 backup): flash offset and length of the record.
-    pub sets: [Option<(u32, usize)>; 2],
+    sets: [Option<(u32, usize)>; 2],
     /// Page index (in the region) that holds nothing the sets need.
-    pub free_page: u32,
+    free_page: u32,
+}
+
+impl OldSets {
+    /// Per slot (0 saved, 1 backup): flash offset and length of the record.
+    #[inline]
+    pub const fn sets(&self) -> [Option<(u32, usize)>; 2] {
+        self.sets
+    }
+
+    /// Page index (in the region) that holds nothing the sets need.
+    #[inline]
+    pub const fn free_page(&self) -> u32 {
+        self.free_page
+    }
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]

@@ -83,9 +83,34 @@ pub enum RecordError {
 /// One complete parameter set: what EE-Set saves and EE-rd loads.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ParamSet {
-    pub pa: Params,
+    pa: Params,
     /// Only the saved fields are meaningful (not 0x6040, 0x6060, 0x607A).
-    pub od: OdValues,
+    od: OdValues,
+}
+
+impl ParamSet {
+    #[inline]
+    pub const fn pa(&self) -> &Params {
+        &self.pa
+    }
+
+    /// Only the saved fields are meaningful (not 0x6040, 0x6060, 0x607A).
+    #[inline]
+    pub const fn od(&self) -> &OdValues {
+        &self.od
+    }
+
+    /// The parameters, to change before the set is saved.
+    #[inline]
+    pub fn pa_mut(&mut self) -> &mut Params {
+        &mut self.pa
+    }
+
+    /// The register values, to change before the set is saved.
+    #[inline]
+    pub fn od_mut(&mut self) -> &mut OdValues {
+        &mut self.od
+    }
 }
 
 impl ParamSet {
@@ -226,14 +251,14 @@ mod tests {
         let mut s = ParamSet::defaults();
         s.pa.set_unchecked(10, 3200);
         s.pa.set_unchecked(51, 17);
-        s.od.word_order = 1;
-        s.od.profile_velocity = -1234;
-        s.od.home_offset = i32::MIN;
-        s.od.homing_speed = 100_000;
-        s.od.homing_zero_speed = u32::MAX;
-        s.od.homing_method = 8;
-        s.od.following_error_window = 500;
-        s.od.following_error_timeout = 20;
+        s.od.set_word_order(1);
+        s.od.set_profile_velocity(-1234);
+        s.od.set_home_offset(i32::MIN);
+        s.od.set_homing_speed(100_000);
+        s.od.set_homing_zero_speed(u32::MAX);
+        s.od.set_homing_method(8);
+        s.od.set_following_error_window(500);
+        s.od.set_following_error_timeout(20);
         s.pa.set_unchecked(17, 4000);
         s.pa.set_unchecked(18, 1);
         s
@@ -251,20 +276,21 @@ mod tests {
     fn unsaved_entries_are_not_stored() {
         // SPEC §9: 0x607A is not saved; 0x6040/0x6060 are WO.
         let mut s = sample();
-        s.od.target_position = 200_000;
-        s.od.controlword = 0x0F;
-        s.od.mode = 1;
+        s.od.set_target_position(200_000);
+        s.od.set_controlword(0x0F);
+        s.od.set_mode(1);
         assert_eq!(s.encode(), sample().encode());
         let mut pa = Params::defaults();
-        let mut od = OdValues {
-            target_position: 5,
-            controlword: 6,
-            mode: 3,
-            ..OdValues::default()
-        };
+        let mut od = OdValues::default();
+        od.set_target_position(5);
+        od.set_controlword(6);
+        od.set_mode(3);
         s.apply_to(&mut pa, &mut od);
-        assert_eq!((od.target_position, od.controlword, od.mode), (5, 6, 3));
-        assert_eq!(od.profile_velocity, -1234);
+        assert_eq!(
+            (od.target_position(), od.controlword(), od.mode()),
+            (5, 6, 3)
+        );
+        assert_eq!(od.profile_velocity(), -1234);
         assert_eq!(pa.get(10), 3200);
     }
 
@@ -336,9 +362,9 @@ mod tests {
         let (d, fixed) = ParamSet::decode(&v1).expect("a version-1 record loads");
         assert_eq!(fixed, 0);
         assert_eq!(d.pa, s.pa);
-        assert_eq!(d.od.homing_zero_speed, u32::MAX);
-        assert_eq!(d.od.following_error_window, u32::MAX);
-        assert_eq!(d.od.following_error_timeout, 0);
+        assert_eq!(d.od.homing_zero_speed(), u32::MAX);
+        assert_eq!(d.od.following_error_window(), u32::MAX);
+        assert_eq!(d.od.following_error_timeout(), 0);
     }
 
     #[test]
@@ -354,11 +380,11 @@ mod tests {
         let mut s = sample();
         s.pa.set_unchecked(51, 0); // PA51 ∉ 1..=247
         s.pa.set_unchecked(2, 1); // PA2 is read-only: always the firmware's
-        s.od.homing_method = 9;
+        s.od.set_homing_method(9);
         let (d, fixed) = ParamSet::decode(&s.encode()).expect("crc is good");
         assert_eq!(fixed, 2);
         assert_eq!(d.pa.get(51), 1);
         assert_eq!(d.pa.get(2), crate::dictionary::FIRMWARE_VERSION);
-        assert_eq!(d.od.homing_method, 0);
+        assert_eq!(d.od.homing_method(), 0);
     }
 }

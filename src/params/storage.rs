@@ -144,8 +144,26 @@ pub enum BootOutcome {
 /// The set to work with after power-up and how it was obtained.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Boot {
-    pub set: ParamSet,
-    pub outcome: BootOutcome,
+    set: ParamSet,
+    outcome: BootOutcome,
+}
+
+impl Boot {
+    #[inline]
+    pub const fn set(&self) -> &ParamSet {
+        &self.set
+    }
+
+    #[inline]
+    pub const fn outcome(&self) -> BootOutcome {
+        self.outcome
+    }
+
+    /// The set, taken out.
+    #[inline]
+    pub fn into_set(self) -> ParamSet {
+        self.set
+    }
 }
 
 /// The parameter store on a flash region.
@@ -255,7 +273,7 @@ impl<F: NorFlash> ParamStore<F> {
         } else {
             read_old(&mut self.flash, &self.range, &mut buf.0[..1 + RECORD_MAX])
                 .map_err(flash_error)?
-                .sets[slot as usize]
+                .sets()[slot as usize]
         };
         let Some((at, len)) = found else {
             return Ok(None);
@@ -433,15 +451,15 @@ impl<F: NorFlash> ParamStore<F> {
             &mut scratch.0[..1 + RECORD_MAX],
         )
         .map_err(flash_error)?;
-        if old.sets == [None, None] {
+        if old.sets() == [None, None] {
             return Ok(());
         }
-        let start = self.page_start(old.free_page);
+        let start = self.page_start(old.free_page());
         self.flash
             .erase(start, start + Self::PAGE)
             .map_err(flash_error)?;
         let mut at = start + PAGE_HEADER;
-        for (slot, found) in old.sets.into_iter().enumerate() {
+        for (slot, found) in old.sets().into_iter().enumerate() {
             let Some((from, len)) = found else {
                 continue;
             };
@@ -487,7 +505,7 @@ mod tests {
 
     fn set_with(pa10: u16) -> ParamSet {
         let mut s = ParamSet::defaults();
-        s.pa.set_unchecked(10, pa10);
+        s.pa_mut().set_unchecked(10, pa10);
         s
     }
 

@@ -19,14 +19,44 @@ use super::{FrameTiming, MAX_FRAME, MIN_FRAME};
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RxFlags {
     /// Parity error (PE): carried with the frame, answered with code 9 (SPEC §3).
-    pub parity: bool,
+    parity: bool,
     /// Framing error or noise (FE/NE): the frame is discarded as broken.
-    pub framing: bool,
+    framing: bool,
     /// The UART lost bytes (ORE): the frame is discarded as an overrun.
-    pub overrun: bool,
+    overrun: bool,
 }
 
 impl RxFlags {
+    /// Parity error (PE): carried with the frame, answered with code 9 (SPEC §3).
+    #[inline]
+    pub const fn parity(&self) -> bool {
+        self.parity
+    }
+
+    /// Framing error or noise (FE/NE): the frame is discarded as broken.
+    #[inline]
+    pub const fn framing(&self) -> bool {
+        self.framing
+    }
+
+    /// The UART lost bytes (ORE): the frame is discarded as an overrun.
+    #[inline]
+    pub const fn overrun(&self) -> bool {
+        self.overrun
+    }
+}
+
+impl RxFlags {
+    /// The flags the UART raised with one byte.
+    #[inline]
+    pub const fn new(parity: bool, framing: bool, overrun: bool) -> Self {
+        Self {
+            parity,
+            framing,
+            overrun,
+        }
+    }
+
     pub const NONE: Self = Self {
         parity: false,
         framing: false,
@@ -96,18 +126,18 @@ impl FrameAssembler {
             broken: false,
             parity: false,
             overrun: false,
-            break_after_us: timing.t15_us + timing.tc_us,
-            new_frame_after_us: timing.t35_us + timing.tc_us,
-            t35_us: timing.t35_us,
+            break_after_us: timing.t15_us() + timing.tc_us(),
+            new_frame_after_us: timing.t35_us() + timing.tc_us(),
+            t35_us: timing.t35_us(),
         }
     }
 
     /// New line timing (baud or format changed). Applies from the next frame;
     /// call it between frames.
     pub fn set_timing(&mut self, timing: FrameTiming) {
-        self.break_after_us = timing.t15_us + timing.tc_us;
-        self.new_frame_after_us = timing.t35_us + timing.tc_us;
-        self.t35_us = timing.t35_us;
+        self.break_after_us = timing.t15_us() + timing.tc_us();
+        self.new_frame_after_us = timing.t35_us() + timing.tc_us();
+        self.t35_us = timing.t35_us();
     }
 
     /// True while a frame is being received (bytes seen, t3.5 not yet over).
@@ -249,10 +279,7 @@ mod tests {
     use super::*;
     use crate::rtu::{CharFormat, LineConfig};
 
-    const B9600: LineConfig = LineConfig {
-        baud: 9600,
-        format: CharFormat::N1,
-    };
+    const B9600: LineConfig = LineConfig::new(9600, CharFormat::N1);
 
     /// Feeds `bytes` back to back starting at `t0` (end of first char at
     /// `t0`), returns every event and the timestamp of the last byte.
@@ -274,9 +301,9 @@ mod tests {
     fn a_frame_closes_after_t35_of_silence_and_not_before() {
         let timing = B9600.timing();
         let mut a = FrameAssembler::new(timing);
-        let (_, last) = feed(&mut a, &REQ, 1000, timing.tc_us);
-        assert_eq!(a.poll(last + timing.t35_us - 1), None);
-        match a.poll(last + timing.t35_us) {
+        let (_, last) = feed(&mut a, &REQ, 1000, timing.tc_us());
+        assert_eq!(a.poll(last + timing.t35_us() - 1), None);
+        match a.poll(last + timing.t35_us()) {
             Some(RxEvent::Frame {
                 bytes,
                 parity_error,
@@ -286,7 +313,7 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
-        assert_eq!(a.poll(last + 10 * timing.t35_us), None);
+        assert_eq!(a.poll(last + 10 * timing.t35_us()), None);
     }
 
     #[test]
@@ -297,17 +324,14 @@ mod tests {
             (115_200, 0, false),
             (115_200, 1, true),
         ] {
-            let line = LineConfig {
-                baud,
-                format: CharFormat::N1,
-            };
+            let line = LineConfig::new(baud, CharFormat::N1);
             let timing = line.timing();
             let mut a = FrameAssembler::new(timing);
-            let (_, t) = feed(&mut a, &REQ[..3], 0, timing.tc_us);
+            let (_, t) = feed(&mut a, &REQ[..3], 0, timing.tc_us());
             // next byte ends one character time after silence t1.5 (+extra)
-            let t = t + timing.t15_us + extra + timing.tc_us;
-            let (_, last) = feed(&mut a, &REQ[3..], t, timing.tc_us);
-            let ev = a.poll(last + timing.t35_us);
+            let t = t + timing.t15_us() + extra + timing.tc_us();
+            let (_, last) = feed(&mut a, &REQ[3..], t, timing.tc_us());
+            let ev = a.poll(last + timing.t35_us());
             if broken {
                 assert_eq!(ev, Some(RxEvent::Broken), "baud {baud}");
             } else {
@@ -322,20 +346,16 @@ mod tests {
     #[test]
     fn two_frames_separated_by_exactly_t35_are_both_delivered() {
         for baud in [9600, 115_200] {
-            let timing = LineConfig {
-                baud,
-                format: CharFormat::N1,
-            }
-            .timing();
+            let timing = LineConfig::new(baud, CharFormat::N1).timing();
             let mut a = FrameAssembler::new(timing);
-            let (first, last) = feed(&mut a, &REQ, 0, timing.tc_us);
+            let (first, last) = feed(&mut a, &REQ, 0, timing.tc_us());
             assert!(first.is_empty());
             // no poll in between: the first byte of frame 2 closes frame 1
-            let start = last + timing.t35_us + timing.tc_us;
-            let (closed, last2) = feed(&mut a, &REQ, start, timing.tc_us);
+            let start = last + timing.t35_us() + timing.tc_us();
+            let (closed, last2) = feed(&mut a, &REQ, start, timing.tc_us());
             assert_eq!(closed, vec![REQ.to_vec()], "baud {baud}");
             assert!(
-                matches!(a.poll(last2 + timing.t35_us), Some(RxEvent::Frame { bytes, .. }) if bytes == REQ)
+                matches!(a.poll(last2 + timing.t35_us()), Some(RxEvent::Frame { bytes, .. }) if bytes == REQ)
             );
         }
     }
@@ -344,16 +364,16 @@ mod tests {
     fn short_long_and_flagged_frames() {
         let timing = LineConfig::DEFAULT.timing();
         let mut a = FrameAssembler::new(timing);
-        let (_, last) = feed(&mut a, &REQ[..3], 0, timing.tc_us);
-        assert_eq!(a.poll(last + timing.t35_us), Some(RxEvent::TooShort));
+        let (_, last) = feed(&mut a, &REQ[..3], 0, timing.tc_us());
+        assert_eq!(a.poll(last + timing.t35_us()), Some(RxEvent::TooShort));
 
         let long = [0x55u8; MAX_FRAME + 1];
-        let (_, last) = feed(&mut a, &long, 100_000, timing.tc_us);
-        assert_eq!(a.poll(last + timing.t35_us), Some(RxEvent::Overrun));
+        let (_, last) = feed(&mut a, &long, 100_000, timing.tc_us());
+        assert_eq!(a.poll(last + timing.t35_us()), Some(RxEvent::Overrun));
 
-        let (_, last) = feed(&mut a, &long[..MAX_FRAME], 200_000, timing.tc_us);
+        let (_, last) = feed(&mut a, &long[..MAX_FRAME], 200_000, timing.tc_us());
         assert!(
-            matches!(a.poll(last + timing.t35_us), Some(RxEvent::Frame { bytes, .. }) if bytes.len() == MAX_FRAME)
+            matches!(a.poll(last + timing.t35_us()), Some(RxEvent::Frame { bytes, .. }) if bytes.len() == MAX_FRAME)
         );
 
         let t = 300_000;
@@ -394,10 +414,10 @@ mod tests {
     fn timestamps_may_wrap() {
         let timing = LineConfig::DEFAULT.timing();
         let mut a = FrameAssembler::new(timing);
-        let (_, last) = feed(&mut a, &REQ, u32::MAX - 200, timing.tc_us);
+        let (_, last) = feed(&mut a, &REQ, u32::MAX - 200, timing.tc_us());
         assert!(last < 1000);
         assert!(matches!(
-            a.poll(last.wrapping_add(timing.t35_us)),
+            a.poll(last.wrapping_add(timing.t35_us())),
             Some(RxEvent::Frame { .. })
         ));
     }

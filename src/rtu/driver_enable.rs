@@ -56,12 +56,12 @@ impl DriverEnable {
 
     /// The lead at `line`'s baud, µs, rounded up (a minimum stays one).
     pub const fn lead_us(self, line: LineConfig) -> u32 {
-        bits_to_us(self.lead_bits, line.baud)
+        bits_to_us(self.lead_bits, line.baud())
     }
 
     /// The tail at `line`'s baud, µs, rounded up.
     pub const fn tail_us(self, line: LineConfig) -> u32 {
-        bits_to_us(self.tail_bits, line.baud)
+        bits_to_us(self.tail_bits, line.baud())
     }
 }
 
@@ -85,10 +85,7 @@ mod tests {
     use crate::rtu::CharFormat;
 
     fn line(baud: u32) -> LineConfig {
-        LineConfig {
-            baud,
-            format: CharFormat::N1,
-        }
+        LineConfig::new(baud, CharFormat::N1)
     }
 
     #[test]
@@ -109,7 +106,7 @@ mod tests {
         for pa52 in 0..=4 {
             for pa53 in 0..=3 {
                 let l = LineConfig::from_params(pa52, pa53).unwrap();
-                assert!(de.tail_us(l) < l.timing().t35_us, "{l:?}");
+                assert!(de.tail_us(l) < l.timing().t35_us(), "{l:?}");
             }
         }
     }

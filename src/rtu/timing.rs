@@ -39,8 +39,25 @@ impl CharFormat {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LineConfig {
-    pub baud: u32,
-    pub format: CharFormat,
+    baud: u32,
+    format: CharFormat,
+}
+
+impl LineConfig {
+    #[inline]
+    pub const fn new(baud: u32, format: CharFormat) -> Self {
+        Self { baud, format }
+    }
+
+    #[inline]
+    pub const fn baud(&self) -> u32 {
+        self.baud
+    }
+
+    #[inline]
+    pub const fn format(&self) -> CharFormat {
+        self.format
+    }
 }
 
 impl LineConfig {
@@ -90,9 +107,26 @@ impl Default for LineConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FrameTiming {
-    pub tc_us: u32,
-    pub t15_us: u32,
-    pub t35_us: u32,
+    tc_us: u32,
+    t15_us: u32,
+    t35_us: u32,
+}
+
+impl FrameTiming {
+    #[inline]
+    pub const fn tc_us(&self) -> u32 {
+        self.tc_us
+    }
+
+    #[inline]
+    pub const fn t15_us(&self) -> u32 {
+        self.t15_us
+    }
+
+    #[inline]
+    pub const fn t35_us(&self) -> u32 {
+        self.t35_us
+    }
 }
 
 impl FrameTiming {

@@ -11,22 +11,129 @@ use crate::event::Event;
 pub struct Counters {
     /// Frames with a good CRC and no parity error, for any address
     /// (sub-function 0x0B).
-    pub bus_messages: u16,
+    bus_messages: u16,
     /// CRC and parity errors (any address), broken frames, frames shorter
     /// than 4 bytes (0x0C).
-    pub bus_errors: u16,
+    bus_errors: u16,
     /// Exception replies sent, including 9/10 frame-error replies, plus
     /// broadcasts refused without a reply (0x0D).
-    pub exceptions: u16,
+    exceptions: u16,
     /// Good frames addressed to us or broadcast (0x0E).
-    pub slave_messages: u16,
+    slave_messages: u16,
     /// Good frames addressed to us or broadcast that got no reply:
     /// broadcasts, listen-only mode, the 0x04 request itself (0x0F).
-    pub no_response: u16,
+    no_response: u16,
     /// Requests refused with exception 6 (0x11).
-    pub busy: u16,
+    busy: u16,
     /// Frames over 256 bytes or with bytes lost by the UART (0x12).
-    pub overruns: u16,
+    overruns: u16,
+}
+
+impl Counters {
+    /// Frames with a good CRC and no parity error, for any address
+    /// (sub-function 0x0B).
+    #[inline]
+    pub const fn bus_messages(&self) -> u16 {
+        self.bus_messages
+    }
+
+    /// CRC and parity errors (any address), broken frames, frames shorter
+    /// than 4 bytes (0x0C).
+    #[inline]
+    pub const fn bus_errors(&self) -> u16 {
+        self.bus_errors
+    }
+
+    /// Exception replies sent, including 9/10 frame-error replies, plus
+    /// broadcasts refused without a reply (0x0D).
+    #[inline]
+    pub const fn exceptions(&self) -> u16 {
+        self.exceptions
+    }
+
+    /// Good frames addressed to us or broadcast (0x0E).
+    #[inline]
+    pub const fn slave_messages(&self) -> u16 {
+        self.slave_messages
+    }
+
+    /// Good frames addressed to us or broadcast that got no reply:
+    /// broadcasts, listen-only mode, the 0x04 request itself (0x0F).
+    #[inline]
+    pub const fn no_response(&self) -> u16 {
+        self.no_response
+    }
+
+    /// Requests refused with exception 6 (0x11).
+    #[inline]
+    pub const fn busy(&self) -> u16 {
+        self.busy
+    }
+
+    /// Frames over 256 bytes or with bytes lost by the UART (0x12).
+    #[inline]
+    pub const fn overruns(&self) -> u16 {
+        self.overruns
+    }
+}
+
+impl Counters {
+    /// The counters as a master read them with sub-functions 0x0B..=0x0F,
+    /// 0x11 and 0x12, in that order (the slave's own counters change only
+    /// through [`crate::slave::Slave`]).
+    pub const fn from_reads(reads: [u16; 7]) -> Self {
+        Self {
+            bus_messages: reads[0],
+            bus_errors: reads[1],
+            exceptions: reads[2],
+            slave_messages: reads[3],
+            no_response: reads[4],
+            busy: reads[5],
+            overruns: reads[6],
+        }
+    }
+
+    /// Counts one more (wrapping) in `bus_messages`.
+    #[inline]
+    pub(super) fn count_bus_message(&mut self) {
+        self.bus_messages = self.bus_messages.wrapping_add(1);
+    }
+
+    /// Counts one more (wrapping) in `bus_errors`.
+    #[inline]
+    pub(super) fn count_bus_error(&mut self) {
+        self.bus_errors = self.bus_errors.wrapping_add(1);
+    }
+
+    /// Counts one more (wrapping) in `exceptions`.
+    #[inline]
+    pub(super) fn count_exception(&mut self) {
+        self.exceptions = self.exceptions.wrapping_add(1);
+    }
+
+    /// Counts one more (wrapping) in `slave_messages`.
+    #[inline]
+    pub(super) fn count_slave_message(&mut self) {
+        self.slave_messages = self.slave_messages.wrapping_add(1);
+    }
+
+    /// Counts one more (wrapping) in `no_response`.
+    #[inline]
+    pub(super) fn count_no_response(&mut self) {
+        self.no_response = self.no_response.wrapping_add(1);
+    }
+
+    /// Counts one more (wrapping) in `busy`.
+    #[inline]
+    pub(super) fn count_busy(&mut self) {
+        self.busy = self.busy.wrapping_add(1);
+    }
+
+    /// Counts one more (wrapping) in `overruns`.
+    #[inline]
+    pub(super) fn count_overrun(&mut self) {
+        self.overruns = self.overruns.wrapping_add(1);
+    }
 }
 
 /// Sub-functions (SPEC §4: 0x00, 0x01, 0x04, 0x0A..=0x12).

@@ -20,9 +20,9 @@ const INDIVIDUAL: u8 = 4;
 /// Object `id`'s value: the register string without its NUL padding.
 fn object(identity: &Identity, id: u8) -> &'static str {
     match id {
-        0 => identity.product,
-        1 => identity.hardware,
-        _ => identity.software,
+        0 => identity.product(),
+        1 => identity.hardware(),
+        _ => identity.software(),
     }
 }
 

@@ -160,8 +160,8 @@ impl VirtualDrive {
             console.log(&format!(
                 "{}: {} baud, t3.5 = {} µs, reply delay {} µs",
                 d.label(),
-                line.baud,
-                line.timing().t35_us,
+                line.baud(),
+                line.timing().t35_us(),
                 d.device.reply_delay_us()
             ));
         }
@@ -350,8 +350,8 @@ impl VirtualDrive {
                 sample.mode,
                 sample.position_steps,
                 sample.velocity_rpm,
-                counters.bus_messages,
-                u32::from(counters.bus_errors) + u32::from(counters.overruns),
+                counters.bus_messages(),
+                u32::from(counters.bus_errors()) + u32::from(counters.overruns()),
             ));
         }
         let conns = self
@@ -392,7 +392,7 @@ impl VirtualDrive {
             }
             for (di, f) in line.framers.iter().enumerate() {
                 if f.is_receiving() {
-                    let t35 = u64::from(self.drives[di].device.line().timing().t35_us);
+                    let t35 = u64::from(self.drives[di].device.line().timing().t35_us());
                     at = at.min(line.last_rx_us + t35);
                 }
             }

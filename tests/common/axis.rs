@@ -29,15 +29,12 @@ pub struct PlannerRun {
 
 impl PlannerRun {
     pub fn new(tick_hz: u32, period_us: u64) -> Self {
-        let cfg = PlannerConfig {
-            tick_hz,
-            horizon_us: (2 * period_us + 1000) as u32,
-            // the shipped segment length: the exactness bounds hold for
-            // what the drive runs (segments end on the fit's error bound
-            // or this time, profile/length.rs `segment_len`)
-            max_segment_us: PlannerConfig::default().max_segment_us,
-            ..PlannerConfig::default()
-        };
+        // the shipped segment length: the exactness bounds hold for what
+        // the drive runs (segments end on the fit's error bound or this
+        // time, profile/length.rs `segment_len`)
+        let cfg = PlannerConfig::default()
+            .with_tick_hz(tick_hz)
+            .with_horizon_us((2 * period_us + 1000) as u32);
         Self {
             sched: Box::new(StepSchedule::new()),
             planner: Planner::new(cfg),
@@ -99,9 +96,9 @@ pub fn exact_velocities(steps: &[StepRecord], tick_hz: u32) -> Vec<(f64, f64)> {
     steps
         .windows(2)
         .map(|w| {
-            let dt = w[1].exact.wrapping_sub(w[0].exact) as f64 / Q / f64::from(tick_hz);
-            let t = w[0].exact as f64 / Q / f64::from(tick_hz) + dt / 2.0;
-            let v = if w[1].forward { 1.0 / dt } else { -1.0 / dt };
+            let dt = w[1].exact().wrapping_sub(w[0].exact()) as f64 / Q / f64::from(tick_hz);
+            let t = w[0].exact() as f64 / Q / f64::from(tick_hz) + dt / 2.0;
+            let v = if w[1].forward() { 1.0 / dt } else { -1.0 / dt };
             (t, v)
         })
         .collect()
@@ -114,11 +111,14 @@ pub fn exact_velocities(steps: &[StepRecord], tick_hz: u32) -> Vec<(f64, f64)> {
 pub fn check_dynamics(steps: &[StepRecord], tick_hz: u32, v_max: f64, a_max: f64) {
     let f = f64::from(tick_hz);
     for (i, w) in steps.windows(2).enumerate() {
-        assert!(w[1].tick > w[0].tick, "interval not positive at step {i}");
-        let dt = w[1].exact.wrapping_sub(w[0].exact) as f64 / Q / f;
+        assert!(
+            w[1].tick() > w[0].tick(),
+            "interval not positive at step {i}"
+        );
+        let dt = w[1].exact().wrapping_sub(w[0].exact()) as f64 / Q / f;
         let v = 1.0 / dt;
         assert!(v <= v_max * 1.005 + 1e-9, "step {i}: {v} steps/s > {v_max}");
-        if w[1].forward != w[0].forward {
+        if w[1].forward() != w[0].forward() {
             // the last step before the reversal ends at rest: it takes at
             // least sqrt(2 / a_max)
             let min_dt = (2.0 / a_max).sqrt() * 0.98;
@@ -127,7 +127,7 @@ pub fn check_dynamics(steps: &[StepRecord], tick_hz: u32, v_max: f64, a_max: f64
                 "reversal at step {i} at speed: dt {dt} < {min_dt}"
             );
             if i > 0 {
-                let before = w[0].exact.wrapping_sub(steps[i - 1].exact) as f64 / Q / f;
+                let before = w[0].exact().wrapping_sub(steps[i - 1].exact()) as f64 / Q / f;
                 assert!(
                     before >= min_dt,
                     "step {i} before the reversal at speed: {before} < {min_dt}"
@@ -138,8 +138,8 @@ pub fn check_dynamics(steps: &[StepRecord], tick_hz: u32, v_max: f64, a_max: f64
     let vel: Vec<f64> = steps
         .windows(2)
         .map(|w| {
-            let dt = w[1].exact.wrapping_sub(w[0].exact) as f64 / Q / f;
-            if w[1].forward {
+            let dt = w[1].exact().wrapping_sub(w[0].exact()) as f64 / Q / f;
+            if w[1].forward() {
                 1.0 / dt
             } else {
                 -1.0 / dt
@@ -148,7 +148,7 @@ pub fn check_dynamics(steps: &[StepRecord], tick_hz: u32, v_max: f64, a_max: f64
         .collect();
     let mut run_start = 0usize;
     for i in 1..vel.len() {
-        if steps[i + 1].forward != steps[i].forward {
+        if steps[i + 1].forward() != steps[i].forward() {
             run_start = i + 1;
             continue;
         }
@@ -156,8 +156,8 @@ pub fn check_dynamics(steps: &[StepRecord], tick_hz: u32, v_max: f64, a_max: f64
         if i < run_start + 10 {
             continue;
         }
-        let dt0 = steps[i].exact.wrapping_sub(steps[i - 1].exact) as f64 / Q / f;
-        let dt1 = steps[i + 1].exact.wrapping_sub(steps[i].exact) as f64 / Q / f;
+        let dt0 = steps[i].exact().wrapping_sub(steps[i - 1].exact()) as f64 / Q / f;
+        let dt1 = steps[i + 1].exact().wrapping_sub(steps[i].exact()) as f64 / Q / f;
         let a = (vel[i] - vel[i - 1]).abs() / ((dt0 + dt1) / 2.0);
         // a long pause at rest (motion ended, next one started later) is
         // not an acceleration of the profile
@@ -398,7 +398,7 @@ pub fn ideal_run(
         ideal
             .iter()
             .zip(steps)
-            .map(|(w, s)| (s.tick as f64 / f - w.t).abs())
+            .map(|(w, s)| (s.tick() as f64 / f - w.t).abs())
             .fold(0.0, f64::max)
     };
     // depth-first over the changes; each level continues a prefix
@@ -434,8 +434,8 @@ pub fn check_ideal_times(steps: &[StepRecord], tick_hz: u32, ideal: &[IdealStep]
     assert_eq!(steps.len(), ideal.len(), "steps made vs ideal");
     let f = f64::from(tick_hz);
     for (i, (s, want)) in steps.iter().zip(ideal).enumerate() {
-        assert_eq!(s.forward, want.forward, "direction of step {}", i + 1);
-        let got = s.tick as f64 / f;
+        assert_eq!(s.forward(), want.forward, "direction of step {}", i + 1);
+        let got = s.tick() as f64 / f;
         let bound = (1e-6f64).min(0.05 * (want.t - want.prev_t));
         assert!(
             (got - want.t).abs() <= bound,
@@ -454,7 +454,7 @@ pub fn check_times(steps: &[StepRecord], tick_hz: u32, t0_tick: u64, ideal: impl
     for (i, s) in steps.iter().enumerate() {
         let k = (i + 1) as f64;
         let want = ideal(k);
-        let got = (s.tick - t0_tick) as f64 / f;
+        let got = (s.tick() - t0_tick) as f64 / f;
         let bound = (1e-6f64).min(0.05 * (want - prev));
         assert!(
             (got - want).abs() <= bound,
@@ -494,12 +494,10 @@ impl Rig {
         Self::with_config(
             bus,
             axis,
-            Cfg {
-                tick_hz: 10_000_000,
-                horizon_us: 3000,
-                max_segment_us: 1000,
-                ..Cfg::default()
-            },
+            Cfg::default()
+                .with_tick_hz(10_000_000)
+                .with_horizon_us(3000)
+                .with_max_segment_us(1000),
         )
     }
 
@@ -513,7 +511,7 @@ impl Rig {
     }
 
     fn with_config(mut bus: Bus, axis: SimAxis, cfg: Cfg) -> Self {
-        let tick_hz = cfg.tick_hz;
+        let tick_hz = cfg.tick_hz();
         bus.device.set_planner_config(cfg);
         let mut rig = Self {
             bus,
@@ -653,10 +651,13 @@ impl Rig {
         let i = self
             .steps
             .iter()
-            .position(|s| s.position == position)
+            .position(|s| s.position() == position)
             .expect("position reached");
         assert!(i > 0);
-        let dt = self.steps[i].exact.wrapping_sub(self.steps[i - 1].exact) as f64 / Q;
+        let dt = self.steps[i]
+            .exact()
+            .wrapping_sub(self.steps[i - 1].exact()) as f64
+            / Q;
         f64::from(self.tick_hz) / dt
     }
 }

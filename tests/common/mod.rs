@@ -128,9 +128,9 @@ impl Bus {
     /// quiet and returns the reply, if any. Panics on more than one reply.
     pub fn send(&mut self, frame: &[u8]) -> Option<Vec<u8>> {
         let before = self.sent.len();
-        self.idle(10 * self.timing.t35_us);
+        self.idle(10 * self.timing.t35_us());
         self.feed_gapped(frame.iter().map(|&b| (b, 0)));
-        self.idle(10 * self.timing.t35_us);
+        self.idle(10 * self.timing.t35_us());
         assert!(self.sent.len() <= before + 1, "more than one reply");
         self.sent.get(before).map(|s| s.bytes.clone())
     }
@@ -147,7 +147,7 @@ impl Bus {
         for (b, silence_us) in bytes {
             let at = self
                 .now_us
-                .wrapping_add(self.timing.tc_us)
+                .wrapping_add(self.timing.tc_us())
                 .wrapping_add(silence_us);
             self.push(b, at, RxFlags::NONE);
         }
@@ -220,7 +220,7 @@ impl Bus {
                 request_address,
             });
             if occupy_line {
-                self.now_us = start_us.wrapping_add(n as u32 * self.timing.tc_us);
+                self.now_us = start_us.wrapping_add(n as u32 * self.timing.tc_us());
             }
         }
         if let Some(line) = self.device.reply_sent() {

@@ -113,8 +113,8 @@ impl AssemblerFeed {
         Self {
             assembler: FrameAssembler::new(timing),
             now_us: 0,
-            tc_us: timing.tc_us,
-            t35_us: timing.t35_us,
+            tc_us: timing.tc_us(),
+            t35_us: timing.t35_us(),
             frame,
             push,
             poll,
@@ -376,22 +376,14 @@ pub fn klipper_step_event(s: &mut KlipperStepper) -> u32 {
 
 /// The comparison move in the planner's units (0.1 steps/s, 0.1 steps/s²):
 /// the same 2000-step triangle as the ramp-maker workloads.
-pub const MOVE_RAMP: Ramp = Ramp {
-    velocity: RAMP_MAX_STEPS_PER_S as u64 * 10,
-    accel: RAMP_ACCEL_STEPS_PER_S2 as u64 * 10,
-    decel: RAMP_ACCEL_STEPS_PER_S2 as u64 * 10,
-};
+pub const MOVE_RAMP: Ramp = Ramp::new(RAMP_MAX_STEPS_PER_S as u64 * 10, RAMP_ACCEL_STEPS_PER_S2 as u64 * 10, RAMP_ACCEL_STEPS_PER_S2 as u64 * 10);
 
 /// The seed's move (`seed_move_precision_margins`, docs/drive.md "Planner and
 /// precision"): 200 000 steps at 50 000 steps/s, 100 000 steps/s² — a
 /// faster move, on which the planner's per-call and per-segment costs
 /// spread over more steps. Reported for information, without a target.
 pub const SEED_MOVE_STEPS: u32 = 200_000;
-pub const SEED_RAMP: Ramp = Ramp {
-    velocity: 500_000,
-    accel: 1_000_000,
-    decel: 1_000_000,
-};
+pub const SEED_RAMP: Ramp = Ramp::new(500_000, 1_000_000, 1_000_000);
 
 /// Control-loop period of the simulated glue (the firmware's 1 kHz loop).
 pub const CONTROL_PERIOD_US: u64 = 1000;
@@ -461,7 +453,7 @@ pub fn simulate_move(target: i64, clock: fn() -> u32) -> MoveCost {
 /// [`simulate_move`] with other limits.
 pub fn simulate_move_with(target: i64, ramp: Ramp, clock: fn() -> u32) -> MoveCost {
     let cfg = PlannerConfig::default();
-    let ticks_per_us = u64::from(cfg.tick_hz / 1_000_000);
+    let ticks_per_us = u64::from(cfg.tick_hz() / 1_000_000);
     let mut planner = Planner::new(cfg);
     let sched = StepSchedule::new();
     let mut src = StepSource::new();
@@ -494,7 +486,7 @@ pub fn simulate_move_with(target: i64, ramp: Ramp, clock: fn() -> u32) -> MoveCo
                 .wrapping_add(t0.wrapping_sub(clock()) & 0x00FF_FFFF);
             cost.advance_calls += 1;
             dither(cost.advance_calls);
-            next_at = step.map(|s| at + u64::from(s.delay_ticks));
+            next_at = step.map(|s| at + u64::from(s.delay_ticks()));
         }
         now_us += CONTROL_PERIOD_US;
         if matches!(fill, Fill::Idle) && next_at.is_none() && sched.is_empty() {

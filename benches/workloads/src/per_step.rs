@@ -51,7 +51,7 @@ pub struct PerStep {
 
 impl Default for PerStep {
     fn default() -> Self {
-        let f = PlannerConfig::default().tick_hz;
+        let f = PlannerConfig::default().tick_hz();
         Self::new(RAMP_MOVE_STEPS, RAMP_ACCEL_STEPS_PER_S2.into(), f.into())
     }
 }
@@ -166,10 +166,10 @@ fn exact_root(w: u64) -> u32 {
 pub fn per_step_move(s: &mut PerStep) -> u32 {
     *s = PerStep::default();
     let cfg = PlannerConfig::default();
-    let per_us = u64::from(cfg.tick_hz / 1_000_000);
+    let per_us = u64::from(cfg.tick_hz() / 1_000_000);
     let (period, horizon) = (
         CONTROL_PERIOD_US * per_us,
-        u64::from(cfg.horizon_us) * per_us,
+        u64::from(cfg.horizon_us()) * per_us,
     );
     let (mut steps, mut now) = (0, 0u64);
     while s.n < s.total {
@@ -191,7 +191,7 @@ mod tests {
     #[test]
     fn every_step_at_its_exact_time() {
         let mut s = PerStep::default();
-        let f = f64::from(PlannerConfig::default().tick_hz);
+        let f = f64::from(PlannerConfig::default().tick_hz());
         let a = f64::from(RAMP_ACCEL_STEPS_PER_S2);
         let (total, peak) = (f64::from(RAMP_MOVE_STEPS), f64::from(RAMP_MOVE_STEPS / 2));
         let time = |n: u32| {

@@ -53,7 +53,7 @@ impl Planner {
     #[inline(always)]
     pub(super) fn more_to_plan(&self) -> bool {
         !self.flushing
-            && (self.pending.rest.count > 0
+            && (self.pending.rest.count() > 0
                 || self.profile.as_ref().is_some_and(|p| p.remaining() != 0))
     }
 
@@ -91,7 +91,7 @@ impl Planner {
             return Fill::Full;
         }
         if self.flushing {
-            let braking = sched.limit_brake().is_some_and(|b| !b.done);
+            let braking = sched.limit_brake().is_some_and(|b| !b.done());
             if braking || sched.flush_pending() && (sched.is_running() || !sched.is_empty()) {
                 return Fill::Waiting;
             }
@@ -105,15 +105,15 @@ impl Planner {
         }
         if !sched.is_running() && sched.is_empty() {
             // Everything queued has been stepped: start afresh from now.
-            if self.w > 0 && (self.profile.is_some() || self.pending.rest.count > 0) {
+            if self.w > 0 && (self.profile.is_some() || self.pending.rest.count() > 0) {
                 self.underruns = self.underruns.wrapping_add(1);
             }
-            if self.pending.rest.count > 0 {
+            if self.pending.rest.count() > 0 {
                 // ran dry inside a segment (never expected): its rest
                 // and what follows move later, to now
                 let dt = now.wrapping_sub(self.t_isr);
                 // (a cut would find its steps by the old times: none)
-                self.pending.start.count = 0;
+                self.pending.start.clear_steps();
                 self.t_ideal = self.t_ideal.wrapping_add(dt);
                 self.pending.t_ideal = self.pending.t_ideal.wrapping_add(dt);
                 if let Some(p) = self.profile.as_mut() {
@@ -137,7 +137,7 @@ impl Planner {
         }
         self.oldest = self.first_unfinished(sched.step_index());
         loop {
-            if self.pending.rest.count > 0 {
+            if self.pending.rest.count() > 0 {
                 if !self.push_pending(sched, sink) {
                     return Fill::Full;
                 }

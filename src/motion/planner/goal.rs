@@ -53,7 +53,7 @@ impl Planner {
         self.profile = None;
         self.then = None;
         self.w = 0;
-        self.pending.rest.count = 0;
+        self.pending.rest.clear_steps();
         self.pending.pushed = 0;
         self.cut = None;
         self.s_join = 0;

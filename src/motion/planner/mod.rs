@@ -80,9 +80,37 @@ pub const SCHEDULE_SLOTS: usize = 64;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Ramp {
-    pub velocity: u64,
-    pub accel: u64,
-    pub decel: u64,
+    velocity: u64,
+    accel: u64,
+    decel: u64,
+}
+
+impl Ramp {
+    /// Velocity, acceleration and deceleration, 0.1 steps/s and
+    /// 0.1 steps/s².
+    #[inline]
+    pub const fn new(velocity: u64, accel: u64, decel: u64) -> Self {
+        Self {
+            velocity,
+            accel,
+            decel,
+        }
+    }
+
+    #[inline]
+    pub const fn velocity(&self) -> u64 {
+        self.velocity
+    }
+
+    #[inline]
+    pub const fn accel(&self) -> u64 {
+        self.accel
+    }
+
+    #[inline]
+    pub const fn decel(&self) -> u64 {
+        self.decel
+    }
 }
 
 impl Ramp {
@@ -142,23 +170,66 @@ pub struct PlannerConfig {
     /// in µs converts with one multiplication; the boards use 10 and
     /// 8 MHz), ≥ 1 MHz so that steps at the maximum rate are ≥ 5 ticks
     /// apart; sub-µs resolution keeps step times exact.
-    pub tick_hz: u32,
+    tick_hz: u32,
     /// How far ahead of `now` the schedule is filled. Must exceed the
     /// control period; it is also the latency of a change of goal (what
     /// is pushed to the interrupt stays; a segment is fitted whole but
     /// pushed whole, and a new goal takes back its steps after the
     /// horizon).
-    pub horizon_us: u32,
+    horizon_us: u32,
     /// Longest segment, µs (at most 2^22 ticks: the fit's numbers stay in
     /// 64 bits). Long segments cost the planner less per step; they do not
     /// delay a change of goal.
-    pub max_segment_us: u32,
+    max_segment_us: u32,
     /// Highest step rate, steps/s, and acceleration, steps/s², the board's
     /// step engine keeps on time ([`Board::max_step_rate`],
     /// [`Board::max_accel`]; at most [`MAX_STEP_RATE`] / [`MAX_ACCEL`]):
     /// every ramp is clamped to them ([`Ramp::clamped`]).
-    pub max_step_rate: u32,
-    pub max_accel: u64,
+    max_step_rate: u32,
+    max_accel: u64,
+}
+
+impl PlannerConfig {
+    /// Step timer frequency, Hz: a whole number of MHz (the control clock
+    /// in µs converts with one multiplication; the boards use 10 and
+    /// 8 MHz), ≥ 1 MHz so that steps at the maximum rate are ≥ 5 ticks
+    /// apart; sub-µs resolution keeps step times exact.
+    #[inline]
+    pub const fn tick_hz(&self) -> u32 {
+        self.tick_hz
+    }
+
+    /// How far ahead of `now` the schedule is filled. Must exceed the
+    /// control period; it is also the latency of a change of goal (what
+    /// is pushed to the interrupt stays; a segment is fitted whole but
+    /// pushed whole, and a new goal takes back its steps after the
+    /// horizon).
+    #[inline]
+    pub const fn horizon_us(&self) -> u32 {
+        self.horizon_us
+    }
+
+    /// Longest segment, µs (at most 2^22 ticks: the fit's numbers stay in
+    /// 64 bits). Long segments cost the planner less per step; they do not
+    /// delay a change of goal.
+    #[inline]
+    pub const fn max_segment_us(&self) -> u32 {
+        self.max_segment_us
+    }
+
+    /// Highest step rate, steps/s, and acceleration, steps/s², the board's
+    /// step engine keeps on time ([`Board::max_step_rate`],
+    /// [`Board::max_accel`]; at most [`MAX_STEP_RATE`] / [`MAX_ACCEL`]):
+    /// every ramp is clamped to them ([`Ramp::clamped`]).
+    #[inline]
+    pub const fn max_step_rate(&self) -> u32 {
+        self.max_step_rate
+    }
+
+    #[inline]
+    pub const fn max_accel(&self) -> u64 {
+        self.max_accel
+    }
 }
 
 impl PlannerConfig {
@@ -185,6 +256,29 @@ impl PlannerConfig {
     /// ceiling.
     pub fn accel_cap(&self) -> u64 {
         self.max_accel.min(MAX_ACCEL) * 10
+    }
+
+    /// This configuration with another step timer frequency (see
+    /// [`Self::tick_hz`]).
+    #[inline]
+    pub const fn with_tick_hz(self, tick_hz: u32) -> Self {
+        Self { tick_hz, ..self }
+    }
+
+    /// This configuration with another horizon (see [`Self::horizon_us`]).
+    #[inline]
+    pub const fn with_horizon_us(self, horizon_us: u32) -> Self {
+        Self { horizon_us, ..self }
+    }
+
+    /// This configuration with another longest segment (see
+    /// [`Self::max_segment_us`]).
+    #[inline]
+    pub const fn with_max_segment_us(self, max_segment_us: u32) -> Self {
+        Self {
+            max_segment_us,
+            ..self
+        }
     }
 }
 
@@ -350,7 +444,7 @@ impl Planner {
         self.profile.is_some()
             || self.then.is_some()
             || self.flushing
-            || self.pending.rest.count > 0
+            || self.pending.rest.count() > 0
     }
 
     /// The motor is at rest and nothing is planned: every queued step has

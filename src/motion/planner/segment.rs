@@ -86,15 +86,15 @@ impl Planner {
         self.w = profile.w();
         self.forward = profile.forward();
         (self.s_end, self.c_end, self.s_end_w) = (s1.unwrap_or(0), c1, self.w);
-        let seg = Segment {
+        let seg = Segment::new(
             interval,
-            add: add as i64,
-            add2: add2 as i64,
-            add3: add3 as i64,
-            add4: add4 as i64,
-            count: n as u32,
-            forward: profile.forward(),
-        };
+            add as i64,
+            add2 as i64,
+            add3 as i64,
+            add4 as i64,
+            n as u32,
+            profile.forward(),
+        );
         self.pending = Pending {
             rest: seg,
             start: seg,
@@ -129,8 +129,13 @@ impl Planner {
         }
         let pending = &mut self.pending;
         let seg = &mut pending.rest;
-        let k = seg.count.min(sched.free() as u32);
-        if (self.t_isr.wrapping_add(seg.interval).wrapping_sub(self.now) as i64) < 0 {
+        let k = seg.count().min(sched.free() as u32);
+        if (self
+            .t_isr
+            .wrapping_add(seg.interval())
+            .wrapping_sub(self.now) as i64)
+            < 0
+        {
             self.late_segments = self.late_segments.wrapping_add(1);
         }
         let first_part = pending.pushed == 0;
@@ -150,7 +155,7 @@ impl Planner {
             self.slots[self.segments as usize % SCHEDULE_SLOTS] = pending.info;
             self.segments = self.segments.wrapping_add(1);
         }
-        let to_end = pending.rest.count;
+        let to_end = pending.rest.count();
         let slot = self.last_slot();
         slot.last_index = last;
         slot.to_end = to_end;
@@ -174,13 +179,13 @@ impl Planner {
     /// at 6000 steps/s). The new profile starts from that time.
     pub(super) fn drop_pending(&mut self, cut: bool) -> Option<(u32, u32)> {
         let p = self.pending;
-        self.pending.rest.count = 0;
+        self.pending.rest.clear_steps();
         self.pending.pushed = 0;
         // the steps dropped, the terms at the last step that stays, and
         // the cut to make in the ring (its first ring index, the fraction
         // carried there)
-        let (mut left, mut r, mut taken) = (p.rest.count, p.rest, None);
-        if cut && p.pushed > 1 && p.start.count > 0 {
+        let (mut left, mut r, mut taken) = (p.rest.count(), p.rest, None);
+        if cut && p.pushed > 1 && p.start.count() > 0 {
             // the steps due before the horizon (at least one), found by
             // expanding the segment again from its start
             let (mut seg, mut frac) = (p.start, p.start_frac);
@@ -205,16 +210,16 @@ impl Planner {
         }
         let (left, j) = (u64::from(left), p.n - u64::from(left));
         self.planned_steps = self.planned_steps.wrapping_sub(left);
-        self.pos = p.pos + signed(p.rest.forward, j);
+        self.pos = p.pos + signed(p.rest.forward(), j);
         self.w = w_along(p.w, p.slope, u128::from(j) << 32);
         self.t_ideal = self.t_isr;
         // T'(j) from the forward differences at j (D = ln(1 + Δ)):
         // Δ − Δ²/2 + Δ³/3 − Δ⁴/4 + Δ⁵/5, exact for the quintic
-        let higher = (r.add.wrapping_mul(-30))
-            .wrapping_add(r.add2.wrapping_mul(20))
-            .wrapping_add(r.add3.wrapping_mul(-15))
-            .wrapping_add(r.add4.wrapping_mul(12));
-        self.s_join = r.interval.wrapping_add(div_i64(higher, 60) as u64);
+        let higher = (r.add().wrapping_mul(-30))
+            .wrapping_add(r.add2().wrapping_mul(20))
+            .wrapping_add(r.add3().wrapping_mul(-15))
+            .wrapping_add(r.add4().wrapping_mul(12));
+        self.s_join = r.interval().wrapping_add(div_i64(higher, 60) as u64);
         self.s_end = 0;
         taken
     }

@@ -14,11 +14,7 @@ fn a_goal_between_fills_is_planned_by_the_next_fill() {
     let mut p = Planner::new(PlannerConfig::default());
     // 500 steps/s, 5000 steps/s²: cruising after 25 steps, in segments
     // of 64 steps (128 ms), the horizon covered in most fills
-    let ramp = Ramp {
-        velocity: 5_000,
-        accel: 50_000,
-        decel: 50_000,
-    };
+    let ramp = Ramp::new(5_000, 50_000, 50_000);
     assert!(p.set_goal(Goal::Move {
         target: 100_000,
         ramp,
@@ -29,7 +25,7 @@ fn a_goal_between_fills_is_planned_by_the_next_fill() {
         p.fill(now_us, &sched);
         at = at.or((!sched.is_empty()).then_some(now_us * 10));
         while let Some(t) = at.filter(|&t| t < (now_us + 1000) * 10) {
-            at = src.advance(&sched).map(|s| t + u64::from(s.delay_ticks));
+            at = src.advance(&sched).map(|s| t + u64::from(s.delay_ticks()));
         }
         now_us += 1000;
     }
@@ -65,11 +61,8 @@ fn the_velocity_shown_is_the_executing_segments() {
     let cfg = PlannerConfig::default();
     let hz = f64::from(cfg.tick_hz);
     let mut p = Planner::new(cfg);
-    let ramp = Ramp {
-        velocity: 1_000_000, // 100 000 steps/s
-        accel: 20_000_000,   // 2e6 steps/s²
-        decel: 20_000_000,
-    };
+    // 100 000 steps/s, 2e6 steps/s²
+    let ramp = Ramp::new(1_000_000, 20_000_000, 20_000_000);
     assert!(p.set_goal(Goal::Move {
         target: 30_000,
         ramp,
@@ -88,10 +81,10 @@ fn the_velocity_shown_is_the_executing_segments() {
                 at = None;
                 break;
             };
-            at = Some(t + u64::from(s.delay_ticks));
+            at = Some(t + u64::from(s.delay_ticks()));
             steps += 1;
             let shown = p.actual_velocity(&sched) as f64 / 10.0;
-            let own = hz / f64::from(s.delay_ticks);
+            let own = hz / f64::from(s.delay_ticks());
             if own > 5_000.0 {
                 assert!(
                     (shown / own - 1.0).abs() < 0.06,

@@ -13,9 +13,23 @@ pub const MAX_SEGMENT_LOG2: u32 = 8;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct SegmentBudget {
     /// 256·log2 of the longest segment, in Q32.32 ticks.
-    pub log_max_ticks: i32,
+    log_max_ticks: i32,
     /// Timer ticks per µs, × 256 (the 1 µs error bound).
-    pub us_q8: u64,
+    us_q8: u64,
+}
+
+impl SegmentBudget {
+    /// 256·log2 of the longest segment, in Q32.32 ticks.
+    #[inline]
+    pub const fn log_max_ticks(&self) -> i32 {
+        self.log_max_ticks
+    }
+
+    /// Timer ticks per µs, × 256 (the 1 µs error bound).
+    #[inline]
+    pub const fn us_q8(&self) -> u64 {
+        self.us_q8
+    }
 }
 
 impl SegmentBudget {

@@ -84,8 +84,29 @@ pub(super) fn brake_interval(p: u64, rate: u32) -> Option<u64> {
 pub struct LimitBrake {
     /// The motion it stopped went in the positive direction (towards the
     /// CCW limit).
-    pub forward: bool,
+    forward: bool,
     /// The motor is at rest; the schedule stays latched (empty) until
     /// [`StepSchedule::release_brake`](super::StepSchedule::release_brake).
-    pub done: bool,
+    done: bool,
+}
+
+impl LimitBrake {
+    #[inline]
+    pub const fn new(forward: bool, done: bool) -> Self {
+        Self { forward, done }
+    }
+
+    /// The motion it stopped went in the positive direction (towards the
+    /// CCW limit).
+    #[inline]
+    pub const fn forward(&self) -> bool {
+        self.forward
+    }
+
+    /// The motor is at rest; the schedule stays latched (empty) until
+    /// [`StepSchedule::release_brake`](super::StepSchedule::release_brake).
+    #[inline]
+    pub const fn done(&self) -> bool {
+        self.done
+    }
 }

@@ -110,7 +110,7 @@ impl StepSchedule {
     /// them (plus a direction marker if the direction changes).
     pub fn push(&self, seg: Segment) -> Result<(), Segment> {
         let mut rest = seg;
-        match self.push_steps(&mut rest, seg.count, &mut ()) {
+        match self.push_steps(&mut rest, seg.count(), &mut ()) {
             Some(_) => Ok(()),
             None => Err(seg),
         }
@@ -130,9 +130,9 @@ impl StepSchedule {
         count: u32,
         sink: &mut S,
     ) -> Option<u64> {
-        let count = count.min(seg.count);
+        let count = count.min(seg.count());
         let head = self.head.load(Ordering::Relaxed);
-        let turn = seg.forward == self.head_backward.load(Ordering::Relaxed);
+        let turn = seg.forward() == self.head_backward.load(Ordering::Relaxed);
         let entries = count.saturating_add(u32::from(turn));
         if count == 0 || entries > self.room() {
             return None;
@@ -149,7 +149,7 @@ impl StepSchedule {
             to: end,
         });
         let first_step = self.expand(seg, &mut carry, from, end);
-        let first = match (turn, seg.forward) {
+        let first = match (turn, seg.forward()) {
             (false, _) => first_step,
             (true, forward) => {
                 self.entry(head.wrapping_add(1))
@@ -167,10 +167,10 @@ impl StepSchedule {
         self.entry(head).store(first, Ordering::Relaxed);
         self.frac.store(carry.0, Ordering::Relaxed);
         compiler_fence(Ordering::SeqCst);
-        self.head_backward.store(!seg.forward, Ordering::Relaxed);
+        self.head_backward.store(!seg.forward(), Ordering::Relaxed);
         compiler_fence(Ordering::SeqCst);
         self.head.store(end, Ordering::Relaxed);
-        seg.count -= count;
+        seg.consume(count);
         Some(time_made(frac, carry))
     }
 
@@ -297,10 +297,7 @@ impl StepSchedule {
     /// released.
     pub fn limit_brake(&self) -> Option<LimitBrake> {
         let b = self.brake.load(Ordering::Relaxed);
-        (b != BRAKE_NONE).then_some(LimitBrake {
-            forward: b & BRAKE_FORWARD != 0,
-            done: b & BRAKE_DONE != 0,
-        })
+        (b != BRAKE_NONE).then_some(LimitBrake::new(b & BRAKE_FORWARD != 0, b & BRAKE_DONE != 0))
     }
 
     /// Lets the interrupt take entries again after a finished brake (the

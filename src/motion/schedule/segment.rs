@@ -11,23 +11,102 @@ use super::{MAX_DELAY_TICKS, SCHEDULE_STEPS, TICK_FRAC_BITS};
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Segment {
     /// Ticks (Q32.32) from the previous step to the first step of this one.
-    pub interval: u64,
+    interval: u64,
     /// Ticks (Q32.32) added to the interval after every step.
-    pub add: i64,
+    add: i64,
     /// Ticks (Q32.32) added to `add` after every step.
-    pub add2: i64,
+    add2: i64,
     /// Added to `add2` after every step, and `add4` to it: the intervals
     /// are a quartic in the step number (the planner's quintic fit of the
     /// step times, planner/segment.rs `fit_segment`).
-    pub add3: i64,
-    pub add4: i64,
+    add3: i64,
+    add4: i64,
     /// Steps, at least 1 and at most what [`StepSchedule::free`](super::StepSchedule::free) allows.
-    pub count: u32,
+    count: u32,
     /// Positive direction (position counts up).
-    pub forward: bool,
+    forward: bool,
 }
 
 impl Segment {
+    /// The terms as their getters describe them.
+    #[inline]
+    pub const fn new(
+        interval: u64,
+        add: i64,
+        add2: i64,
+        add3: i64,
+        add4: i64,
+        count: u32,
+        forward: bool,
+    ) -> Self {
+        Self {
+            interval,
+            add,
+            add2,
+            add3,
+            add4,
+            count,
+            forward,
+        }
+    }
+
+    /// Ticks (Q32.32) from the previous step to the first step of this one.
+    #[inline]
+    pub const fn interval(&self) -> u64 {
+        self.interval
+    }
+
+    /// Ticks (Q32.32) added to the interval after every step.
+    #[inline]
+    pub const fn add(&self) -> i64 {
+        self.add
+    }
+
+    /// Ticks (Q32.32) added to `add` after every step.
+    #[inline]
+    pub const fn add2(&self) -> i64 {
+        self.add2
+    }
+
+    /// Added to `add2` after every step, and `add4` to it: the intervals
+    /// are a quartic in the step number (the planner's quintic fit of the
+    /// step times, planner/segment.rs `fit_segment`).
+    #[inline]
+    pub const fn add3(&self) -> i64 {
+        self.add3
+    }
+
+    #[inline]
+    pub const fn add4(&self) -> i64 {
+        self.add4
+    }
+
+    /// Steps, at least 1 and at most what [`StepSchedule::free`](super::StepSchedule::free) allows.
+    #[inline]
+    pub const fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// Positive direction (position counts up).
+    #[inline]
+    pub const fn forward(&self) -> bool {
+        self.forward
+    }
+}
+
+impl Segment {
+    /// Drops the steps left: the segment is done.
+    #[inline]
+    pub(crate) fn clear_steps(&mut self) {
+        self.count = 0;
+    }
+
+    /// `steps` (≤ `count`) of it were pushed.
+    #[inline]
+    pub(super) fn consume(&mut self, steps: u32) {
+        self.count -= steps;
+    }
+
     /// Moves the terms on, as a push of the same steps would, by the
     /// fewest steps (at least one, at most `max`, and at most `count`)
     /// whose exact time reaches `until` (Q32.32 ticks, from the previous

@@ -15,8 +15,20 @@ use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, TICK_FRAC_BITS};
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct NextStep {
-    pub delay_ticks: u32,
-    pub forward: bool,
+    delay_ticks: u32,
+    forward: bool,
+}
+
+impl NextStep {
+    #[inline]
+    pub const fn delay_ticks(&self) -> u32 {
+        self.delay_ticks
+    }
+
+    #[inline]
+    pub const fn forward(&self) -> bool {
+        self.forward
+    }
 }
 
 /// The interrupt side: owned by the step-timer interrupt.

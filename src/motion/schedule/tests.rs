@@ -10,15 +10,7 @@ use super::*;
 const ONE: u64 = 1 << TICK_FRAC_BITS;
 
 fn seg(interval: u64, add: i64, add2: i64, count: u32, forward: bool) -> Segment {
-    Segment {
-        interval,
-        add,
-        add2,
-        add3: 0,
-        add4: 0,
-        count,
-        forward,
-    }
+    Segment::new(interval, add, add2, 0, 0, count, forward)
 }
 
 /// The narrow loop of `Expansion::run` gives the same delays, terms,
@@ -102,7 +94,7 @@ fn drain(src: &mut StepSource, sched: &StepSchedule) -> ([u32; 64], usize) {
     let mut out = [0; 64];
     let mut n = 0;
     while let Some(s) = src.advance(sched) {
-        out[n] = s.delay_ticks;
+        out[n] = s.delay_ticks();
         n += 1;
     }
     (out, n)
@@ -141,7 +133,7 @@ fn derived_position_counts_the_steps_made() {
         if let Some(fwd) = pending {
             made += if fwd { 1 } else { -1 };
         }
-        pending = src.advance(&sched).map(|s| s.forward);
+        pending = src.advance(&sched).map(|s| s.forward());
         assert_eq!(sched.position(), made);
     }
     sched.request_flush();
@@ -173,8 +165,8 @@ fn negative_add_and_flush() {
     sched
         .push(seg(100 * ONE, -(ONE as i64), 0, 50, true))
         .unwrap();
-    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(100));
-    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(99));
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(100));
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(99));
     assert!(sched.is_running());
     sched.request_flush();
     // the step announced before the flush was made: counted, then stop.
@@ -190,7 +182,7 @@ fn negative_add_and_flush() {
 fn run_out(src: &mut StepSource, sched: &StepSchedule, delay: u32, forward: bool) -> i32 {
     let mut n = 0;
     while let Some(s) = src.advance(sched) {
-        assert_eq!((s.delay_ticks, s.forward), (delay, forward), "step {n}");
+        assert_eq!((s.delay_ticks(), s.forward()), (delay, forward), "step {n}");
         n += 1;
     }
     n
@@ -214,7 +206,7 @@ fn ring_full_refuses_and_wraps() {
     // the start frees the slot kept while idle, each step made one
     // more; the pending step's slot is never written
     for made in 0..2 {
-        assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(1));
+        assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(1));
         assert_eq!(sched.position(), made);
         sched.push(one).unwrap();
         assert_eq!((sched.free(), sched.push(one)), (0, Err(one)));
@@ -232,7 +224,7 @@ fn ring_full_refuses_and_wraps() {
         forward = !forward;
         let count = 100 + 3 * round;
         sched.push(steps(count, forward)).unwrap();
-        assert_eq!(src.advance(&sched).map(|s| s.forward), Some(forward));
+        assert_eq!(src.advance(&sched).map(|s| s.forward()), Some(forward));
         sched.push(steps(count, forward)).unwrap();
         let made = 1 + run_out(&mut src, &sched, 1, forward);
         assert_eq!(made, 2 * count as i32);
@@ -251,7 +243,7 @@ fn a_dropped_marker_does_not_lose_the_direction() {
     let mut src = StepSource::new();
     sched.push(seg(10 * ONE, 0, 0, 3, true)).unwrap();
     sched.push(seg(10 * ONE, 0, 0, 3, false)).unwrap();
-    assert!(src.advance(&sched).unwrap().forward);
+    assert!(src.advance(&sched).unwrap().forward());
     sched.request_flush();
     assert_eq!(src.advance(&sched), None);
     assert_eq!(sched.position(), 1);
@@ -282,7 +274,7 @@ fn truncate_takes_back_the_entries_ahead_of_the_interrupt() {
     );
     // the interrupt makes three steps
     let made: Vec<u32> = (0..3)
-        .map(|_| src.advance(&sched).unwrap().delay_ticks)
+        .map(|_| src.advance(&sched).unwrap().delay_ticks())
         .collect();
     // behind its next read (the pending step's entry), or at the
     // sentinel, or past it: refused
@@ -294,8 +286,8 @@ fn truncate_takes_back_the_entries_ahead_of_the_interrupt() {
     let until = 6 * 7 * ONE + 15 * (ONE / 4) - 1; // just before the sixth
     let (steps, time) = cut.advance_until(&mut frac, until, 10);
     assert_eq!(steps, 6);
-    assert_eq!(cut.count, 4);
-    assert_eq!(cut.interval, whole.interval + 6 * (ONE / 4));
+    assert_eq!(cut.count(), 4);
+    assert_eq!(cut.interval(), whole.interval() + 6 * (ONE / 4));
     assert!(sched.truncate(first.wrapping_add(6), frac));
     assert_eq!(sched.last_pushed_index(), first.wrapping_add(5));
     // a new push follows the sixth step, carrying its fraction
@@ -355,7 +347,7 @@ fn reported_fractions_give_the_exact_times() {
     let (mut tick, mut exact) = (0u64, 0u64);
     let mut interval = ONE * 11 / 2;
     while let Some(s) = src.advance(&sched) {
-        tick += u64::from(s.delay_ticks);
+        tick += u64::from(s.delay_ticks());
         exact += interval;
         interval += third as u64;
         let frac = fracs.0[sched.step_index() as usize % SCHEDULE_STEPS];
@@ -433,29 +425,23 @@ fn limit_brake_decelerates_at_the_quick_stop_rate() {
         let p0 = (f64::from(HZ) / v0) as u64;
         cruise(&sched, p0, true);
         for _ in 0..10 {
-            assert_eq!(src.advance(&sched).unwrap().delay_ticks as u64, p0);
+            assert_eq!(src.advance(&sched).unwrap().delay_ticks() as u64, p0);
         }
         sched.set_limits(false, true); // the CCW limit: forward blocked
         let mut n = 0u32;
         let mut t = 0f64;
         while let Some(s) = src.advance(&sched) {
-            assert!(s.forward);
+            assert!(s.forward());
             n += 1;
-            t += f64::from(s.delay_ticks);
+            t += f64::from(s.delay_ticks());
             let v2 = v0 * v0 - 2.0 * a * f64::from(n);
             let exact = f64::from(HZ) / v2.sqrt();
-            let got = f64::from(s.delay_ticks);
+            let got = f64::from(s.delay_ticks());
             assert!(
                 (got - exact).abs() <= 1.0 + 0.02 * exact,
                 "v0 {v0}, a {a}: step {n}: {got} ticks, exact {exact}"
             );
-            assert_eq!(
-                sched.limit_brake(),
-                Some(LimitBrake {
-                    forward: true,
-                    done: false
-                })
-            );
+            assert_eq!(sched.limit_brake(), Some(LimitBrake::new(true, false)));
             assert!(n < 1_000_000);
         }
         let dist = v0 * v0 / (2.0 * a);
@@ -466,13 +452,7 @@ fn limit_brake_decelerates_at_the_quick_stop_rate() {
         // time of a constant deceleration: v0/a (minus the last steps)
         let t_exact = v0 / a * f64::from(HZ);
         assert!(t <= t_exact * 1.01, "{t} ticks vs {t_exact}");
-        assert_eq!(
-            sched.limit_brake(),
-            Some(LimitBrake {
-                forward: true,
-                done: true
-            })
-        );
+        assert_eq!(sched.limit_brake(), Some(LimitBrake::new(true, true)));
         assert!(!sched.is_running() && sched.is_empty());
         assert_eq!(sched.position(), 10 + n as i32);
     }
@@ -487,23 +467,17 @@ fn limit_brake_only_towards_the_active_limit_and_only_when_armed() {
     // armed, but the CCW limit blocks the other direction
     sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
     sched.set_limits(false, true);
-    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(2000));
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(2000));
     assert_eq!(sched.limit_brake(), None);
     // disarmed (homing, §8.6): the CW limit is passed on to the planner
     sched.set_brake_rate(None);
     sched.set_limits(true, false);
-    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(2000));
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(2000));
     assert_eq!(sched.limit_brake(), None);
     // armed: brakes (the interval grows)
     sched.set_brake_rate(Some(brake_rate(10_000_000, HZ)));
-    assert!(src.advance(&sched).unwrap().delay_ticks > 2000);
-    assert_eq!(
-        sched.limit_brake(),
-        Some(LimitBrake {
-            forward: false,
-            done: false
-        })
-    );
+    assert!(src.advance(&sched).unwrap().delay_ticks() > 2000);
+    assert_eq!(sched.limit_brake(), Some(LimitBrake::new(false, false)));
 }
 
 #[test]
@@ -529,7 +503,7 @@ fn limit_brake_latches_until_released_and_defers_a_flush() {
     sched.release_brake();
     assert_eq!(sched.limit_brake(), None);
     cruise(&sched, 200, false);
-    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks), Some(200));
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(200));
 }
 
 #[test]
@@ -540,13 +514,7 @@ fn limit_at_once_and_from_rest_make_no_step() {
     sched.set_limits(true, false);
     cruise(&sched, 200, false);
     assert_eq!(src.advance(&sched), None, "0x6085 = 0: no further step");
-    assert_eq!(
-        sched.limit_brake(),
-        Some(LimitBrake {
-            forward: false,
-            done: true
-        })
-    );
+    assert_eq!(sched.limit_brake(), Some(LimitBrake::new(false, true)));
     sched.release_brake();
     // from rest towards an active limit, at an ordinary deceleration:
     // the first interval from rest is already within two steps of rest

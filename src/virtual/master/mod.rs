@@ -53,7 +53,7 @@ impl LineSpec {
     pub fn from_pa(baud: u16, format: u16) -> Option<Self> {
         let line = LineConfig::from_params(baud, format)?;
         Some(Self {
-            baud: line.baud,
+            baud: line.baud(),
             format,
         })
     }

@@ -55,15 +55,15 @@ impl Tally {
     /// requests without a reply in time, busy ↔ exception 6 replies;
     /// overruns the master cannot see (0).
     pub fn as_counters(&self) -> Counters {
-        Counters {
-            bus_messages: self.sent,
-            bus_errors: self.crc_errors,
-            exceptions: self.exceptions,
-            slave_messages: self.replies,
-            no_response: self.timeouts,
-            busy: self.busy,
-            overruns: 0,
-        }
+        Counters::from_reads([
+            self.sent,
+            self.crc_errors,
+            self.exceptions,
+            self.replies,
+            self.timeouts,
+            self.busy,
+            0,
+        ])
     }
 }
 
@@ -91,9 +91,12 @@ mod tests {
             false,
         );
         let c = t.as_counters();
-        assert_eq!((c.bus_messages, c.slave_messages, c.no_response), (6, 3, 1));
         assert_eq!(
-            (c.exceptions, c.busy, c.bus_errors, c.overruns),
+            (c.bus_messages(), c.slave_messages(), c.no_response()),
+            (6, 3, 1)
+        );
+        assert_eq!(
+            (c.exceptions(), c.busy(), c.bus_errors(), c.overruns()),
             (2, 1, 1, 0)
         );
     }

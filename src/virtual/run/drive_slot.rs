@@ -72,7 +72,7 @@ impl DriveSlot {
         device.set_planner_config(PlannerConfig::for_board(board));
         let boot = store.boot();
         device.apply_boot(&boot);
-        if !matches!(boot.outcome, BootOutcome::Loaded { .. }) {
+        if !matches!(boot.outcome(), BootOutcome::Loaded { .. }) {
             // `--drives` gives each drive its address (PA51, SPEC §7), in
             // force at once: no change worth logging
             device.configure(|pa, _| pa.set_address(address));
@@ -215,9 +215,9 @@ pub(super) fn describe(ev: &Event) -> String {
         Event::AddressChanged { address } => format!("address is now {address} (PA51)"),
         Event::LineChanged(line) => format!(
             "line is now {} baud {:?}, t3.5 = {} µs",
-            line.baud,
-            line.format,
-            line.timing().t35_us
+            line.baud(),
+            line.format(),
+            line.timing().t35_us()
         ),
         Event::ListenOnly(true) => "listen-only mode (diagnostics 0x04)".into(),
         Event::ListenOnly(false) => "listen-only mode ended".into(),

@@ -106,10 +106,7 @@ pub(super) fn serve(
 ) -> Served {
     slot.advance(now_us);
     let mut queue = Queue {
-        request: Some(Request {
-            event,
-            last_byte_us,
-        }),
+        request: Some(Request::new(event, last_byte_us)),
         drive: di,
         pending,
         queued: false,

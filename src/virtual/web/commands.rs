@@ -123,7 +123,7 @@ impl Ctx {
     pub fn of(device: &Device) -> Self {
         Self {
             state: device.drive().state(),
-            low_first: device.od().word_order == 1,
+            low_first: device.od().word_order() == 1,
         }
     }
 }
@@ -298,7 +298,7 @@ mod tests {
                 0x10, 0x60, 0x7A, 0x00, 0x02, 0x04, 0x00, 0x03, 0x0D, 0x40
             ]]
         );
-        d.configure(|_, od| od.word_order = 1);
+        d.configure(|_, od| od.set_word_order(1));
         assert_eq!(
             w(&d, 0x607A, 200_000),
             [vec![

@@ -56,11 +56,11 @@ impl Forced {
 
     /// The states the drive sees: the axis's, with forced ones replaced.
     pub fn apply(&self, axis: Switches) -> Switches {
-        Switches {
-            cw_limit: self.cw.unwrap_or(axis.cw_limit),
-            ccw_limit: self.ccw.unwrap_or(axis.ccw_limit),
-            home: self.home.unwrap_or(axis.home),
-        }
+        Switches::new(
+            self.cw.unwrap_or(axis.cw_limit()),
+            self.ccw.unwrap_or(axis.ccw_limit()),
+            self.home.unwrap_or(axis.home()),
+        )
     }
 }
 
@@ -77,19 +77,15 @@ mod tests {
 
     #[test]
     fn forced_switches_replace_the_axis_until_released() {
-        let axis = Switches {
-            cw_limit: true,
-            ccw_limit: false,
-            home: false,
-        };
+        let axis = Switches::new(true, false, false);
         let mut f = Forced::default();
         assert_eq!(f.apply(axis), axis);
         f.set(Switch::CwLimit, Some(false));
         f.set(Switch::Home, Some(true));
         let seen = f.apply(axis);
-        assert!(!seen.cw_limit && !seen.ccw_limit && seen.home);
+        assert!(!seen.cw_limit() && !seen.ccw_limit() && seen.home());
         f.set(Switch::CwLimit, None);
-        assert!(f.apply(axis).cw_limit);
+        assert!(f.apply(axis).cw_limit());
         assert_eq!(f.get(Switch::Home), Some(true));
         assert_eq!(Switch::parse("ccw"), Some(Switch::CcwLimit));
         assert_eq!(Switch::parse("x"), None);

@@ -147,13 +147,13 @@ struct PageLine<'f> {
 impl Line for PageLine<'_> {
     fn receive(&mut self) -> Option<Request<'_>> {
         let bytes = self.frame.take()?;
-        Some(Request {
-            event: RxEvent::Frame {
+        Some(Request::new(
+            RxEvent::Frame {
                 bytes,
                 parity_error: false,
             },
-            last_byte_us: None,
-        })
+            None,
+        ))
     }
 
     fn send(&mut self, bytes: &[u8], _at_us: u64) {
@@ -278,7 +278,7 @@ mod tests {
         let a = transact(&mut b, &mut port, &Pdu::write_single(0x6041, 1), 0).0;
         assert_eq!(a, Answer::Exception(2));
         // The drive still refused nothing it should have stored.
-        assert_eq!(b.device.od().mode, 0);
+        assert_eq!(b.device.od().mode(), 0);
         assert_eq!(b.device.params().address(), 1);
     }
 
@@ -291,7 +291,7 @@ mod tests {
             transact(&mut b, &mut port, &w, 0).0,
             Answer::Ok(_)
         ));
-        assert_eq!(b.device.od().target_position, -1234);
+        assert_eq!(b.device.od().target_position(), -1234);
         let Answer::Ok(pdu) = transact(&mut b, &mut port, &Pdu::read(0x607A, 2), 0).0 else {
             panic!("read refused");
         };
@@ -312,11 +312,11 @@ mod tests {
         let mut port = Slave::new();
         let _ = transact(&mut b, &mut port, &Pdu::read(0x6041, 1), 0);
         let _ = transact(&mut b, &mut port, &Pdu::write_single(0x6060, 2), 0);
-        assert_eq!(b.device.slave().counters().bus_messages, 0);
-        assert_eq!(b.device.slave().counters().exceptions, 0);
-        assert_eq!(port.counters().bus_messages, 2);
-        assert_eq!(port.counters().slave_messages, 2);
-        assert_eq!(port.counters().exceptions, 1);
+        assert_eq!(b.device.slave().counters().bus_messages(), 0);
+        assert_eq!(b.device.slave().counters().exceptions(), 0);
+        assert_eq!(port.counters().bus_messages(), 2);
+        assert_eq!(port.counters().slave_messages(), 2);
+        assert_eq!(port.counters().exceptions(), 1);
     }
 
     #[test]
@@ -326,7 +326,7 @@ mod tests {
         b.device.set_storage_busy(true);
         let a = transact(&mut b, &mut port, &Pdu::write_single(0x6060, 1), 0).0;
         assert_eq!(a, Answer::Exception(6));
-        assert_eq!(b.device.od().mode, 0);
+        assert_eq!(b.device.od().mode(), 0);
     }
 
     #[test]

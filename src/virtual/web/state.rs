@@ -61,13 +61,13 @@ fn counters(c: &Counters) -> String {
     format!(
         "{{\"bus_messages\":{},\"bus_errors\":{},\"exceptions\":{},\"slave_messages\":{},\
          \"no_response\":{},\"busy\":{},\"overruns\":{}}}",
-        c.bus_messages,
-        c.bus_errors,
-        c.exceptions,
-        c.slave_messages,
-        c.no_response,
-        c.busy,
-        c.overruns
+        c.bus_messages(),
+        c.bus_errors(),
+        c.exceptions(),
+        c.slave_messages(),
+        c.no_response(),
+        c.busy(),
+        c.overruns()
     )
 }
 
@@ -162,7 +162,9 @@ fn opt<T>(v: Option<T>, f: impl Fn(T) -> String) -> String {
 fn switches_json(s: Switches) -> String {
     format!(
         "{{\"cw\":{},\"ccw\":{},\"home\":{}}}",
-        s.cw_limit, s.ccw_limit, s.home
+        s.cw_limit(),
+        s.ccw_limit(),
+        s.home()
     )
 }
 
@@ -284,7 +286,7 @@ mod tests {
     fn the_view_lists_every_entry_and_parameter_with_its_value() {
         let mut d = Device::new(Identity::new("t"));
         d.configure(|pa, od| {
-            od.target_position = -7;
+            od.set_target_position(-7);
             pa.set_unchecked(12, 1234);
         });
         let port = Slave::new();
