@@ -40,7 +40,7 @@ pub fn timed_refill(
     sched: &StepSchedule,
 ) -> u32 {
     w.fill(half, || {
-        src.advance(sched).map(|n| (n.delay_ticks, n.forward))
+        src.advance(sched).map(|n| (n.delay_ticks(), n.forward()))
     })
 }
 
@@ -54,7 +54,7 @@ fn duration(half: &[Burst]) -> u64 {
 /// read around every refill (a down-counter, as in `simulate_move`).
 pub fn simulate_dma_move(target: i64, ramp: Ramp, clock: fn() -> u32) -> RefillCost {
     let cfg = PlannerConfig::default();
-    let ticks_per_us = u64::from(cfg.tick_hz / 1_000_000);
+    let ticks_per_us = u64::from(cfg.tick_hz() / 1_000_000);
     let mut planner = Planner::new(cfg);
     let sched = StepSchedule::new();
     let mut src = StepSource::new();
