@@ -376,7 +376,11 @@ pub fn klipper_step_event(s: &mut KlipperStepper) -> u32 {
 
 /// The comparison move in the planner's units (0.1 steps/s, 0.1 steps/s²):
 /// the same 2000-step triangle as the ramp-maker workloads.
-pub const MOVE_RAMP: Ramp = Ramp::new(RAMP_MAX_STEPS_PER_S as u64 * 10, RAMP_ACCEL_STEPS_PER_S2 as u64 * 10, RAMP_ACCEL_STEPS_PER_S2 as u64 * 10);
+pub const MOVE_RAMP: Ramp = Ramp::new(
+    RAMP_MAX_STEPS_PER_S as u64 * 10,
+    RAMP_ACCEL_STEPS_PER_S2 as u64 * 10,
+    RAMP_ACCEL_STEPS_PER_S2 as u64 * 10,
+);
 
 /// The seed's move (`seed_move_precision_margins`, docs/drive.md "Planner and
 /// precision"): 200 000 steps at 50 000 steps/s, 100 000 steps/s² — a
