@@ -73,7 +73,10 @@ def run(soak_py: Path, args) -> bool:
     report = []
     for res in results:
         report += res["report"] + [""]
-    report += totals(results, wall)
+    if len(results) > 1:
+        report += totals(results, wall)
+    else:
+        report.pop()
     ok = all(res["ok"] for res in results)
     print("\n".join(report))
     if args.out:

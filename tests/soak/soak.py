@@ -65,12 +65,14 @@ DRIVES = (1, 2)
 # frames on its line is the time between its two reads, not between our two
 # sends: a drive process held up by a busy host would read two frames at
 # once and merge them. So after every send the soak first waits until the
-# drive has read the bytes (`Bus.drained`), and only then starts its pause.
+# drive has read and stamped the bytes (`Bus.drained`, `DriveRead`), and
+# only then starts its pause.
 # After a frame that must stay unanswered: t3.5 for the frame to close, the
 # drive's reply delay (t3.5 again) and a margin, from the moment the drive
-# has read the frame. It is also the gap that keeps the next frame apart,
-# and any gap above t3.5 does that, as it is measured between the drive's
-# reads. Shorter than a loaded host may hold the drive up, which is safe:
+# has stamped the frame. It is also the gap that keeps the next frame
+# apart, and any gap above t3.5 does that, as it is at least as long
+# between the drive's stamps. Shorter than a loaded host may hold the
+# drive up, which is safe:
 # the soak never discards a byte from the line, so a reply that comes after
 # this window is read before the next send (`Bus.send`: counted as a reply
 # after its window) or inside the next frame's window, where it is a reply
@@ -82,10 +84,14 @@ SILENCE_S = 0.006
 # Far above t3.5 (+ the drive's 1 ms poll): the halves are two frames.
 LONG_GAP_S = 0.020
 # A late reply is still a reply: a held-up host must not turn it into a
-# missing one (and then into a wrong reply to the next frame).
-REPLY_TIMEOUT_S = 2.0
-# How long `Bus.drained` waits for the drive to read what was sent.
-DRAIN_TIMEOUT_S = 5.0
+# missing one (and then into a wrong reply to the next frame). A host
+# shared with builds and busy loops holds a process up for seconds now and
+# then; waiting longer for an expected reply costs time only when it never
+# comes, which fails the run anyway.
+REPLY_TIMEOUT_S = 10.0
+# How long `Bus.drained` waits for the drive to read (and stamp) what was
+# sent; as long as a reply, for the same held-up host.
+DRAIN_TIMEOUT_S = 10.0
 # Resident memory of the drive process is sampled this often (frames); the
 # first samples are the warm-up (buffers reaching their working size).
 RSS_EVERY = 2_000
@@ -172,12 +178,37 @@ class DriveRead:
     was sent. In the soak's set-up the pty is the only thing it reads.
     (FIONREAD on the pty cannot tell: bytes written reach the reader's
     queue through a kernel worker, so an empty queue may mean "not there
-    yet".) None where /proc/PID/io cannot be read."""
+    yet".) None where /proc/PID/io cannot be read.
+
+    Read is not yet stamped: the drive takes the time of the bytes after
+    its read returns, so a drive held up between the two would stamp them
+    late, and a pause started at the read would be shorter on its clock
+    (two frames merge). So the bytes count as read only once the drive is
+    also back asleep in poll (/proc/PID/wchan), which it reaches only after
+    stamping and handling what it read: from then on a pause of ours is at
+    least as long on its clock."""
 
     def __init__(self, pid: int):
         self.path = Path(f"/proc/{pid}/io")
+        self.wchan = Path(f"/proc/{pid}/wchan")
         self.base = self.rchar()
         self.sent = 0
+        # an idle drive sleeps in poll: if wchan never says so, it cannot tell
+        deadline = time.monotonic() + 1.0
+        self.wchan_tells = False
+        while not self.wchan_tells and time.monotonic() < deadline:
+            self.wchan_tells = "poll" in self.read_wchan()
+            time.sleep(0.01)
+
+    def read_wchan(self) -> str:
+        try:
+            return self.wchan.read_text()
+        except OSError:
+            return ""
+
+    def in_poll(self) -> bool | None:
+        """Whether the drive is asleep in poll (None: the kernel does not say)."""
+        return "poll" in self.read_wchan() if self.wchan_tells else None
 
     def rchar(self) -> int | None:
         try:
@@ -193,7 +224,10 @@ class DriveRead:
         now = self.rchar()
         if now is None or self.base is None:
             return None
-        return max(0, self.sent - (now - self.base))
+        unread = max(0, self.sent - (now - self.base))
+        if unread == 0 and self.in_poll() is False:
+            return 1  # read, not yet stamped
+        return unread
 
 
 class Bus:
@@ -374,6 +408,7 @@ class Soak:
         bus.on_stray = self.stray
         self.counter_mismatches = 0
         self.rss_growth = 0
+        self.elapsed = 0.0
         self.rss: list[tuple[int, int]] = []  # (frames, KiB)
         self.report: list[str] = []
         self.n = dict.fromkeys(
@@ -730,7 +765,13 @@ def run_line(frames: int, seed: int, name: str, result: Path) -> int:
         with VirtualDrive(work, ["--drives", "1,2"]) as vd:
             bus = Bus(vd)
             soak = Soak(bus, seed, vd, name)
-            ok = soak.run(frames)
+            try:
+                ok = soak.run(frames)
+            except AssertionError as e:
+                # a request of the soak's own (a move, a counter) went
+                # wrong: the line stops there and does not hold
+                soak.say(f"{name} (seed {seed}): STOPPED at frame {soak.n['frames']} of {frames}: {e}")
+                ok = False
             # The soak sends every frame in one write and never pauses
             # inside one, so the drives must see no broken frame (silence
             # > t1.5 inside it). Both drives frame the same line: drive 1's
@@ -740,7 +781,8 @@ def run_line(frames: int, seed: int, name: str, result: Path) -> int:
             # Sends the drive had not read after DRAIN_TIMEOUT_S: the pause
             # after them was not a pause on the drive's line.
             soak.say(f"  {'sends read late by the drive':<32}{bus.late_reads:>8}   (must be 0)")
-            soak.say(f"  {'sends seen read (rchar)':<32}{bus.confirmed:>8}   of {bus.sends}")
+            how = "(rchar, wchan)" if bus.unread.wchan_tells else "(rchar only)"
+            soak.say(f"  {'sends seen read ' + how:<32}{bus.confirmed:>8}   of {bus.sends}")
             ok &= broken == 0 and bus.late_reads == 0
             bus.close()
     result.write_text(json.dumps({
