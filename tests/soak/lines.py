@@ -108,10 +108,12 @@ def totals(results: list[dict], wall: float) -> list[str]:
         v = sum(r[k] for r in done)
         out.append(f"  {k:<32}{v:>8}   (must be 0)")
     sends, seen = sum(r["sends"] for r in done), sum(r["sends seen read"] for r in done)
-    out.append(f"  {'sends seen read (rchar)':<32}{seen:>8}   of {sends}")
+    how = " or ".join(sorted({r["seen by"] for r in done}))
+    out.append(f"  {'sends seen read ' + how:<32}{seen:>8}   of {sends}")
     if done:
         worst = max(done, key=lambda r: r["rss growth"])
-        out.append(f"  {'worst drive RSS growth (KiB)':<32}{worst['rss growth']:>+8}   ({worst['name']})")
+        out.append(f"  {'worst drive RSS growth (KiB)':<32}{worst['rss growth']:>+8}   "
+                   f"({worst['name']}; must be <= {worst['rss limit']})")
     if len(done) < len(results):
         out.append(f"  lines without a result          {len(results) - len(done):>8}   (must be 0)")
     return out

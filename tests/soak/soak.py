@@ -789,8 +789,9 @@ def run_line(frames: int, seed: int, name: str, result: Path) -> int:
         "name": name, "seed": seed, "ok": ok, "elapsed_s": soak.elapsed,
         "report": soak.report, "counts": soak.n, "kinds": soak.kinds,
         "counter mismatches": soak.counter_mismatches, "rss growth": soak.rss_growth,
+        "rss limit": RSS_SLACK_KIB,
         "broken frames": broken, "late reads": bus.late_reads,
-        "sends": bus.sends, "sends seen read": bus.confirmed,
+        "sends": bus.sends, "sends seen read": bus.confirmed, "seen by": how,
     }))
     return 0 if ok else 1
 
