@@ -71,15 +71,14 @@ DRIVES = (1, 2)
 # drive's reply delay (t3.5 again) and a margin, from the moment the drive
 # has stamped the frame. It is also the gap that keeps the next frame
 # apart, and any gap above t3.5 does that, as it is at least as long
-# between the drive's stamps. Shorter than a loaded host may hold the
-# drive up, which is safe:
-# the soak never discards a byte from the line, so a reply that comes after
-# this window is read before the next send (`Bus.send`: counted as a reply
-# after its window) or inside the next frame's window, where it is a reply
-# that should not exist or adds bytes that make that reply wrong. A late
-# reply fails the run; it could pass only by being, byte for byte, the next
-# frame's expected reply while that reply itself never came, and that holds
-# for any window length.
+# between the drive's stamps. It is shorter than a loaded host may hold
+# the drive up, which is safe: the soak never discards a byte from the
+# line, so a reply that comes after this window is read before the next
+# send (`Bus.send`: counted as a reply after its window) or inside the
+# next frame's window, where it is a reply that should not exist or adds
+# bytes that make that reply wrong. A late reply fails the run; it could
+# pass only by being, byte for byte, the next frame's expected reply while
+# that reply itself never came, and that holds for any window length.
 SILENCE_S = 0.006
 # Far above t3.5 (+ the drive's 1 ms poll): the halves are two frames.
 LONG_GAP_S = 0.020
@@ -180,7 +179,7 @@ class DriveRead:
     queue through a kernel worker, so an empty queue may mean "not there
     yet".) None where /proc/PID/io cannot be read.
 
-    Read is not yet stamped: the drive takes the time of the bytes after
+    Read is not stamped yet: the drive takes the time of the bytes after
     its read returns, so a drive held up between the two would stamp them
     late, and a pause started at the read would be shorter on its clock
     (two frames merge). So the bytes count as read only once the drive is
