@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Soak stage of .ci/run (docs/testing.md): 100,000 frames of bus noise
 # over the pty on two virtual drives, plus the fault checks. The long run
-# is `tests/soak/run.sh` (1,000,000 frames), not a stage.
+# (`tests/soak/run.sh --frames 1000000 --lines 8`) is not a stage.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash .ci/deps.sh base

@@ -1,10 +1,9 @@
 #!/usr/bin/env bash
 # Soak on the virtual drive (docs/testing.md): the release binary,
 # two drives on one bus (its pty), bus noise while both move, then the
-# fault checks.
-#   tests/soak/run.sh                  # 1,000,000 frames (the long run)
-#   tests/soak/run.sh --frames 100000  # the CI run (.ci/soak.sh)
-#   tests/soak/run.sh --out docs/generated/soak.md   # and write the figures
+# fault checks. --lines K runs K such buses at once, sharing the frames.
+#   tests/soak/run.sh --frames 100000 --out docs/generated/soak.md   # the CI's size
+#   tests/soak/run.sh --frames 1000000 --lines 8 --out docs/generated/soak-1m.md
 # Uses the e2e virtualenv (.venv/e2e, pymodbus pinned in tests/e2e).
 set -euo pipefail
 cd "$(dirname "$0")/../.."

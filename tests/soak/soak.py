@@ -1,9 +1,8 @@
 #!/usr/bin/env python3
 """Bus-noise soak and fault checks on the virtual drive (docs/testing.md).
 
-    tests/soak/run.sh                  # 1,000,000 frames + fault checks
-    tests/soak/run.sh --frames 100000  # the CI run (.ci/soak.sh)
-    tests/soak/run.sh --out docs/generated/soak.md   # also write the figures
+    tests/soak/run.sh --frames 100000 --out docs/generated/soak.md     # the CI's size
+    tests/soak/run.sh --frames 1000000 --lines 8 --out docs/generated/soak-1m.md
 
 One bus (the pseudo-terminal of `modbus-drive --drives 1,2`) carries a random mix
 of valid requests to both drives (built and decoded by pymodbus' RTU framer),
@@ -15,6 +14,8 @@ missing, replies that should not exist, wrong replies, and at the end of
 every move the position error. Every bad count must be 0. At the end each
 drive's §6 counters (function 0x08) must equal what the soak sent, and the
 drive process's resident memory, sampled all along, must not grow.
+With --lines K, K such buses run at once (lines.py), each its own drive
+process with its share of the frames and its own seed.
 
 Then the faults (SPEC §8.7), each on a fresh drive: communication loss with
 PA20 stops the motor and sets the fault (0x1001 bit 4), fault reset
@@ -29,6 +30,7 @@ active. Exit status 0 only if everything holds.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import random
 import re
@@ -55,23 +57,40 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "e2e"))
 from conftest import crc16, wait_until_read, with_crc  # noqa: E402  (the e2e harness)
 
+import lines  # noqa: E402  (tests/soak/lines.py: several buses at once)
+
 BIN = Path(os.environ.get("MODBUS_DRIVE_BIN", ROOT / "target" / "release" / "modbus-drive"))
 DRIVES = (1, 2)
 # The virtual drive stamps bytes when it *reads* them, so what separates two
 # frames on its line is the time between its two reads, not between our two
 # sends: a drive process held up by a busy host would read two frames at
 # once and merge them. So after every send the soak first waits until the
-# drive has read the bytes (`Bus.drained`), and only then starts its pause.
+# drive has read and stamped the bytes (`Bus.drained`, `DriveRead`), and
+# only then starts its pause.
 # After a frame that must stay unanswered: t3.5 for the frame to close, the
-# virtual drive's 1 ms poll, the reply delay t3.5 again, and a margin.
-SILENCE_S = 0.012
+# drive's reply delay (t3.5 again) and a margin, from the moment the drive
+# has stamped the frame. It is also the gap that keeps the next frame
+# apart, and any gap above t3.5 does that, as it is at least as long
+# between the drive's stamps. It is shorter than a loaded host may hold
+# the drive up, which is safe: the soak never discards a byte from the
+# line, so a reply that comes after this window is read before the next
+# send (`Bus.send`: counted as a reply after its window) or inside the
+# next frame's window, where it is a reply that should not exist or adds
+# bytes that make that reply wrong. A late reply fails the run; it could
+# pass only by being, byte for byte, the next frame's expected reply while
+# that reply itself never came, and that holds for any window length.
+SILENCE_S = 0.006
 # Far above t3.5 (+ the drive's 1 ms poll): the halves are two frames.
 LONG_GAP_S = 0.020
 # A late reply is still a reply: a held-up host must not turn it into a
-# missing one (and then into a wrong reply to the next frame).
-REPLY_TIMEOUT_S = 2.0
-# How long `Bus.drained` waits for the drive to read what was sent.
-DRAIN_TIMEOUT_S = 5.0
+# missing one (and then into a wrong reply to the next frame). A host
+# shared with builds and busy loops holds a process up for seconds now and
+# then; waiting longer for an expected reply costs time only when it never
+# comes, which fails the run anyway.
+REPLY_TIMEOUT_S = 10.0
+# How long `Bus.drained` waits for the drive to read (and stamp) what was
+# sent; as long as a reply, for the same held-up host.
+DRAIN_TIMEOUT_S = 10.0
 # Resident memory of the drive process is sampled this often (frames); the
 # first samples are the warm-up (buffers reaching their working size).
 RSS_EVERY = 2_000
@@ -81,6 +100,8 @@ RSS_WARMUP = 10_000
 # allocator noise, far below what a leak of a few bytes per frame adds
 # over 100,000 frames.
 RSS_SLACK_KIB = 256
+# A line prints how far it got this often (frames), on stderr.
+PROGRESS_EVERY = 10_000
 # Diagnostics (0x08) sub-functions of the §6 counters, in SPEC order.
 COUNTERS = {0x0B: "bus messages", 0x0C: "bus errors", 0x0D: "exceptions",
             0x0E: "slave messages", 0x0F: "no response"}
@@ -156,12 +177,37 @@ class DriveRead:
     was sent. In the soak's set-up the pty is the only thing it reads.
     (FIONREAD on the pty cannot tell: bytes written reach the reader's
     queue through a kernel worker, so an empty queue may mean "not there
-    yet".) None where /proc/PID/io cannot be read."""
+    yet".) None where /proc/PID/io cannot be read.
+
+    Read is not stamped yet: the drive takes the time of the bytes after
+    its read returns, so a drive held up between the two would stamp them
+    late, and a pause started at the read would be shorter on its clock
+    (two frames merge). So the bytes count as read only once the drive is
+    also back asleep in poll (/proc/PID/wchan), which it reaches only after
+    stamping and handling what it read: from then on a pause of ours is at
+    least as long on its clock."""
 
     def __init__(self, pid: int):
         self.path = Path(f"/proc/{pid}/io")
+        self.wchan = Path(f"/proc/{pid}/wchan")
         self.base = self.rchar()
         self.sent = 0
+        # an idle drive sleeps in poll: if wchan never says so, it cannot tell
+        deadline = time.monotonic() + 1.0
+        self.wchan_tells = False
+        while not self.wchan_tells and time.monotonic() < deadline:
+            self.wchan_tells = "poll" in self.read_wchan()
+            time.sleep(0.01)
+
+    def read_wchan(self) -> str:
+        try:
+            return self.wchan.read_text()
+        except OSError:
+            return ""
+
+    def in_poll(self) -> bool | None:
+        """Whether the drive is asleep in poll (None: the kernel does not say)."""
+        return "poll" in self.read_wchan() if self.wchan_tells else None
 
     def rchar(self) -> int | None:
         try:
@@ -177,7 +223,10 @@ class DriveRead:
         now = self.rchar()
         if now is None or self.base is None:
             return None
-        return max(0, self.sent - (now - self.base))
+        unread = max(0, self.sent - (now - self.base))
+        if unread == 0 and self.in_poll() is False:
+            return 1  # read, not yet stamped
+        return unread
 
 
 class Bus:
@@ -193,6 +242,8 @@ class Bus:
         self.sends = 0
         self.confirmed = 0  # sends the drive was seen to have read
         self.late_reads = 0  # sends the drive had not read after DRAIN_TIMEOUT_S
+        # told of bytes from the drive found unread when an exchange starts
+        self.on_stray = lambda data: None
         self.expected = {d: dict.fromkeys(COUNTERS.values(), 0) for d in DRIVES}
 
     def close(self):
@@ -216,8 +267,16 @@ class Bus:
         if reply and len(reply) == 5 and reply[1] & 0x80 and reply[0] in DRIVES:
             self.expected[reply[0]]["exceptions"] += 1
 
-    def send(self, data: bytes):
-        """Sends `data` and returns once the drive process has read it."""
+    def send(self, data: bytes, exchange_starts: bool = True):
+        """Sends `data` and returns once the drive process has read it.
+        At the start of an exchange, bytes from the drive that nobody read
+        yet cannot be a reply to it: they are a reply that came after its
+        window. (Inside an exchange, the part of a split frame sent after
+        the gap follows the first part's reply.)"""
+        if exchange_starts:
+            stale = self.pending()
+            if stale:
+                self.on_stray(stale)
         self.classify(data)
         self.unread.sent += len(data)
         view = memoryview(data)
@@ -257,6 +316,19 @@ class Bus:
                     out += os.read(self.fd, 4096)
                 except BlockingIOError:
                     pass
+
+    def pending(self) -> bytes:
+        """What has arrived and not been read, without waiting."""
+        out = b""
+        while select.select([self.fd], [], [], 0)[0]:
+            try:
+                chunk = os.read(self.fd, 4096)
+            except BlockingIOError:
+                break
+            if not chunk:
+                break
+            out += chunk
+        return out
 
     def read_reply(self, timeout: float) -> bytes:
         """One reply frame: its length follows from its first bytes."""
@@ -330,8 +402,12 @@ SOAK_VELOCITY, SOAK_ACCEL, SOAK_DECEL, SOAK_QS = 50, 100, 100, 200
 
 
 class Soak:
-    def __init__(self, bus: Bus, rng: random.Random, vd: VirtualDrive):
-        self.bus, self.rng, self.vd = bus, rng, vd
+    def __init__(self, bus: Bus, seed: int, vd: VirtualDrive, name: str):
+        self.bus, self.rng, self.seed, self.vd, self.name = bus, random.Random(seed), seed, vd, name
+        bus.on_stray = self.stray
+        self.counter_mismatches = 0
+        self.rss_growth = 0
+        self.elapsed = 0.0
         self.rss: list[tuple[int, int]] = []  # (frames, KiB)
         self.report: list[str] = []
         self.n = dict.fromkeys(
@@ -353,7 +429,7 @@ class Soak:
         for i, part in enumerate(sent):
             if i:
                 time.sleep(gap_s)
-            self.bus.send(part)
+            self.bus.send(part, exchange_starts=not i)
         want = b"".join(r for r in replies if r)
         for r in replies:
             self.bus.exception_replied(r)
@@ -385,8 +461,12 @@ class Soak:
             self.n["wrong replies"] += 1
             self.log(f"wrong reply {got.hex()} (expected {want.hex() or 'shape'}) to {[p.hex() for p in sent]}")
 
+    def stray(self, data: bytes):
+        self.n["replies that should not exist"] += 1
+        self.log(f"reply after its window {data.hex()} (unread at the next send)")
+
     def log(self, msg: str):
-        print(f"  ! frame {self.n['frames']}: {msg}", file=sys.stderr)
+        print(f"  ! {self.name}, frame {self.n['frames']}: {msg}", file=sys.stderr, flush=True)
 
     # -- frame kinds
 
@@ -493,6 +573,9 @@ class Soak:
         while self.n["frames"] < frames:
             if self.n["frames"] % 100 == 0:
                 self.moves()
+            if self.n["frames"] % PROGRESS_EVERY == 0 and self.n["frames"]:
+                print(f"{self.name}: {self.n['frames']} of {frames} frames, "
+                      f"{time.monotonic() - t0:.0f} s", file=sys.stderr, flush=True)
             if self.n["frames"] >= next_rss:
                 self.rss.append((self.n["frames"], self.vd.rss_kib()))
                 next_rss += RSS_EVERY
@@ -504,7 +587,8 @@ class Soak:
         self.moves()
         self.rss.append((self.n["frames"], self.vd.rss_kib()))
         elapsed = time.monotonic() - t0
-        self.say(f"soak: {self.n['frames']} frames on one bus (the pty), drives {DRIVES}, "
+        self.elapsed = elapsed
+        self.say(f"{self.name} (seed {self.seed}): {self.n['frames']} frames on one bus (a pty), drives {DRIVES}, "
                  f"{elapsed:.0f} s ({elapsed / self.n['frames'] * 1000:.2f} ms a frame)")
         self.say("  by kind: " + ", ".join(f"{k} {v}" for k, v in sorted(self.kinds.items())))
         bad = ("missing replies", "replies that should not exist", "wrong replies", "position errors")
@@ -533,6 +617,7 @@ class Soak:
                 got = int.from_bytes(reply[4:6], "big") if len(reply) == 8 and crc_ok(reply) else None
                 same = got == want
                 good &= same
+                self.counter_mismatches += not same
                 self.say(f"  drive {d} {name:<24}{got if got is not None else '-':>8}   "
                          f"sent {self.bus.expected[d][name]} (mod 65536: {want})"
                          + ("" if same else "   MISMATCH"))
@@ -545,6 +630,7 @@ class Soak:
         third = max(1, len(after) // 3)
         first, last = max(after[:third]), max(after[-third:])
         growth = last - first
+        self.rss_growth = growth
         self.say(f"  drive RSS (KiB), {len(self.rss)} samples every {RSS_EVERY} frames: "
                  f"start {self.rss[0][1]}, first third max {first}, last third max {last}, "
                  f"growth {growth:+d}   (must be <= {RSS_SLACK_KIB})")
@@ -667,21 +753,24 @@ def fault_limit_mid_move(workdir: Path) -> None:
               f" (v²/2d: {expect:.0f}); moves afterwards land exactly, bit 15 flips at the edge: ok")
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames", type=int, default=1_000_000)
-    ap.add_argument("--out", help="write the figures (markdown) to this file too")
-    ap.add_argument("--seed", type=int, default=7)
-    ap.add_argument("--no-faults", action="store_true")
-    args = ap.parse_args()
-    ok = True
-    keep = os.environ.get("SOAK_KEEP")  # a directory for the drives' logs
+def run_line(frames: int, seed: int, name: str, result: Path) -> int:
+    """One bus, `frames` frames: the soak of one line (lines.py runs each
+    line as its own process through this). Writes what it found to
+    `result` (JSON) for the totals."""
+    keep = os.environ.get("SOAK_KEEP")  # a directory for the drive's log
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(keep or tmp)
+        work.mkdir(parents=True, exist_ok=True)
         with VirtualDrive(work, ["--drives", "1,2"]) as vd:
             bus = Bus(vd)
-            soak = Soak(bus, random.Random(args.seed), vd)
-            ok &= soak.run(args.frames)
+            soak = Soak(bus, seed, vd, name)
+            try:
+                ok = soak.run(frames)
+            except AssertionError as e:
+                # a request of the soak's own (a move, a counter) went
+                # wrong: the line stops there and does not hold
+                soak.say(f"{name} (seed {seed}): STOPPED at frame {soak.n['frames']} of {frames}: {e}")
+                ok = False
             # The soak sends every frame in one write and never pauses
             # inside one, so the drives must see no broken frame (silence
             # > t1.5 inside it). Both drives frame the same line: drive 1's
@@ -691,16 +780,40 @@ def main() -> int:
             # Sends the drive had not read after DRAIN_TIMEOUT_S: the pause
             # after them was not a pause on the drive's line.
             soak.say(f"  {'sends read late by the drive':<32}{bus.late_reads:>8}   (must be 0)")
-            soak.say(f"  {'sends seen read (rchar)':<32}{bus.confirmed:>8}   of {bus.sends}")
+            how = "(rchar, wchan)" if bus.unread.wchan_tells else "(rchar only)"
+            soak.say(f"  {'sends seen read ' + how:<32}{bus.confirmed:>8}   of {bus.sends}")
             ok &= broken == 0 and bus.late_reads == 0
             bus.close()
-            if args.out:
-                Path(args.out).write_text(
-                    "# Soak figures (generated)\n\nWritten by `tests/soak/run.sh --frames "
-                    f"{args.frames} --out {args.out}` (seed {args.seed}); "
-                    f"{'every check held' if ok else 'FAILED'}.\n\n```\n"
-                    + "\n".join(soak.report) + "\n```\n")
-        if not args.no_faults:
+    result.write_text(json.dumps({
+        "name": name, "seed": seed, "ok": ok, "elapsed_s": soak.elapsed,
+        "report": soak.report, "counts": soak.n, "kinds": soak.kinds,
+        "counter mismatches": soak.counter_mismatches, "rss growth": soak.rss_growth,
+        "rss limit": RSS_SLACK_KIB,
+        "broken frames": broken, "late reads": bus.late_reads,
+        "sends": bus.sends, "sends seen read": bus.confirmed, "seen by": how,
+    }))
+    return 0 if ok else 1
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=1_000_000, help="in all, shared by the lines")
+    ap.add_argument("--lines", type=int, default=1,
+                    help="independent buses run at once, each `modbus-drive --drives 1,2` on its own pty")
+    ap.add_argument("--out", help="write the figures (markdown) to this file too")
+    ap.add_argument("--seed", type=int, default=7, help="line i uses seed + i")
+    ap.add_argument("--no-faults", action="store_true")
+    ap.add_argument("--line-json", type=Path, help=argparse.SUPPRESS)  # one line, for lines.py
+    ap.add_argument("--line-name", default="line 0", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.line_json:
+        return run_line(args.frames, args.seed, args.line_name, args.line_json)
+    if args.lines < 1 or args.frames < args.lines:
+        ap.error("--lines must be at least 1 and at most --frames")
+    ok = lines.run(Path(__file__), args)
+    if not args.no_faults:
+        with tempfile.TemporaryDirectory() as tmp:
+            work = Path(os.environ.get("SOAK_KEEP") or tmp)
             for check in (fault_comm_loss, fault_both_limits, fault_limit_mid_move):
                 try:
                     check(work)
