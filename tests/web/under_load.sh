@@ -42,7 +42,7 @@ failed_runs=0
 {
   echo "commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD || echo ' + local changes'),"\
     "$(nproc) cores, $busy busy loops, $runs runs of .ci/web.sh"
-  printf '%-5s %-8s %-7s %-7s %s\n' run seconds passed failed "failed tests"
+  printf '%-5s %-8s %-6s %-7s %-7s %s\n' run seconds load passed failed "failed tests"
 } | tee "$report"
 for ((r = 1; r <= runs; r++)); do
   log="$logs/run$r.log"
@@ -59,7 +59,10 @@ for ((r = 1; r <= runs; r++)); do
     cp "$log" "$keep/run$r.log"
     [ -n "$names" ] || names="(stage exited $rc: $(tail -n 1 "$log"))"
   fi
-  printf '%-5s %-8s %-7s %-7s %s\n' "$r" "$secs" "$passed" "$failed" "$names" | tee -a "$report"
+  # the 1-minute load average as the run ends: the busy loops, the suite
+  # itself and whatever else this machine was running
+  load=$(cut -d' ' -f1 /proc/loadavg)
+  printf '%-5s %-8s %-6s %-7s %-7s %s\n' "$r" "$secs" "$load" "$passed" "$failed" "$names" | tee -a "$report"
 done
 echo "runs failed: $failed_runs of $runs" | tee -a "$report"
 [ "$failed_runs" -eq 0 ] || echo "logs of the failed runs: $keep" >&2
