@@ -8,24 +8,16 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-bash .ci/deps.sh base web
+# the page over a Modbus master (`commission`) is tested against both
+# firmware images under fw-sim too: fw-sim's packages (cmake, libclang-dev),
+# asked for by name like every stage's (.ci/packages.txt)
+bash .ci/deps.sh base fw-sim web
 
 source .ci/lib.sh
 venv=.venv/web
 pytest_venv "$venv" tests/web/requirements.txt
 release_binary web
-# the page over a Modbus master (`commission`) is tested against both
-# firmware images under fw-sim too; fw-sim's build needs cmake and libclang
-missing=()
-command -v cmake >/dev/null || missing+=(cmake)
-ldconfig -p 2>/dev/null | grep -q libclang || missing+=(libclang-dev)
 command -v flip-link >/dev/null || cargo install flip-link --locked
-if [ ${#missing[@]} -gt 0 ]; then
-  sudo=""
-  [ "$(id -u)" -ne 0 ] && sudo="sudo"
-  $sudo apt-get update
-  $sudo apt-get install -y "${missing[@]}"
-fi
 rustup target add thumbv7em-none-eabihf thumbv7m-none-eabi
 fw_sim_images
 CHROMIUM=/usr/bin/chromium CHROMEDRIVER=/usr/bin/chromedriver \
