@@ -33,7 +33,13 @@
 #   environment names that bundle for the clients that ship their own roots
 #   (pip's certifi: PIP_CERT; Node: NODE_EXTRA_CA_CERTS), as this machine's
 #   does;
-# - only when static.rust-lang.org cannot be reached from inside: a
+# - when the stable toolchain static.rust-lang.org serves here has no
+#   rust-std for the thumb targets (this machine's mirror lists them as
+#   unavailable for its newest stable): a read-write copy of this machine's
+#   stable toolchain (RUSTUP_HOME/toolchains/stable-*, with its thumb
+#   targets and components); rustup itself, nightly, crates and cargo tools
+#   still come from the network;
+# - only when static.rust-lang.org cannot be reached from inside at all: a
 #   read-write copy of this machine's RUSTUP_HOME and the rustup/cargo
 #   proxies of CARGO_HOME/bin (not its cargo-installed tools nor its crate
 #   cache), since .ci/run adds targets, components and nightly itself.
@@ -134,7 +140,19 @@ if [ "$mode" = --run-ci ]; then
       fi
     done
   fi
-  in_root "rustup --version && rustup toolchain list"
+  # .ci/run needs stable's thumb targets; where the network's stable lacks
+  # them (a mirror that carries only some targets' rust-std), the stable
+  # toolchain, and that one only, is this machine's
+  if ! in_root "rustup target add --toolchain stable thumbv7em-none-eabihf thumbv7m-none-eabi"; then
+    say "stable from static.rust-lang.org lacks the thumb targets: this machine's stable toolchain"
+    home=${RUSTUP_HOME:-$HOME/.rustup}
+    t=stable-x86_64-unknown-linux-gnu
+    rm -rf "$root/root/.rustup/toolchains/$t"
+    cp -a "$(readlink -f "$home/toolchains/$t")" "$root/root/.rustup/toolchains/$t"
+    cp "$home/update-hashes/$t" "$root/root/.rustup/update-hashes/$t"
+  fi
+  in_root "rustup --version && rustup toolchain list && rustc +stable --version &&
+    rustup +stable target list --installed && rustup +stable component list --installed"
 
   say "git clone of the committed tree ($(git rev-parse HEAD))"
   git bundle create "$root/tmp/tree.bundle" HEAD 2>/dev/null
