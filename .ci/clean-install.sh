@@ -93,14 +93,16 @@ in_root() {
 say "the trap: libclang-cpp14 without libclang-dev"
 if [ "$mode" = --run-ci ]; then
   # every package .ci installs goes, but what a new user has to have to
-  # fetch rustup and clone (and what the trap is)
+  # fetch rustup and clone (and what the trap is); autoremove by default
+  # keeps what an installed package merely suggests (gcc was left so)
   mapfile -t ci_pkgs < <(sed -n 's/^[a-z0-9-]*:\(.*\)/\1/p' .ci/packages.txt | tr ' ' '\n' |
     grep -vxE 'curl|ca-certificates|' | sort -u)
   in_root "apt-get purge -y -qq ${ci_pkgs[*]} libclang-14-dev >/dev/null 2>&1 || true"
   in_root "apt-get update -qq && apt-get install -y -qq --no-install-recommends \
     git curl ca-certificates libclang-cpp14 >/dev/null"
   in_root "apt-mark manual git curl ca-certificates libclang-cpp14 >/dev/null &&
-    apt-get autoremove --purge -y -qq >/dev/null && apt-get clean"
+    apt-get autoremove --purge -y -qq -o APT::AutoRemove::SuggestsImportant=false \
+    -o APT::AutoRemove::RecommendsImportant=false >/dev/null && apt-get clean"
   in_root "rm -rf /root/.cargo /root/.rustup /root/.cache /root/.npm /root/.config /src /tmp/* /tmp/.[!.]*"
 else
   # a root reused from an earlier run has libclang-dev: take it away again
