@@ -46,11 +46,12 @@
 # Not a stage of .ci/run: it downloads a few GB and takes long. Needs root.
 #   sudo bash .ci/clean-install.sh /var/tmp/ci-root [--build|--build-host-rust]
 #   sudo bash .ci/clean-install.sh /var/tmp/ci-root --run-ci 2>&1 | tee LOG
+#   sudo bash .ci/clean-install.sh /var/tmp/ci-root --run-ci-from e2e  # resume
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=${1:?usage: .ci/clean-install.sh DIR [--build|--build-host-rust|--run-ci]}
 mode=${2:-}
-case $mode in "" | --build | --build-host-rust | --run-ci) ;; *)
+case $mode in "" | --build | --build-host-rust | --run-ci | --run-ci-from) ;; *)
   echo "unknown mode $mode" >&2
   exit 2
   ;;
@@ -89,6 +90,22 @@ in_root() {
     PIP_CERT=$bundle REQUESTS_CA_BUNDLE=$bundle NODE_EXTRA_CA_CERTS=$bundle \
     ${CI_ENV:-} bash -c "$1"
 }
+
+if [ "$mode" = --run-ci-from ]; then
+  # after a stage failed: that stage and the later ones of .ci/run's list,
+  # in the same chroot and clone, nothing purged
+  from=${3:?usage: .ci/clean-install.sh DIR --run-ci-from STAGE}
+  stages=$(sed -n 's/^for stage in \(.*\); do$/\1/p' "$root/src/.ci/run")
+  [[ " $stages " == *" $from "* ]] || { echo "no stage $from in: $stages" >&2; exit 2; }
+  say "stages of .ci/run from $from on, in $root/src ($(git -C "$root/src" rev-parse --short HEAD))"
+  start=$(date +%s)
+  rc=0
+  CI_ENV="CI=true" in_root "cd /src && set -e && go=0 && for s in $stages; do
+    [ \$s = $from ] && go=1; [ \$go = 1 ] && [ -f .ci/\$s.sh ] || continue
+    printf '\n==== %s ====\n' \$s; bash .ci/\$s.sh; done" || rc=$?
+  say "stages from $from: exit status $rc after $((($(date +%s) - start) / 60)) min"
+  exit $rc
+fi
 
 say "the trap: libclang-cpp14 without libclang-dev"
 if [ "$mode" = --run-ci ]; then
