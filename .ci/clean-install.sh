@@ -25,7 +25,8 @@
 # - the kernel and its network (a chroot shares both): tests' ptys come
 #   from the host's /dev/pts, their TCP ports are the host's 127.0.0.1;
 #   /proc, /sys and a fresh /dev/shm (Chromium) are mounted in;
-# - /etc/resolv.conf, to resolve names at all;
+# - /etc/resolv.conf, to resolve names at all (/etc/hosts is not the
+#   host's: the two localhost lines an installed Debian has);
 # - the CA certificates of /usr/local/share/ca-certificates: where this
 #   machine's egress inspects TLS, the chroot trusts no https server without
 #   them (curl: "self-signed certificate in certificate chain"). They join
@@ -80,6 +81,9 @@ for m in proc sys dev dev/pts dev/shm; do
   mounted+=("$root/$m")
 done
 cp /etc/resolv.conf "$root/etc/resolv.conf"
+# debootstrap writes no /etc/hosts (an installed Debian has one): without it
+# `localhost` does not resolve, and Selenium reaches chromedriver by that name
+[ -s "$root/etc/hosts" ] || printf '127.0.0.1\tlocalhost\n::1\tlocalhost ip6-localhost ip6-loopback\n' >"$root/etc/hosts"
 mkdir -p "$root/usr/local/share/ca-certificates"
 cp /usr/local/share/ca-certificates/*.crt "$root/usr/local/share/ca-certificates/" 2>/dev/null || true
 bundle=/etc/ssl/certs/ca-certificates.crt
