@@ -209,6 +209,65 @@ def wait_until_read(unread: "ReceiveQueue", timeout: float) -> bool | None:
         time.sleep(0.0002)
 
 
+class DriveRead:
+    """Whether the drive process has read every byte sent to it: its
+    `rchar` (/proc/PID/io: bytes its read calls returned) against what
+    was sent, for a line that is the only thing it reads (a pty with one
+    master: the soak's bus, `RawBus` on the pty).
+    (FIONREAD on the pty cannot tell: bytes written reach the reader's
+    queue through a kernel worker, so an empty queue may mean "not there
+    yet".) None where /proc/PID/io cannot be read.
+
+    Read is not stamped yet: the drive takes the time of the bytes after
+    its read returns, so a drive held up between the two would stamp them
+    late, and a pause started at the read would be shorter on its clock
+    (two frames merge). So the bytes count as read only once the drive is
+    also back asleep in poll (/proc/PID/wchan), which it reaches only after
+    stamping and handling what it read: from then on a pause of ours is at
+    least as long on its clock."""
+
+    def __init__(self, pid: int):
+        self.path = Path(f"/proc/{pid}/io")
+        self.wchan = Path(f"/proc/{pid}/wchan")
+        self.base = self.rchar()
+        self.sent = 0
+        # an idle drive sleeps in poll: if wchan never says so, it cannot tell
+        deadline = time.monotonic() + 1.0
+        self.wchan_tells = False
+        while not self.wchan_tells and time.monotonic() < deadline:
+            self.wchan_tells = "poll" in self.read_wchan()
+            time.sleep(0.01)
+
+    def read_wchan(self) -> str:
+        try:
+            return self.wchan.read_text()
+        except OSError:
+            return ""
+
+    def in_poll(self) -> bool | None:
+        """Whether the drive is asleep in poll (None: the kernel does not say)."""
+        return "poll" in self.read_wchan() if self.wchan_tells else None
+
+    def rchar(self) -> int | None:
+        try:
+            for line in self.path.read_text().splitlines():
+                if line.startswith("rchar:"):
+                    return int(line.split()[1])
+        except OSError:
+            pass
+        return None
+
+    def __call__(self) -> int | None:
+        """Bytes sent and not yet read (as `ReceiveQueue` in the e2e harness)."""
+        now = self.rchar()
+        if now is None or self.base is None:
+            return None
+        unread = max(0, self.sent - (now - self.base))
+        if unread == 0 and self.in_poll() is False:
+            return 1  # read, not yet stamped
+        return unread
+
+
 class RawBus:
     """Raw bytes to and from the drive: a frame out, whatever comes back."""
 
@@ -217,12 +276,15 @@ class RawBus:
         if transport == "pty":
             self.port = serial.Serial(str(drive.link), BAUD, timeout=0)
             self.sock = None
+            self.unread = DriveRead(drive.proc.pid)
         else:
             self.sock = socket.create_connection(("127.0.0.1", drive.tcp_port), timeout=2)
             self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self.sock.setblocking(False)
             self.port = None
             self.unread = ReceiveQueue(drive.tcp_port, self.sock.getsockname()[1])
+            # the socket's queue says read; the drive's wchan says stamped
+            self.stamp = DriveRead(drive.proc.pid)
 
     def close(self):
         if self.port:
@@ -238,15 +300,20 @@ class RawBus:
         self.close()
 
     def write(self, frame: bytes):
-        """Writes `frame`; on TCP, returns once the drive has read it, so a
-        pause after it is a pause on the drive's line even on a busy host
-        (`wait_until_read`). A pseudo-terminal gives no such signal."""
+        """Writes `frame` and returns once the drive has read and stamped
+        it, so a pause after it is a pause on the drive's line even on a
+        busy host (`wait_until_read`; on the pty through `DriveRead`)."""
         if self.port:
             self.port.write(frame)
             self.port.flush()
+            self.unread.sent += len(frame)
         else:
             self.sock.sendall(frame)
-            wait_until_read(self.unread, 5.0)
+        wait_until_read(self.unread, 5.0)
+        if self.sock:
+            deadline = time.monotonic() + 5.0
+            while self.stamp.in_poll() is False and time.monotonic() < deadline:
+                time.sleep(0.0002)
 
     def _read_some(self, timeout: float) -> bytes:
         if self.port:

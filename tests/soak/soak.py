@@ -36,11 +36,9 @@ import random
 import re
 import select
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
-import termios
 import time
 import tty
 from pathlib import Path
@@ -55,7 +53,7 @@ from pymodbus.pdu.register_message import (
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "e2e"))
-from conftest import crc16, wait_until_read, with_crc  # noqa: E402  (the e2e harness)
+from conftest import DriveRead, crc16, wait_until_read, with_crc  # noqa: E402  (the e2e harness)
 
 import lines  # noqa: E402  (tests/soak/lines.py: several buses at once)
 
@@ -169,64 +167,6 @@ class VirtualDrive:
                 self.proc.kill()
                 self.proc.wait(5)
         self._err.close()
-
-
-class DriveRead:
-    """Whether the drive process has read every byte sent to it: its
-    `rchar` (/proc/PID/io: bytes its read calls returned) against what
-    was sent. In the soak's set-up the pty is the only thing it reads.
-    (FIONREAD on the pty cannot tell: bytes written reach the reader's
-    queue through a kernel worker, so an empty queue may mean "not there
-    yet".) None where /proc/PID/io cannot be read.
-
-    Read is not stamped yet: the drive takes the time of the bytes after
-    its read returns, so a drive held up between the two would stamp them
-    late, and a pause started at the read would be shorter on its clock
-    (two frames merge). So the bytes count as read only once the drive is
-    also back asleep in poll (/proc/PID/wchan), which it reaches only after
-    stamping and handling what it read: from then on a pause of ours is at
-    least as long on its clock."""
-
-    def __init__(self, pid: int):
-        self.path = Path(f"/proc/{pid}/io")
-        self.wchan = Path(f"/proc/{pid}/wchan")
-        self.base = self.rchar()
-        self.sent = 0
-        # an idle drive sleeps in poll: if wchan never says so, it cannot tell
-        deadline = time.monotonic() + 1.0
-        self.wchan_tells = False
-        while not self.wchan_tells and time.monotonic() < deadline:
-            self.wchan_tells = "poll" in self.read_wchan()
-            time.sleep(0.01)
-
-    def read_wchan(self) -> str:
-        try:
-            return self.wchan.read_text()
-        except OSError:
-            return ""
-
-    def in_poll(self) -> bool | None:
-        """Whether the drive is asleep in poll (None: the kernel does not say)."""
-        return "poll" in self.read_wchan() if self.wchan_tells else None
-
-    def rchar(self) -> int | None:
-        try:
-            for line in self.path.read_text().splitlines():
-                if line.startswith("rchar:"):
-                    return int(line.split()[1])
-        except OSError:
-            pass
-        return None
-
-    def __call__(self) -> int | None:
-        """Bytes sent and not yet read (as `ReceiveQueue` in the e2e harness)."""
-        now = self.rchar()
-        if now is None or self.base is None:
-            return None
-        unread = max(0, self.sent - (now - self.base))
-        if unread == 0 and self.in_poll() is False:
-            return 1  # read, not yet stamped
-        return unread
 
 
 class Bus:
