@@ -4,77 +4,56 @@
 use super::{Exception, Handled, Reply, Slave};
 use crate::event::Event;
 
-/// The serial-line counters of SPEC §6 (Modbus over Serial Line, Appendix
-/// A), 16 bits each, wrapping. Cleared by diagnostics 0x01 and 0x0A.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Counters {
-    /// Frames with a good CRC and no parity error, for any address
-    /// (sub-function 0x0B).
-    bus_messages: u16,
-    /// CRC and parity errors (any address), broken frames, frames shorter
-    /// than 4 bytes (0x0C).
-    bus_errors: u16,
-    /// Exception replies sent, including 9/10 frame-error replies, plus
-    /// broadcasts refused without a reply (0x0D).
-    exceptions: u16,
-    /// Good frames addressed to us or broadcast (0x0E).
-    slave_messages: u16,
-    /// Good frames addressed to us or broadcast that got no reply:
-    /// broadcasts, listen-only mode, the 0x04 request itself (0x0F).
-    no_response: u16,
-    /// Requests refused with exception 6 (0x11).
-    busy: u16,
-    /// Frames over 256 bytes or with bytes lost by the UART (0x12).
-    overruns: u16,
+/// Declares [`Counters`] from one list: each counter's field, its getter
+/// (named after it, with its doc) and the slave's wrapping increment.
+macro_rules! counters {
+    ($($(#[$doc:meta])* $field:ident => $count:ident;)*) => {
+        /// The serial-line counters of SPEC §6 (Modbus over Serial Line,
+        /// Appendix A), 16 bits each, wrapping. Cleared by diagnostics 0x01
+        /// and 0x0A.
+        #[derive(Clone, Debug, Default, PartialEq, Eq)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        pub struct Counters {
+            $($(#[$doc])* $field: u16,)*
+        }
+
+        impl Counters {
+            $(
+                $(#[$doc])*
+                #[inline]
+                pub const fn $field(&self) -> u16 {
+                    self.$field
+                }
+
+                /// Counts one more (wrapping); only the slave counts.
+                #[inline]
+                pub(super) fn $count(&mut self) {
+                    self.$field = self.$field.wrapping_add(1);
+                }
+            )*
+        }
+    };
 }
 
-impl Counters {
+counters! {
     /// Frames with a good CRC and no parity error, for any address
     /// (sub-function 0x0B).
-    #[inline]
-    pub const fn bus_messages(&self) -> u16 {
-        self.bus_messages
-    }
-
+    bus_messages => count_bus_message;
     /// CRC and parity errors (any address), broken frames, frames shorter
     /// than 4 bytes (0x0C).
-    #[inline]
-    pub const fn bus_errors(&self) -> u16 {
-        self.bus_errors
-    }
-
+    bus_errors => count_bus_error;
     /// Exception replies sent, including 9/10 frame-error replies, plus
     /// broadcasts refused without a reply (0x0D).
-    #[inline]
-    pub const fn exceptions(&self) -> u16 {
-        self.exceptions
-    }
-
+    exceptions => count_exception;
     /// Good frames addressed to us or broadcast (0x0E).
-    #[inline]
-    pub const fn slave_messages(&self) -> u16 {
-        self.slave_messages
-    }
-
+    slave_messages => count_slave_message;
     /// Good frames addressed to us or broadcast that got no reply:
     /// broadcasts, listen-only mode, the 0x04 request itself (0x0F).
-    #[inline]
-    pub const fn no_response(&self) -> u16 {
-        self.no_response
-    }
-
+    no_response => count_no_response;
     /// Requests refused with exception 6 (0x11).
-    #[inline]
-    pub const fn busy(&self) -> u16 {
-        self.busy
-    }
-
+    busy => count_busy;
     /// Frames over 256 bytes or with bytes lost by the UART (0x12).
-    #[inline]
-    pub const fn overruns(&self) -> u16 {
-        self.overruns
-    }
+    overruns => count_overrun;
 }
 
 impl Counters {
@@ -91,48 +70,6 @@ impl Counters {
             busy: reads[5],
             overruns: reads[6],
         }
-    }
-
-    /// Counts one more (wrapping) in `bus_messages`.
-    #[inline]
-    pub(super) fn count_bus_message(&mut self) {
-        self.bus_messages = self.bus_messages.wrapping_add(1);
-    }
-
-    /// Counts one more (wrapping) in `bus_errors`.
-    #[inline]
-    pub(super) fn count_bus_error(&mut self) {
-        self.bus_errors = self.bus_errors.wrapping_add(1);
-    }
-
-    /// Counts one more (wrapping) in `exceptions`.
-    #[inline]
-    pub(super) fn count_exception(&mut self) {
-        self.exceptions = self.exceptions.wrapping_add(1);
-    }
-
-    /// Counts one more (wrapping) in `slave_messages`.
-    #[inline]
-    pub(super) fn count_slave_message(&mut self) {
-        self.slave_messages = self.slave_messages.wrapping_add(1);
-    }
-
-    /// Counts one more (wrapping) in `no_response`.
-    #[inline]
-    pub(super) fn count_no_response(&mut self) {
-        self.no_response = self.no_response.wrapping_add(1);
-    }
-
-    /// Counts one more (wrapping) in `busy`.
-    #[inline]
-    pub(super) fn count_busy(&mut self) {
-        self.busy = self.busy.wrapping_add(1);
-    }
-
-    /// Counts one more (wrapping) in `overruns`.
-    #[inline]
-    pub(super) fn count_overrun(&mut self) {
-        self.overruns = self.overruns.wrapping_add(1);
     }
 }
 
