@@ -17,13 +17,13 @@ impl Board {
     pub const ALL: [Board; 2] = [Board::G431, Board::F103];
 
     /// Step timer tick, Hz: the unit the planner times steps in
-    /// (`motion::PlannerConfig::tick_hz`). The timer's prescaler must
-    /// divide the timer clock exactly into it: 170 MHz / 17 on the G431,
-    /// 72 MHz / 9 on the F103 (72 / 10 MHz is not a whole divider).
+    /// (`motion::PlannerConfig::tick_hz`). The step timer's own clock (no
+    /// prescaler): the finest grid its pulses can keep, and what the
+    /// shortest entries of its DMA bursts are counted in.
     pub const fn step_tick_hz(self) -> u32 {
         match self {
-            Board::G431 => 10_000_000,
-            Board::F103 => 8_000_000,
+            Board::G431 => 170_000_000,
+            Board::F103 => 72_000_000,
         }
     }
 

@@ -16,12 +16,13 @@ use embedded_storage::nor_flash::{
 };
 use flash::{FlashRegion, RegionError};
 use modbus_drive::motion::schedule::brake_rate;
+use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
 use modbus_drive::motion::{Segment, StepSchedule, StepSource};
 use modbus_drive::rtu::{CharFormat, LineConfig};
 use std::sync::atomic::{AtomicU32, Ordering};
 
-const G431_TICK_HZ: u32 = 10_000_000;
-const F103_TICK_HZ: u32 = 8_000_000;
+const G431_TICK_HZ: u32 = 170_000_000;
+const F103_TICK_HZ: u32 = 72_000_000;
 
 fn line(baud: u32, format: CharFormat) -> LineConfig {
     LineConfig::new(baud, format)
@@ -87,237 +88,16 @@ fn step_shape_never_goes_below_the_safe_minimums() {
             "capped at 100 µs"
         );
     }
-    assert_eq!(StepShape::safe(G431_TICK_HZ).pulse_ticks, 25);
-    assert_eq!(StepShape::safe(F103_TICK_HZ).pulse_ticks, 20);
-}
-
-/// Runs the shaper over `steps` and returns, per step, (ticks from the
-/// previous step's edge to its rising edge, ticks from the start of the
-/// pulse's period to the rising edge, direction), checking the timer
-/// registers of every period on the way.
-fn run(shape: StepShape, steps: &[Step]) -> Vec<(u32, u32, bool)> {
-    let mut shaper = StepShaper::new(shape);
-    let mut queue = steps.iter().copied();
-    let mut out = Vec::new();
-    let mut since_edge = 0u32;
-    let mut guard = 0;
-    while out.len() < steps.len() {
-        guard += 1;
-        assert!(guard < 100_000);
-        let p = shaper.next_period(|| queue.next());
-        let len = u32::from(p.arr) + 1;
-        match p.dir {
-            Some(forward) => {
-                assert!(p.ccr <= p.arr, "a step period has its pulse");
-                assert_eq!(len - u32::from(p.ccr), shape.pulse_ticks, "pulse width");
-                out.push((since_edge + u32::from(p.ccr), u32::from(p.ccr), forward));
-                since_edge = len - u32::from(p.ccr);
-            }
-            None => {
-                assert!(p.ccr > p.arr, "an idle period has no pulse");
-                since_edge += len;
-            }
-        }
-    }
-    out
-}
-
-#[test]
-fn steps_keep_their_interval_and_direction() {
-    let shape = StepShape::safe(G431_TICK_HZ);
-    let steps: Vec<Step> = [1000, 500, 200, 65_536, 70_000, 300_000, 1_000_000]
-        .iter()
-        .map(|&t| Step {
-            forward: true,
-            interval_ticks: t,
-        })
-        .collect();
-    let out = run(shape, &steps);
-    // the first one counts from the start; the others edge to edge, exactly
-    for (i, (s, (gap, _, fwd))) in steps.iter().zip(&out).enumerate().skip(1) {
-        assert_eq!(*gap, s.interval_ticks, "step {i}");
-        assert!(*fwd);
-    }
-}
-
-#[test]
-fn too_short_intervals_are_stretched_to_a_visible_pulse() {
-    let shape = StepShape::safe(G431_TICK_HZ);
-    let out = run(
-        shape,
-        &[Step {
-            forward: true,
-            interval_ticks: 1,
-        }; 3],
-    );
-    for (gap, _, _) in &out[1..] {
-        assert_eq!(*gap, 2 * shape.pulse_ticks);
-    }
-}
-
-#[test]
-fn a_reversal_leaves_dir_set_up_time_before_the_edge() {
-    for hz in [G431_TICK_HZ, F103_TICK_HZ] {
-        let shape = StepShape::safe(hz);
-        let steps = [
-            Step {
-                forward: true,
-                interval_ticks: 60,
-            },
-            Step {
-                forward: false,
-                interval_ticks: 60,
-            },
-            Step {
-                forward: true,
-                interval_ticks: 60,
-            },
-        ];
-        for (_, edge_in_period, _) in &run(shape, &steps)[1..] {
-            // DIR is written when the period starts (+ interrupt latency)
-            assert!(*edge_in_period >= shape.dir_setup_ticks + shape.latency_ticks);
-        }
-    }
-}
-
-/// DIR changes only with no pulse pending: at a reversal it is written at
-/// least the set-up time after the last falling edge of the old direction
-/// (the hold) and the set-up time before the next rising edge, counting the
-/// interrupt latency against the write, whatever idle time runs before.
-#[test]
-fn a_reversal_keeps_dir_hold_after_the_last_falling_edge() {
-    for hz in [G431_TICK_HZ, F103_TICK_HZ] {
-        let shape = StepShape::safe(hz);
-        for gap in [1u32, 60, 400, 2_000, 100_000] {
-            let mut steps = Vec::new();
-            for k in 0..6 {
-                let forward = k % 2 == 0;
-                steps.push(Step {
-                    forward,
-                    interval_ticks: gap,
-                });
-                steps.push(Step {
-                    forward,
-                    interval_ticks: 60,
-                });
-            }
-            let mut shaper = StepShaper::new(shape);
-            let mut queue = steps.iter().copied();
-            // DIR starts forward (steps::start). Each period runs from `t`;
-            // the interrupt that begins it writes its DIR (latency later).
-            let (mut t, mut level, mut fall) = (0u64, true, 0u64);
-            let mut pulses = 0;
-            while pulses < steps.len() {
-                let p = shaper.next_period(|| queue.next());
-                let len = u64::from(p.arr) + 1;
-                let mut written = None;
-                if let Some(d) = p.dir.filter(|&d| d != level) {
-                    let at = t + u64::from(shape.latency_ticks);
-                    assert!(
-                        at >= fall + u64::from(shape.dir_setup_ticks),
-                        "{hz} Hz gap {gap}: DIR {} ticks after the falling edge",
-                        at - fall
-                    );
-                    level = d;
-                    written = Some(at);
-                }
-                if p.ccr <= p.arr {
-                    let rise = t + u64::from(p.ccr);
-                    if let Some(w) = written {
-                        assert!(
-                            rise >= w + u64::from(shape.dir_setup_ticks),
-                            "{hz} Hz gap {gap}: rise {} ticks after DIR",
-                            rise - w
-                        );
-                    }
-                    assert_eq!(p.dir, Some(level), "DIR at the pulse");
-                    fall = t + len;
-                    pulses += 1;
-                }
-                t += len;
-            }
-        }
-    }
-}
-
-#[test]
-fn the_first_step_backwards_after_boot_gets_the_dir_set_up() {
-    // The step output starts with DIR set for the positive direction, the
-    // shaper's assumption: a first step backwards is a reversal.
-    let shape = StepShape::safe(G431_TICK_HZ);
-    let back = Step {
-        forward: false,
-        interval_ticks: 60,
-    };
-    let out = run(shape, &[back]);
-    assert!(out[0].1 >= shape.dir_setup_ticks + shape.latency_ticks);
-    let fwd = Step {
-        forward: true,
-        interval_ticks: 60,
-    };
-    assert_eq!(
-        run(shape, &[fwd])[0].1,
-        60 - shape.pulse_ticks,
-        "no stretch"
-    );
-}
-
-#[test]
-fn a_pa11_change_makes_the_next_step_a_reversal_on_the_pin() {
-    let shape = StepShape::safe(G431_TICK_HZ);
-    let fwd = Step {
-        forward: true,
-        interval_ticks: 60,
-    };
-    let mut shaper = StepShaper::new(shape);
-    let p = shaper.next_period(|| Some(fwd));
-    assert_eq!(u32::from(p.arr) + 1, 60, "same direction: no stretch");
-    shaper.dir_pin_flipped(); // the same direction is the other pin level now
-                              // DIR is held after the last pulse first (an idle period), then set up
-    let p = shaper.next_period(|| Some(fwd));
-    assert_eq!(p.dir, None, "the hold: no pulse");
-    assert_eq!(u32::from(p.arr) + 1, shape.dir_setup_ticks);
-    let p = shaper.next_period(|| Some(fwd));
-    assert!(u32::from(p.ccr) >= shape.dir_setup_ticks + shape.latency_ticks);
-    let p = shaper.next_period(|| Some(fwd));
-    assert_eq!(u32::from(p.arr) + 1, 60, "then no stretch again");
-}
-
-#[test]
-fn a_packed_shape_round_trips_and_reaches_the_shaper() {
-    for hz in [G431_TICK_HZ, F103_TICK_HZ] {
-        for (pa15, pa16) in [(0, 0), (25, 50), (1000, 1000), (u16::MAX, u16::MAX)] {
-            let shape = StepShape::from_params(pa15, pa16, hz);
-            let safe = StepShape::safe(hz);
-            assert_eq!(safe.with_packed(shape.packed()), shape, "{pa15} {pa16}");
-        }
-    }
-    let wide = StepShape::from_params(1000, 1000, G431_TICK_HZ); // 100 µs
-    let mut shaper = StepShaper::new(StepShape::safe(G431_TICK_HZ));
-    shaper.set_packed_shape(wide.packed());
-    let p = shaper.next_period(|| {
-        Some(Step {
-            forward: true,
-            interval_ticks: 5_000,
-        })
-    });
-    assert_eq!(u32::from(p.arr) + 1 - u32::from(p.ccr), wide.pulse_ticks);
-}
-
-#[test]
-fn no_step_means_idle_periods() {
-    let shape = StepShape::safe(G431_TICK_HZ);
-    let mut shaper = StepShaper::new(shape);
-    let p = shaper.next_period(|| None);
-    assert!(p.ccr > p.arr && p.dir.is_none());
-    assert_eq!(u32::from(p.arr) + 1, shape.idle_ticks);
+    assert_eq!(StepShape::safe(G431_TICK_HZ).pulse_ticks, 425);
+    assert_eq!(StepShape::safe(F103_TICK_HZ).pulse_ticks, 180);
 }
 
 #[test]
 fn the_step_timer_tick_is_a_whole_division_of_the_timer_clock() {
-    // G431: TIM3 at 170 MHz → 10 MHz; F103: TIM3 at 2 × APB1 = 72 MHz → 8 MHz
-    assert_eq!(step_prescaler(170_000_000, G431_TICK_HZ), Some(16));
-    assert_eq!(step_prescaler(72_000_000, F103_TICK_HZ), Some(8));
+    // both boards step at TIM1's own clock: prescaler 0
+    assert_eq!(step_prescaler(170_000_000, G431_TICK_HZ), Some(0));
+    assert_eq!(step_prescaler(72_000_000, F103_TICK_HZ), Some(0));
+    assert_eq!(step_prescaler(170_000_000, 10_000_000), Some(16));
     assert_eq!(
         step_prescaler(72_000_000, 10_000_000),
         None,
@@ -333,47 +113,79 @@ fn the_step_timer_tick_is_a_whole_division_of_the_timer_clock() {
     assert_eq!(step_prescaler(170_000_000, 0), None);
 }
 
-/// The step interrupt's work (steps.rs `on_update`) on the host: the core's
-/// `StepSource` through the shaper, one call per timer period.
-struct Isr {
-    shaper: StepShaper,
+/// Entries in one half of the step engine's DMA buffer (steps.rs `HALF`).
+const HALF: usize = 8;
+
+/// The step engine's refill (steps.rs `refill`) on the host: the core's
+/// `StepSource` through `BurstWriter` into one buffer half, the ledger kept
+/// as the firmware keeps it; and TIM1 played from the entries: per pulse,
+/// (ticks since the previous pulse, DIR high).
+struct Engine {
+    writer: BurstWriter,
     source: StepSource,
+    ledger: StepLedger,
+    /// Ticks since the last pulse's rise.
+    since: u64,
+    pulses: Vec<(u64, bool)>,
 }
 
-impl Isr {
+impl Engine {
     fn new(hz: u32) -> Self {
+        let shape = StepShape::safe(hz);
         Self {
-            shaper: StepShaper::new(StepShape::safe(hz)),
+            writer: BurstWriter::new(
+                PulseShape::new(shape.pulse_ticks, shape.dir_setup_ticks, shape.idle_ticks),
+                true,
+            ),
             source: StepSource::new(),
+            ledger: StepLedger::new(),
+            since: 0,
+            pulses: Vec::new(),
         }
     }
 
-    /// Runs until the schedule is done; (ticks since the previous edge,
-    /// forward) per pulse.
-    fn run(&mut self, sched: &StepSchedule, max_periods: usize) -> Vec<(u32, bool)> {
-        let mut out = Vec::new();
-        let mut since_edge = 0;
-        for _ in 0..max_periods {
-            let source = &mut self.source;
-            let p = self.shaper.next_period(|| {
-                source.advance(sched).map(|n| Step {
-                    forward: n.forward(),
-                    interval_ticks: n.delay_ticks(),
-                })
-            });
-            let len = u32::from(p.arr) + 1;
-            match p.dir {
-                Some(forward) => {
-                    out.push((since_edge + u32::from(p.ccr), forward));
-                    since_edge = len - u32::from(p.ccr);
+    /// One refill of a half, then the timer through it.
+    fn refill(&mut self, sched: &StepSchedule) {
+        let mut half = [Burst::ZERO; HALF];
+        let Self {
+            writer,
+            source,
+            ledger,
+            ..
+        } = self;
+        writer.fill(&mut half, || {
+            let step = source.advance(sched);
+            ledger.advanced(step.map(|n| n.forward()));
+            step.map(|n| (n.delay_ticks(), n.forward()))
+        });
+        for b in half {
+            let [arr, rcr, ccr1, _] = b.registers();
+            for _ in 0..=rcr {
+                if ccr1 > 0 {
+                    self.pulses.push((self.since, b.dir_high()));
+                    self.since = 0;
                 }
-                None => since_edge += len,
+                self.since += u64::from(arr) + 1;
             }
-            if p.dir.is_none() && !sched.is_running() && sched.is_empty() {
+        }
+    }
+
+    /// Refills until the schedule is done and the writer has nothing left.
+    fn run(&mut self, sched: &StepSchedule, max_refills: usize) {
+        for _ in 0..max_refills {
+            self.refill(sched);
+            if !sched.is_running() && sched.is_empty() && !self.writer.busy() {
                 break;
             }
         }
-        out
+    }
+
+    /// The pin's position after the first `made` pulses.
+    fn pin_after(&self, made: usize) -> i32 {
+        self.pulses[..made]
+            .iter()
+            .map(|&(_, f)| if f { 1 } else { -1 })
+            .sum()
     }
 }
 
@@ -386,39 +198,94 @@ fn segment(interval_ticks: u64, count: u32, forward: bool) -> Segment {
 #[test]
 fn the_core_schedule_reaches_the_step_pin_edge_to_edge() {
     // 400 steps at 5 kHz forward, 3 slow ones backward (longer than one
-    // 16-bit period), then 50 at the highest rate the core plans (200 kHz)
+    // 16-bit period), then 50 at 1 M steps/s, at the G431's 170 MHz
     let sched = StepSchedule::new();
-    sched.push(segment(2000, 400, true)).unwrap();
-    sched.push(segment(100_000, 3, false)).unwrap();
-    sched.push(segment(50, 50, true)).unwrap();
-    let out = Isr::new(G431_TICK_HZ).run(&sched, 10_000);
+    sched.push(segment(34_000, 400, true)).unwrap();
+    sched.push(segment(3_400_000, 3, false)).unwrap();
+    sched.push(segment(170, 50, true)).unwrap();
+    let mut e = Engine::new(G431_TICK_HZ);
+    e.run(&sched, 10_000);
+    let out = &e.pulses;
     assert_eq!(out.len(), 453);
-    assert!(out[1..400].iter().all(|&(gap, f)| gap == 2000 && f));
-    assert!(out[400..403].iter().all(|&(gap, f)| gap == 100_000 && !f));
-    assert!(out[404..].iter().all(|&(gap, f)| gap == 50 && f));
+    assert!(out[1..400].iter().all(|&(gap, f)| gap == 34_000 && f));
+    assert!(out[400..403].iter().all(|&(gap, f)| gap == 3_400_000 && !f));
+    assert!(out[404..].iter().all(|&(gap, f)| gap == 170 && f));
     assert_eq!(sched.position(), 400 - 3 + 50);
+    assert_eq!(e.pin_after(453), sched.position());
 }
 
 #[test]
-fn a_limit_brakes_in_the_step_interrupt_within_the_quick_stop_distance_spec_8_7() {
-    // 100 000 steps/s at 8 MHz (F103), quick stop 2e6 steps/s²: 2500 steps
+fn the_pin_position_is_the_schedules_less_the_steps_not_made() {
+    // runs in both directions, each refill checked at every pulse count the
+    // DMA can be at: up to two halves (and the preload) behind the writer
+    let sched = StepSchedule::new();
+    let mut e = Engine::new(F103_TICK_HZ);
+    let mut checked = 0;
+    for (i, (count, forward)) in [(40, true), (7, false), (1, true), (300, false), (2, true)]
+        .into_iter()
+        .enumerate()
+    {
+        sched.push(segment(720 + 100 * i as u64, count, forward)).unwrap();
+        for _ in 0..1000 {
+            e.refill(&sched);
+            let written = e.pulses.len();
+            for made in written.saturating_sub(2 * HALF + 2)..=written {
+                assert_eq!(
+                    e.ledger.pin_position(sched.position(), made as u16),
+                    e.pin_after(made),
+                    "{made} of {written} pulses made"
+                );
+                checked += 1;
+            }
+            if !sched.is_running() && sched.is_empty() && !e.writer.busy() {
+                break;
+            }
+        }
+    }
+    assert_eq!(e.pulses.len(), 350);
+    assert_eq!(sched.position(), 40 - 7 + 1 - 300 + 2);
+    assert!(checked > 500, "{checked}");
+}
+
+#[test]
+fn the_ledger_round_trips_its_hand_over_and_wraps_with_the_counter() {
+    let mut l = StepLedger::new();
+    for _ in 0..70_000 {
+        l.advanced(Some(false));
+    }
+    l.advanced(Some(true));
+    l.advanced(Some(true));
+    assert_eq!(StepLedger::from_words(&l.words()), l);
+    assert_eq!(StepLedger::from_words(&[0; LEDGER_WORDS]), StepLedger::new());
+    // 70 002 given, the last pending: 70 001 counted; 69 990 made, all but
+    // one of the backward ones
+    let made = (69_990u32 % 65_536) as u16;
+    assert_eq!(l.pin_position(0, made), -(-10) - 1);
+    l.advanced(None);
+    assert_eq!(l.pin_position(0, made), 10 - 2);
+}
+
+#[test]
+fn a_limit_brakes_at_the_next_refill_within_the_quick_stop_distance_spec_8_7() {
+    // 100 000 steps/s at 72 MHz (F103), quick stop 2e6 steps/s²: 2500 steps
     let sched = StepSchedule::new();
     sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
-    sched.push(segment(80, sched.free() as u32, true)).unwrap();
-    let mut isr = Isr::new(F103_TICK_HZ);
-    let before = isr.run(&sched, 200);
-    assert!(before.iter().skip(1).all(|&(gap, _)| gap == 80));
+    sched.push(segment(720, sched.free() as u32, true)).unwrap();
+    let mut e = Engine::new(F103_TICK_HZ);
+    for _ in 0..20 {
+        e.refill(&sched);
+    }
+    let before = e.pulses.len();
+    assert!(e.pulses.iter().skip(1).all(|&(gap, _)| gap == 720));
     sched.set_limits(false, true); // the EXTI handler: CCW limit active
-    let after = isr.run(&sched, 100_000);
-    // the step preloaded before the limit still goes out, then the brake
-    let braking = after.len() as f64;
+    e.run(&sched, 100_000);
+    // the steps already written still go out, then the brake
+    let braking = (e.pulses.len() - before) as f64;
     assert!((2490.0..=2502.0).contains(&braking), "{braking} steps");
+    let after = &e.pulses[before..];
     // never faster (to the tick the delays are rounded to), ending slow
     assert!(after[1..].windows(2).all(|w| w[1].0 + 1 >= w[0].0));
-    assert!(
-        after.last().is_some_and(|&(gap, _)| gap > 1000),
-        "{after:?}"
-    );
+    assert!(after.last().is_some_and(|&(gap, _)| gap > 7200), "{after:?}");
     assert!(sched.limit_brake().is_some_and(|b| b.done() && b.forward()));
 }
 
@@ -842,52 +709,6 @@ fn the_watchdog_registers_give_at_least_the_timeout_at_the_nominal_lsi() {
     assert_eq!(iwdg_settings(100, 40_000), Some((0, 0)));
     assert_eq!(iwdg_settings(26_214_400, 40_000), Some((6, 0xFFF)));
     assert_eq!(iwdg_settings(26_214_401, 40_000), None);
-}
-
-/// Rising edges (ticks from the first period's start) of the periods the
-/// shaper makes when the source answers `answers` in turn.
-fn edges(shape: StepShape, answers: &[Option<Step>]) -> Vec<u32> {
-    let mut shaper = StepShaper::new(shape);
-    let (mut t, mut out) = (0u32, Vec::new());
-    for a in answers {
-        let p = shaper.next_period(|| *a);
-        if p.dir.is_some() {
-            out.push(t + u32::from(p.ccr));
-        }
-        t += u32::from(p.arr) + 1;
-    }
-    out
-}
-
-#[test]
-fn a_step_found_after_the_queue_ran_dry_keeps_its_interval() {
-    // The timer preloads: the period the shaper returns runs after the one
-    // returned before. A source that is dry while a step's period runs (the
-    // next step not queued yet) gets an idle period preloaded behind it;
-    // the next step, found at the end of that step's period, is due its
-    // interval after that step, and the idle period counts towards it.
-    for hz in [G431_TICK_HZ, F103_TICK_HZ] {
-        let shape = StepShape::safe(hz);
-        let step = |t| {
-            Some(Step {
-                forward: true,
-                interval_ticks: t,
-            })
-        };
-        let e = edges(shape, &[step(1000), None, step(5000), step(300)]);
-        assert_eq!((e[1] - e[0], e[2] - e[1]), (5000, 300), "{hz} Hz");
-        // dry for longer: the interval counts from the call that found it
-        let e = edges(shape, &[step(1000), None, None, step(5000)]);
-        assert_eq!(e[1] - e[0], shape.idle_ticks + 5000, "{hz} Hz");
-        // an interval shorter than the idle period already running: the
-        // first period after it, at the shortest
-        let e = edges(shape, &[step(1000), None, step(10)]);
-        assert_eq!(
-            e[1] - e[0],
-            shape.idle_ticks + 2 * shape.pulse_ticks,
-            "{hz} Hz"
-        );
-    }
 }
 
 #[test]

@@ -123,10 +123,11 @@ impl Chip {
 pub mod pins {
     /// (port 0 = A, 1 = B, pin)
     pub type Pin = (usize, u8);
-    /// STEP: PA6 (TIM3_CH1) in today's images; PA7 (TIM1_CH1N) in the
-    /// timer + DMA step engine's design (docs/firmware.md). The STEP pin
-    /// is the first of these a timer output drives.
-    pub const STEP: [Pin; 2] = [(0, 6), (0, 7)];
+    /// STEP: PA7 (TIM1_CH1N, the images' timer + DMA step engine,
+    /// docs/firmware.md); PA6 (TIM3_CH1) where the runner's own tests drive
+    /// a general-purpose timer. The STEP pin is the first of these a timer
+    /// output drives; `--trace-pins` traces the first.
+    pub const STEP: [Pin; 2] = [(0, 7), (0, 6)];
     pub const DIR: Pin = (1, 0);
     pub const CW_LIMIT: Pin = (1, 12);
     pub const CCW_LIMIT: Pin = (1, 13);

@@ -1,5 +1,5 @@
-//! `--trace-steps FILE`: one CSV line per STEP pulse on the pin (TIM3 CH1
-//! in its alternate function): emulated time of the rising edge in ns, the
+//! `--trace-steps FILE`: one CSV line per STEP pulse on the pin (the timer
+//! output that drives it in its alternate function): emulated time of the rising edge in ns, the
 //! DIR pin level then, and the pulse width in ns.
 
 use std::fs::File;

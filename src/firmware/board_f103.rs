@@ -6,8 +6,8 @@
 //! | RS-485 RO → RX | PA10 | USART1_RX (no remap) |
 //! | RS-485 DI ← TX | PA9 | USART1_TX (no remap) |
 //! | RS-485 DE + /RE | PA8 | GPIO: high the lead PA57 before the first byte, low the tail PA58 after TC |
-//! | STEP | PA6 | TIM3_CH1 (no remap), PWM mode 2 |
-//! | DIR | PB0 | GPIO, written by the step interrupt (`drive::io::DirectionOutput`, PA11) |
+//! | STEP | PA7 | TIM1_CH1N (partial remap), PWM mode 1, loaded by DMA (steps.rs) |
+//! | DIR | PB0 | TIM1_CH2N (partial remap), PWM mode 1 (0 % / 100 %), in the same DMA burst |
 //! | ENABLE | PB1 | GPIO, high = power stage enabled |
 //! | BRAKE | PB10 | GPIO, high = brake released (PB2 is BOOT1 on the blue pill) |
 //! | CW limit | PB12 | EXTI12 → EXTI15_10, pull-down |
@@ -21,6 +21,11 @@
 //! output) switches the pin to 3V3, the internal pull-down holds it low
 //! otherwise. ENABLE / BRAKE go through `drive::io::PowerOutputs`.
 //!
+//! The step engine's other parts: TIM3 counts TIM1's pulses (ITR0), DMA1
+//! channel 5 (TIM1_UP) feeds TIM1. TIM1's partial remap leaves CH1..CH3 on
+//! PA8..PA10 unused (PA8 stays DE, PA9 / PA10 the USART) and puts BKIN on
+//! PA6, which nothing drives.
+//!
 //! This USART has no receiver timeout and no driver-enable output: t3.5 is
 //! timed by `rs485::frame_gap_task`, DE is a GPIO raised and dropped by
 //! `rs485::send`.
@@ -29,11 +34,11 @@ use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
 use embassy_stm32::gpio::{AfioRemap, Level, Output, OutputType, Pull, Speed};
 use embassy_stm32::mode::Blocking;
-use embassy_stm32::peripherals::{PB6, PB7, TIM3, TIM4};
+use embassy_stm32::peripherals::{PB6, PB7, TIM1, TIM3, TIM4};
 use embassy_stm32::time::Hertz;
 use embassy_stm32::timer::low_level::Timer;
-use embassy_stm32::timer::simple_pwm::PwmPin;
-use embassy_stm32::timer::Ch1;
+use embassy_stm32::timer::complementary_pwm::ComplementaryPwmPin;
+use embassy_stm32::timer::{Ch1, Ch2};
 use embassy_stm32::usart::{self, Uart};
 use embassy_stm32::{bind_interrupts, interrupt, pac, Config, Peri, Peripherals};
 
@@ -62,14 +67,18 @@ pub const UART: pac::usart::Usart = pac::USART1;
 /// through its set/reset register by rs485.rs.
 pub const DE_PORT: pac::gpio::Gpio = pac::GPIOA;
 pub const DE_PIN: usize = 8;
-pub const STEP_TIMER: pac::timer::TimGp16 = pac::TIM3;
+pub const STEP_TIMER: pac::timer::TimAdv = pac::TIM1;
+pub const PULSE_COUNTER: pac::timer::TimGp16 = pac::TIM3;
+pub const STEP_DMA: pac::bdma::Dma = pac::DMA1;
+/// DMA1 channel 5 (0-based index), TIM1_UP's (RM0008 table 78).
+pub const STEP_DMA_CH: usize = 4;
 pub type UartIrq = interrupt::typelevel::USART1;
-pub type StepIrq = interrupt::typelevel::TIM3;
+pub type StepIrq = interrupt::typelevel::DMA1_CHANNEL5;
 pub type SwitchIrq = interrupt::typelevel::EXTI15_10;
 
 bind_interrupts!(pub struct Irqs {
     USART1 => super::rs485::UartHandler;
-    TIM3 => super::steps::StepHandler;
+    DMA1_CHANNEL5 => super::steps::StepHandler;
     EXTI15_10 => super::switches::SwitchHandler;
 });
 
@@ -101,12 +110,22 @@ pub fn config() -> Config {
 pub fn after_init() {
     pac::DBGMCU.cr().modify(|w| {
         w.set_iwdg(true);
+        w.set_tim1(true);
         w.set_tim3(true);
     });
 }
 
+/// The step engine's DMA channel clocked (the timers are, by their
+/// drivers in [`split`]).
+pub fn enable_step_clocks() {
+    pac::RCC.ahbenr().modify(|w| w.set_dma1en(true));
+}
+
+/// TIM1_UP has its fixed DMA channel on the F1: nothing to route.
+pub fn route_step_dma() {}
+
 /// The fault path's pins (fault.rs, which stops the step timer first), by
-/// direct register writes only: STEP (PA6) a push-pull GPIO output driven
+/// direct register writes only: STEP (PA7) a push-pull GPIO output driven
 /// low, DE (PA8) low = bus released, BRAKE (PB10) low = brake applied, and
 /// unless `keep_enable` ENABLE (PB1) low = power stage off. The pins are
 /// outputs from `__pre_init` on (above), so these writes act from the
@@ -114,12 +133,12 @@ pub fn after_init() {
 pub fn safe_outputs(keep_enable: bool) {
     use pac::gpio::vals::{CnfOut, Mode};
     pac::GPIOA.bsrr().write(|w| {
-        w.set_br(6, true);
+        w.set_br(7, true);
         w.set_br(8, true);
     });
     pac::GPIOA.cr(0).modify(|w| {
-        w.set_mode(6, Mode::OUTPUT2MHZ);
-        w.set_cnf_out(6, CnfOut::PUSH_PULL);
+        w.set_mode(7, Mode::OUTPUT2MHZ);
+        w.set_cnf_out(7, CnfOut::PUSH_PULL);
     });
     pac::GPIOB.bsrr().write(|w| {
         w.set_br(1, !keep_enable);
@@ -130,7 +149,7 @@ pub fn safe_outputs(keep_enable: bool) {
 // The safe levels from the first instructions after reset (cortex-m-rt's
 // `__pre_init`, called by its reset handler before RAM is initialised and
 // before `main`, the clocks and the executor): GPIOA / GPIOB clocked, then
-// STEP (PA6), DE (PA8), DIR (PB0), ENABLE (PB1) and BRAKE (PB10) push-pull
+// STEP (PA7), DE (PA8), DIR (PB0), ENABLE (PB1) and BRAKE (PB10) push-pull
 // outputs (2 MHz, CNF 00, MODE 10) driven low (output data first, so no
 // pin ever drives high). Assembly: nothing before RAM initialisation may
 // touch memory, and Rust code cannot promise that (cortex-m-rt's
@@ -148,13 +167,13 @@ core::arch::global_asm!(
     "orr r1, r1, #0xC",
     "str r1, [r0]",
     "ldr r1, [r0]",
-    // GPIOA: BSRR resets PA6 and PA8; CRL nibble 6 and CRH nibble 0 = 0b0010
+    // GPIOA: BSRR resets PA7 and PA8; CRL nibble 7 and CRH nibble 0 = 0b0010
     "ldr r0, =0x40010800",
-    "ldr r1, =0x01400000",
+    "ldr r1, =0x01800000",
     "str r1, [r0, #0x10]",
     "ldr r1, [r0]",
-    "bic r1, r1, #0x0F000000",
-    "orr r1, r1, #0x02000000",
+    "bic r1, r1, #0xF0000000",
+    "orr r1, r1, #0x20000000",
     "str r1, [r0]",
     "ldr r1, [r0, #4]",
     "bic r1, r1, #0xF",
@@ -188,9 +207,10 @@ pub struct EncoderPins {
 pub struct Parts {
     pub uart: Uart<'static, Blocking>,
     pub de: Output<'static>,
-    pub step_timer: Timer<'static, TIM3>,
-    pub step_pin: PwmPin<'static, TIM3, Ch1, AfioRemap<0>>,
-    pub dir: Output<'static>,
+    pub step_timer: Timer<'static, TIM1>,
+    pub pulse_counter: Timer<'static, TIM3>,
+    pub step_pin: ComplementaryPwmPin<'static, TIM1, Ch1, AfioRemap<1>>,
+    pub dir: ComplementaryPwmPin<'static, TIM1, Ch2, AfioRemap<1>>,
     pub enable: Output<'static>,
     pub brake: Output<'static>,
     pub switches: SwitchInputs,
@@ -199,13 +219,19 @@ pub struct Parts {
 }
 
 pub fn split(p: Peripherals, line: &usart::Config) -> Result<Parts, usart::ConfigError> {
+    let uart = Uart::new_blocking(p.USART1, p.PA10, p.PA9, *line)?;
+    let step_timer = Timer::new(p.TIM1);
+    // STEP and DIR driven low by the timer before their pins become its
+    // outputs
+    super::steps::outputs_low();
     Ok(Parts {
-        uart: Uart::new_blocking(p.USART1, p.PA10, p.PA9, *line)?,
+        uart,
         de: Output::new(p.PA8, Level::Low, Speed::VeryHigh),
-        step_timer: Timer::new(p.TIM3),
-        step_pin: PwmPin::new(p.PA6, OutputType::PushPull),
+        step_timer,
+        pulse_counter: Timer::new(p.TIM3),
+        step_pin: ComplementaryPwmPin::new(p.PA7, OutputType::PushPull),
+        dir: ComplementaryPwmPin::new(p.PB0, OutputType::PushPull),
         // outputs start in the safe state: disabled, brake applied (SPEC §8.1)
-        dir: Output::new(p.PB0, Level::Low, Speed::Low),
         enable: Output::new(p.PB1, Level::Low, Speed::Low),
         brake: Output::new(p.PB10, Level::Low, Speed::Low),
         encoder: EncoderPins {

@@ -5,8 +5,8 @@
 //! | RS-485 RO → RX | PA10 | USART1_RX (AF7) |
 //! | RS-485 DI ← TX | PA9 | USART1_TX (AF7) |
 //! | RS-485 DE + /RE | PA12 | USART1_DE (AF7), driven by the USART (CR3.DEM); a GPIO during a reply whose PA57 / PA58 exceed DEAT / DEDT |
-//! | STEP | PA6 | TIM3_CH1 (AF2), PWM mode 2 |
-//! | DIR | PB0 | GPIO, written by the step interrupt (`drive::io::DirectionOutput`, PA11) |
+//! | STEP | PA7 | TIM1_CH1N (AF6), PWM mode 1, loaded by DMA (steps.rs) |
+//! | DIR | PB0 | TIM1_CH2N (AF6), PWM mode 1 (0 % / 100 %), in the same DMA burst |
 //! | ENABLE | PB1 | GPIO, high = power stage enabled |
 //! | BRAKE | PB2 | GPIO, high = brake released |
 //! | CW limit | PB12 | EXTI12 → EXTI15_10, pull-down |
@@ -20,6 +20,9 @@
 //! output) switches the pin to 3V3, the internal pull-down holds it low
 //! otherwise. ENABLE / BRAKE go through `drive::io::PowerOutputs`.
 //!
+//! The step engine's other parts: TIM3 counts TIM1's pulses (ITR0), DMA1
+//! channel 1 (DMAMUX1 channel 0, request TIM1_UP) feeds TIM1.
+//!
 //! t3.5 comes from the USART's receiver timeout (RTOR), DE from its hardware
 //! driver-enable with assertion/deassertion times PA57 / PA58 (rs485.rs).
 
@@ -27,10 +30,10 @@ use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
 use embassy_stm32::gpio::{Level, Output, OutputType, Pull, Speed};
 use embassy_stm32::mode::Blocking;
-use embassy_stm32::peripherals::{PB6, PB7, TIM3, TIM4};
+use embassy_stm32::peripherals::{PB6, PB7, TIM1, TIM3, TIM4};
+use embassy_stm32::timer::complementary_pwm::ComplementaryPwmPin;
 use embassy_stm32::timer::low_level::Timer;
-use embassy_stm32::timer::simple_pwm::PwmPin;
-use embassy_stm32::timer::Ch1;
+use embassy_stm32::timer::{Ch1, Ch2};
 use embassy_stm32::usart::{self, Uart};
 use embassy_stm32::{bind_interrupts, interrupt, pac, Config, Peri, Peripherals};
 
@@ -59,14 +62,20 @@ pub const UART: pac::usart::Usart = pac::USART1;
 /// USART's DEAT / DEDT can time (rs485.rs).
 pub const DE_PORT: pac::gpio::Gpio = pac::GPIOA;
 pub const DE_PIN: usize = 12;
-pub const STEP_TIMER: pac::timer::TimGp16 = pac::TIM3;
+pub const STEP_TIMER: pac::timer::TimAdv = pac::TIM1;
+pub const PULSE_COUNTER: pac::timer::TimGp16 = pac::TIM3;
+pub const STEP_DMA: pac::bdma::Dma = pac::DMA1;
+/// DMA1 channel 1 (0-based index).
+pub const STEP_DMA_CH: usize = 0;
+/// TIM1_UP's DMAMUX request (RM0440 table "DMAMUX: assignment of multiplexer inputs to resources").
+const TIM1_UP_REQUEST: u8 = 46;
 pub type UartIrq = interrupt::typelevel::USART1;
-pub type StepIrq = interrupt::typelevel::TIM3;
+pub type StepIrq = interrupt::typelevel::DMA1_CHANNEL1;
 pub type SwitchIrq = interrupt::typelevel::EXTI15_10;
 
 bind_interrupts!(pub struct Irqs {
     USART1 => super::rs485::UartHandler;
-    TIM3 => super::steps::StepHandler;
+    DMA1_CHANNEL1 => super::steps::StepHandler;
     EXTI15_10 => super::switches::SwitchHandler;
 });
 
@@ -101,10 +110,27 @@ pub fn after_init() {
         w.set_iwdg(true);
         w.set_tim3(true);
     });
+    pac::DBGMCU.apb2fzr().modify(|w| w.set_tim1(true));
+}
+
+/// The step engine's DMA channel clocked (the timers are, by their
+/// drivers in [`split`]).
+pub fn enable_step_clocks() {
+    pac::RCC.ahb1enr().modify(|w| {
+        w.set_dma1en(true);
+        w.set_dmamux1en(true);
+    });
+}
+
+/// TIM1's update request to the step engine's DMA channel.
+pub fn route_step_dma() {
+    pac::DMAMUX1
+        .ccr(STEP_DMA_CH)
+        .write(|w| w.set_dmareq_id(TIM1_UP_REQUEST));
 }
 
 /// The fault path's pins (fault.rs, which stops the step timer first), by
-/// direct register writes only: STEP (PA6) and DE (PA12) as GPIO outputs
+/// direct register writes only: STEP (PA7) and DE (PA12) as GPIO outputs
 /// driven low, BRAKE (PB2) low = brake applied, and unless `keep_enable`
 /// ENABLE (PB1) low = power stage off. The pins are outputs from
 /// `__pre_init` on (above), so these writes act from the first instruction
@@ -112,11 +138,11 @@ pub fn after_init() {
 pub fn safe_outputs(keep_enable: bool) {
     use pac::gpio::vals::Moder;
     pac::GPIOA.bsrr().write(|w| {
-        w.set_br(6, true);
+        w.set_br(7, true);
         w.set_br(12, true);
     });
     pac::GPIOA.moder().modify(|w| {
-        w.set_moder(6, Moder::OUTPUT);
+        w.set_moder(7, Moder::OUTPUT);
         w.set_moder(12, Moder::OUTPUT);
     });
     pac::GPIOB.bsrr().write(|w| {
@@ -128,7 +154,7 @@ pub fn safe_outputs(keep_enable: bool) {
 // The safe levels from the first instructions after reset (cortex-m-rt's
 // `__pre_init`, called by its reset handler before RAM is initialised and
 // before `main`, the clocks and the executor): GPIOA / GPIOB clocked, then
-// STEP (PA6), DE (PA12), DIR (PB0), ENABLE (PB1) and BRAKE (PB2) push-pull
+// STEP (PA7), DE (PA12), DIR (PB0), ENABLE (PB1) and BRAKE (PB2) push-pull
 // outputs driven low (output data first, so no pin ever drives high).
 // Assembly: nothing before RAM initialisation may touch memory, and Rust
 // code cannot promise that (cortex-m-rt's `pre_init` docs). `split` later
@@ -147,14 +173,14 @@ core::arch::global_asm!(
     "orr r1, r1, #3",
     "str r1, [r0]",
     "ldr r1, [r0]",
-    // GPIOA: BSRR resets PA6 and PA12, MODER 01 (output) for both
+    // GPIOA: BSRR resets PA7 and PA12, MODER 01 (output) for both
     "ldr r0, =0x48000000",
-    "ldr r1, =0x10400000",
+    "ldr r1, =0x10800000",
     "str r1, [r0, #0x18]",
     "ldr r1, [r0]",
-    "ldr r2, =0x03003000",
+    "ldr r2, =0x0300C000",
     "bic r1, r1, r2",
-    "ldr r2, =0x01001000",
+    "ldr r2, =0x01004000",
     "orr r1, r1, r2",
     "str r1, [r0]",
     // GPIOB: BSRR resets PB0..PB2, MODER 01 for each
@@ -198,9 +224,10 @@ pub struct EncoderPins {
 
 pub struct Parts {
     pub uart: Uart<'static, Blocking>,
-    pub step_timer: Timer<'static, TIM3>,
-    pub step_pin: PwmPin<'static, TIM3, Ch1>,
-    pub dir: Output<'static>,
+    pub step_timer: Timer<'static, TIM1>,
+    pub pulse_counter: Timer<'static, TIM3>,
+    pub step_pin: ComplementaryPwmPin<'static, TIM1, Ch1>,
+    pub dir: ComplementaryPwmPin<'static, TIM1, Ch2>,
     pub enable: Output<'static>,
     pub brake: Output<'static>,
     pub switches: SwitchInputs,
@@ -210,12 +237,17 @@ pub struct Parts {
 
 pub fn split(p: Peripherals, line: &usart::Config) -> Result<Parts, usart::ConfigError> {
     let uart = Uart::new_blocking_with_de(p.USART1, p.PA10, p.PA9, p.PA12, *line)?;
+    let step_timer = Timer::new(p.TIM1);
+    // STEP and DIR driven low by the timer before their pins become its
+    // outputs
+    super::steps::outputs_low();
     Ok(Parts {
         uart,
-        step_timer: Timer::new(p.TIM3),
-        step_pin: PwmPin::new(p.PA6, OutputType::PushPull),
+        step_timer,
+        pulse_counter: Timer::new(p.TIM3),
+        step_pin: ComplementaryPwmPin::new(p.PA7, OutputType::PushPull),
+        dir: ComplementaryPwmPin::new(p.PB0, OutputType::PushPull),
         // outputs start in the safe state: disabled, brake applied (SPEC §8.1)
-        dir: Output::new(p.PB0, Level::Low, Speed::Low),
         enable: Output::new(p.PB1, Level::Low, Speed::Low),
         brake: Output::new(p.PB2, Level::Low, Speed::Low),
         encoder: EncoderPins {

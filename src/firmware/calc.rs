@@ -101,16 +101,13 @@ pub const MIN_STEP_PULSE_NS: u32 = 2_500;
 pub const MIN_DIR_SETUP_NS: u32 = 5_000;
 /// Longest pulse or set-up time a parameter may ask for: 100 µs.
 pub const MAX_SHAPE_NS: u32 = 100_000;
-/// The DIR write happens this long after the update event at worst (entry
-/// latency < 1 µs on both cores; nothing but a fault masks the step
-/// interrupt, the rest is room for flash wait states and a tail-chained
-/// handler's exit).
-pub const ISR_LATENCY_NS: u32 = 2_000;
 /// Longest period of the 16-bit step timer, in ticks.
 pub const MAX_PERIOD_TICKS: u32 = 1 << 16;
-/// Period of the timer while no step is due: the interrupt then asks the
-/// step source again every 100 µs.
-pub const IDLE_PERIOD_NS: u32 = 100_000;
+/// The step engine's idle entry, also its longest: no step due, and the
+/// pieces of a longer interval. The entries written ahead of the timer (two
+/// buffer halves and the preload) then reach less than a control period
+/// plus the planner's horizon ahead (docs/firmware.md).
+pub const IDLE_PERIOD_NS: u32 = 50_000;
 
 /// Nanoseconds → timer ticks at `tick_hz`, rounded up (a minimum stays a minimum).
 pub const fn ns_to_ticks(ns: u32, tick_hz: u32) -> u32 {
@@ -155,7 +152,6 @@ const fn shape_ns(v_100ns: u16, min_ns: u32) -> u32 {
 pub struct StepShape {
     pub pulse_ticks: u32,
     pub dir_setup_ticks: u32,
-    pub latency_ticks: u32,
     pub idle_ticks: u32,
 }
 
@@ -169,7 +165,6 @@ impl StepShape {
         Self {
             pulse_ticks: ns_to_ticks(shape_ns(pa15_pulse_100ns, MIN_STEP_PULSE_NS), tick_hz),
             dir_setup_ticks: ns_to_ticks(shape_ns(pa16_dir_setup_100ns, MIN_DIR_SETUP_NS), tick_hz),
-            latency_ticks: ns_to_ticks(ISR_LATENCY_NS, tick_hz),
             idle_ticks: if idle_ticks > MAX_PERIOD_TICKS {
                 MAX_PERIOD_TICKS
             } else {
@@ -198,146 +193,116 @@ impl StepShape {
             ..self
         }
     }
-
-    /// Shortest period that still holds a pulse: the pulse plus a low time
-    /// of the same width (the driver must see both levels).
-    fn min_period(self) -> u32 {
-        2 * self.pulse_ticks
-    }
-
-    /// Shortest period whose pulse follows a direction change: DIR is written
-    /// at the start of the period, so the rising edge must come at least the
-    /// set-up time (plus interrupt latency) later.
-    fn min_period_after_reversal(self) -> u32 {
-        self.pulse_ticks + self.dir_setup_ticks + self.latency_ticks
-    }
 }
 
-/// One step from the core's step schedule, in step-timer ticks.
+/// Direction runs a [`StepLedger`] remembers: more than the step engine's
+/// buffer can hold unmade (each run takes at least a pulse entry and a
+/// DIR set-up entry of the buffer's halves and preload).
+pub const LEDGER_RUNS: usize = 16;
+/// Words of a [`StepLedger`]'s hand-over.
+pub const LEDGER_WORDS: usize = 1 + LEDGER_RUNS / 2;
+
+/// What the step engine's refill hands [`StepLedger::pin_position`] for
+/// the STEP pin's position (steps.rs): the steps given to the timer, where
+/// each of the last direction runs started, and whether the schedule has
+/// counted the last step. Counts modulo 2^16, like the pulse counter
+/// (TIM3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Step {
-    /// Direction on the motor side (SPEC §8.6: positive = "right", towards
-    /// the CCW limit); PA11 inversion is the core's business.
-    pub forward: bool,
-    /// Time from the previous step's edge to this one.
-    pub interval_ticks: u32,
+pub struct StepLedger {
+    given: u16,
+    /// The newest run's index in `starts` (the ring's head).
+    newest: u8,
+    forward: bool,
+    pending: bool,
+    /// Index of each run's first step; runs alternate in direction.
+    starts: [u16; LEDGER_RUNS],
 }
 
-/// What the step interrupt writes into the timer for the *next* period
-/// (preloaded: ARR and CCR take effect at the next update event).
-///
-/// The channel runs in PWM mode 2 (output high while `CNT ≥ CCR`), so a pulse
-/// sits at the end of its period: rising at `ccr`, falling at the update
-/// event. `ccr > arr` means no pulse in that period.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Period {
-    pub arr: u16,
-    pub ccr: u16,
-    /// DIR level for the pulse at the end of this period, to be written when
-    /// the period starts (the interrupt after next); `None` = leave DIR.
-    pub dir: Option<bool>,
+impl Default for StepLedger {
+    fn default() -> Self {
+        Self::new()
+    }
 }
 
-/// Splits the step schedule into 16-bit timer periods, stretching a period
-/// after a reversal so DIR is set up in time, and holding DIR for the same
-/// time after the last pulse of the old direction (an idle period before
-/// the reversal's, unless one runs already). Constant time per call.
-#[derive(Clone, Copy, Debug)]
-pub struct StepShaper {
-    shape: StepShape,
-    /// Ticks still to go until the pending step's edge.
-    remaining: u32,
-    pending_forward: bool,
-    last_forward: bool,
-    /// Ticks of the idle period returned by the last call because no step
-    /// was due (0 if that call returned anything else). The timer has
-    /// preloaded it and it starts as this call's period is computed, so a
-    /// step found now — whose interval counts from now, the update event
-    /// of the last edge or of an idle period — is that much closer.
-    idle_ahead: u32,
-}
-
-impl StepShaper {
-    pub const fn new(shape: StepShape) -> Self {
+impl StepLedger {
+    /// At rest, forward (the direction a `StepSource` starts in).
+    pub const fn new() -> Self {
         Self {
-            shape,
-            remaining: 0,
-            pending_forward: true,
-            last_forward: true,
-            idle_ahead: 0,
+            given: 0,
+            newest: 0,
+            forward: true,
+            pending: false,
+            starts: [0; LEDGER_RUNS],
         }
     }
 
-    /// [`StepShape::with_packed`] on the shape in force.
-    pub fn set_packed_shape(&mut self, packed: u32) {
-        self.shape = self.shape.with_packed(packed);
-    }
-
-    /// DIR now stands for the other direction (PA11 changed): the pin
-    /// level of the last step is that of the opposite direction, so the
-    /// next step in the same direction changes the pin and gets the set-up
-    /// of a reversal.
-    pub fn dir_pin_flipped(&mut self) {
-        self.last_forward = !self.last_forward;
-    }
-
-    /// The next timer period. `next_step` is asked only when the previous
-    /// step has been issued.
-    pub fn next_period(&mut self, next_step: impl FnOnce() -> Option<Step>) -> Period {
-        if self.remaining == 0 {
-            let Some(step) = next_step() else {
-                self.idle_ahead = self.shape.idle_ticks;
-                return Self::idle(self.shape.idle_ticks);
-            };
-            let reversal = step.forward != self.last_forward;
-            let min = if reversal {
-                self.shape.min_period_after_reversal()
-            } else {
-                self.shape.min_period()
-            };
-            // the preloaded idle period runs first: count it in the interval
-            let ahead = core::mem::take(&mut self.idle_ahead);
-            // DIR is written at the start of the step's period; unless an
-            // idle period runs before it, that start is the last pulse's
-            // falling edge: a reversal then first holds DIR for the set-up
-            // time in an idle period of its own
-            let hold = if reversal && ahead < self.shape.dir_setup_ticks {
-                self.shape.dir_setup_ticks
-            } else {
-                0
-            };
-            self.remaining = step
-                .interval_ticks
-                .saturating_sub(ahead)
-                .saturating_sub(hold)
-                .max(min);
-            self.pending_forward = step.forward;
-            if hold > 0 {
-                return Self::idle(hold);
+    /// One `StepSource::advance`: `Some(forward)` is a step given to the
+    /// timer, which the schedule counts from the next `advance` on (it
+    /// counts the pending step at the next call, or when it runs dry).
+    pub fn advanced(&mut self, step: Option<bool>) {
+        self.pending = step.is_some();
+        if let Some(forward) = step {
+            if forward != self.forward {
+                self.forward = forward;
+                self.newest = (self.newest + 1) % LEDGER_RUNS as u8;
+                self.starts[usize::from(self.newest)] = self.given;
             }
-        }
-        if self.remaining > MAX_PERIOD_TICKS {
-            // A slow step: idle half-periods until the rest fits in one
-            // period (the rest stays > MAX/2, far above any minimum).
-            let chunk = MAX_PERIOD_TICKS / 2;
-            self.remaining -= chunk;
-            return Self::idle(chunk);
-        }
-        let ticks = self.remaining;
-        self.remaining = 0;
-        self.last_forward = self.pending_forward;
-        Period {
-            arr: (ticks - 1) as u16,
-            ccr: (ticks - self.shape.pulse_ticks) as u16,
-            dir: Some(self.pending_forward),
+            self.given = self.given.wrapping_add(1);
         }
     }
 
-    fn idle(ticks: u32) -> Period {
-        Period {
-            arr: (ticks - 1) as u16,
-            ccr: u16::MAX,
-            dir: None,
+    /// The STEP pin's position, from the schedule's position `pos` and the
+    /// pulses the timer has made (`made`, mod 2^16): the steps the schedule
+    /// counted and the timer has not made yet are taken back, run by run
+    /// from the newest, each in its direction.
+    pub fn pin_position(&self, pos: i32, made: u16) -> i32 {
+        let mut end = self.given.wrapping_sub(u16::from(self.pending));
+        let mut ahead = end.wrapping_sub(made);
+        let mut dir: i32 = if self.forward { 1 } else { -1 };
+        let mut at = usize::from(self.newest);
+        let mut pin = pos;
+        for _ in 0..LEDGER_RUNS {
+            if ahead == 0 {
+                break;
+            }
+            let start = self.starts[at];
+            let n = end.wrapping_sub(start).min(ahead);
+            pin = pin.wrapping_sub(dir * i32::from(n));
+            ahead -= n;
+            end = start;
+            dir = -dir;
+            at = (at + LEDGER_RUNS - 1) % LEDGER_RUNS;
+        }
+        pin
+    }
+
+    /// In words, for a hand-over through atomics; all zeros is
+    /// [`StepLedger::new`].
+    pub fn words(&self) -> [u32; LEDGER_WORDS] {
+        let mut w = [0; LEDGER_WORDS];
+        w[0] = u32::from(self.given)
+            | u32::from(self.newest) << 16
+            | u32::from(!self.forward) << 24
+            | u32::from(self.pending) << 25;
+        for (k, pair) in self.starts.chunks(2).enumerate() {
+            w[1 + k] = u32::from(pair[0]) | u32::from(pair[1]) << 16;
+        }
+        w
+    }
+
+    /// From [`StepLedger::words`].
+    pub fn from_words(w: &[u32; LEDGER_WORDS]) -> Self {
+        let mut starts = [0; LEDGER_RUNS];
+        for (k, pair) in starts.chunks_mut(2).enumerate() {
+            pair[0] = w[1 + k] as u16;
+            pair[1] = (w[1 + k] >> 16) as u16;
+        }
+        Self {
+            given: w[0] as u16,
+            newest: (w[0] >> 16) as u8 % LEDGER_RUNS as u8,
+            forward: w[0] >> 24 & 1 == 0,
+            pending: w[0] >> 25 & 1 != 0,
+            starts,
         }
     }
 }

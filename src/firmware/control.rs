@@ -50,7 +50,7 @@ pub async fn run(
     let mut log = EventLog::new();
     let mut last_shape = None;
     let mut pins_ok = true;
-    let mut worst_late = 0;
+    let mut late_refills = 0;
     // PA17 > 0 as last seen: the encoder timer starts the period after
     let mut encoder_wanted = false;
     loop {
@@ -104,13 +104,10 @@ pub async fn run(
             last_shape = Some(shape);
         }
         log.drain(); // state transitions, faults, limit stops, homing
-        let late = steps::worst_entry_ticks();
-        if late > worst_late {
-            worst_late = late;
-            defmt::info!(
-                "step interrupt: worst latency {=u32} ns",
-                (u64::from(late) * 1_000_000_000 / u64::from(board::STEP_TICK_HZ)) as u32
-            );
+        let late = steps::late_refills();
+        if late > late_refills {
+            late_refills = late;
+            defmt::warn!("step engine: {=u32} refill(s) came a buffer half late", late);
         }
     }
 }

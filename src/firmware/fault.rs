@@ -189,11 +189,9 @@ pub enum Fault {
 /// The fault path (see the module docs). Never returns.
 pub fn stop(fault: Fault) -> ! {
     cortex_m::interrupt::disable();
-    // the step timer is the same TIM3 on both boards: counter and compare
-    // output off before the pins are taken over
-    let t = board::STEP_TIMER;
-    t.cr1().modify(|w| w.set_cen(false));
-    t.ccer().modify(|w| w.set_cce(0, false));
+    // the step engine stopped (a break: STEP low at once) before the pins
+    // are taken over
+    super::steps::stop();
     let first = !FAULTED.swap(true, Ordering::Relaxed);
     board::safe_outputs(true);
     pac::IWDG

@@ -126,9 +126,9 @@ async fn main(spawner: Spawner) {
         timer_clock_hz,
         board::STEP_TICK_HZ
     );
-    let schedule = steps::start(parts.dir, prescaler, dir_inverted);
+    let schedule = steps::start(prescaler, dir_inverted);
     // SAFETY: the handler is bound in `board::Irqs`; its state
-    // (steps::STEPPER) is initialised by `steps::start` above.
+    // (steps::ENGINE, steps::BUFFER) is initialised by `steps::start` above.
     unsafe { board::StepIrq::enable() };
 
     defmt::info!(
@@ -154,9 +154,10 @@ async fn main(spawner: Spawner) {
         "task spawned twice"
     ));
 
-    // The step pin stays owned here for good, and so does the F103's DE
-    // pin (an output that rs485 drives through its set/reset register).
-    let _step_pin = parts.step_pin;
+    // The step engine's pins and pulse counter stay owned here for good,
+    // and so does the F103's DE pin (an output that rs485 drives through
+    // its set/reset register).
+    let _step_pins = (parts.step_pin, parts.dir, parts.pulse_counter);
     #[cfg(feature = "board-f103")]
     let _de_pin = parts.de;
     // From here on a hung thread resets the chip (fault.rs).

@@ -1,60 +1,48 @@
-//! Step output: a 16-bit timer whose channel 1 makes the STEP pulses in
-//! hardware; its update interrupt consumes the core's step schedule.
+//! Step output by timer and DMA (docs/firmware.md, "Step engine by timer
+//! and DMA"): the advanced timer TIM1 makes STEP (CH1N) and DIR (CH2N) in
+//! hardware, a DMA channel loads its period, repetition count, pulse width
+//! and DIR level at every update event from a circular buffer of timer
+//! entries, and TIM3 counts the pulses made from TIM1's OC1REF.
+//!
+//! The CPU works per refill, not per step: the DMA channel's half-transfer
+//! and transfer-complete interrupts hand back the half of the buffer just
+//! read, and the refill writes it again from the core's step schedule
+//! through `motion::burst::BurstWriter` (one `StepSource::advance` per
+//! step, in the same core code the host tests run). A DMA burst reaches
+//! the preload registers, which take effect at the update event after the
+//! one that requested it, so an entry is written a buffer half and two
+//! periods before it acts.
 //!
 //! [`SCHEDULE`] is the core's lock-free `StepSchedule`
-//! (src/motion/schedule/mod.rs): the control loop fills it through `Device::control`, this
-//! interrupt owns the `StepSource` that empties it, and the limit-switch
-//! interrupt writes the active limits into it (`set_limits`), so a limit
-//! brakes the motion here, at the next step, with 0x6085 (SPEC §8.7; the
-//! "Limit brake" docs in motion/schedule/mod.rs).
+//! (src/motion/schedule/mod.rs): the control loop fills it through
+//! `Device::control`, the refill owns the `StepSource` that empties it, and
+//! the limit-switch interrupt writes the active limits into it
+//! (`set_limits`), so the next refill brakes with 0x6085 (SPEC §8.7).
 //!
-//! The channel runs in PWM mode 2 with ARR and CCR1 preloaded: each period
-//! ends with a pulse of the STEP width (rising at CCR1, falling at the update
-//! event) or has none (CCR1 > ARR). At every update event the interrupt
-//! (1) writes DIR for the pulse that ends the period just started — so DIR
-//! leads the edge by at least the set-up time, [`StepShaper`] stretches a
-//! period after a reversal — and (2) preloads the next period from
-//! `StepSource::advance`. Widths and set-up come from PA15/PA16 with safe
-//! minimums (calc.rs). While no step is due the timer runs idle periods of
-//! 100 µs and asks the source again at each: that is how the interrupt
-//! starts when the control loop has queued segments (≤ 100 µs later). A
-//! step found at such an update event is due its interval from there; the
-//! idle period already preloaded runs first and counts towards it
-//! (`StepShaper`), so a queue that runs dry for a moment — the control loop
-//! has not queued the next step yet when the interrupt asks for it, one
-//! period ahead — costs no time.
+//! Pulses made are TIM3's count, never inferred: [`pin_position`] is the
+//! schedule's position less the steps handed to the timer and not yet
+//! made, which the homing latch takes at a switch edge.
 //!
-//! `advance` counts the step announced at the previous update event: that
-//! step is already loaded into the timer and goes out at the end of the
-//! period starting now, so the core's position leads the STEP pin by at
-//! most one period.
-//!
-//! Shared state, none of it behind a lock (priority.rs: nothing masks this
-//! interrupt): [`SCHEDULE`] lock-free (atomics only), [`STEPPER`] owned by
-//! this interrupt alone (set up before it is enabled), the STEP width / DIR
-//! set-up and PA11 handed over in atomics ([`set_shape`],
-//! [`set_dir_inverted`]) and taken at the next update event.
-//!
-//! DIR: [`start`] writes it for the positive direction, which is what the
-//! shaper assumes of the first step; a PA11 change flips the pin's meaning,
-//! so the interrupt then tells the shaper the pin now stands for the other
-//! direction, and the next step gets the set-up stretch of a reversal.
+//! Shared state, none of it behind a lock (priority.rs: nothing masks the
+//! refill): [`SCHEDULE`] lock-free, [`ENGINE`] and [`BUFFER`] owned by the
+//! refill interrupt (set up before it is enabled; the DMA reads the buffer
+//! half the refill is not writing), the hand-over of PA15/PA16 and PA11 in
+//! atomics, and what [`pin_position`] reads under a sequence count.
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use embassy_stm32::gpio::Output;
 use embassy_stm32::interrupt::typelevel::Handler;
-use embassy_stm32::pac::timer::vals::Ocm;
-use modbus_drive::drive::io::DirectionOutput;
+use embassy_stm32::pac;
+use embassy_stm32::pac::timer::vals::{Mms, Ocm, Ossi, Sms, Ts};
+use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
 use modbus_drive::motion::{StepSchedule, StepSource};
 
 use super::board;
-use super::calc::{Period, Step, StepShape, StepShaper};
+use super::calc::{StepLedger, StepShape, LEDGER_WORDS};
 use super::owned::IrqOwned;
 
-/// The step schedule between the control loop and this interrupt. Its
-/// `const` initialiser is all zeros, so it lives in .bss and costs no flash
-/// image.
+/// The step schedule between the control loop and the refill. Its `const`
+/// initialiser is all zeros, so it lives in .bss and costs no flash image.
 static SCHEDULE: StepSchedule = StepSchedule::new();
 
 /// The step schedule.
@@ -62,70 +50,178 @@ pub fn schedule() -> &'static StepSchedule {
     &SCHEDULE
 }
 
+/// Entries in one half of the DMA buffer: the refill runs once per half,
+/// and a step written now acts at most two halves later.
+const HALF: usize = 8;
+/// Half-words one entry's DMA burst moves (ARR, RCR, CCR1, CCR2).
+const BURST_HALF_WORDS: usize = 4;
+
+/// The DMA's circular buffer, read by the DMA channel and written only by
+/// the refill (a half after the DMA has read it).
+static BUFFER: IrqOwned<[Burst; 2 * HALF]> = IrqOwned::new([Burst::ZERO; 2 * HALF]);
+
 /// PA11: DIR inverted (written by the control loop).
 static DIR_INVERTED: AtomicBool = AtomicBool::new(false);
 /// STEP width and DIR set-up in ticks, packed (`StepShape::packed`).
 static SHAPE: AtomicU32 = AtomicU32::new(0);
 
-struct Stepper {
-    shaper: StepShaper,
+/// The refill's `StepLedger` for [`pin_position`], written under [`SEQ`]
+/// (`StepLedger::words`).
+static LEDGER: [AtomicU32; LEDGER_WORDS] = [const { AtomicU32::new(0) }; LEDGER_WORDS];
+/// Odd while the refill writes the values above.
+static SEQ: AtomicU32 = AtomicU32::new(0);
+/// Refills in a row that wrote no pulse (the buffer holds none once two did).
+static QUIET_REFILLS: AtomicU32 = AtomicU32::new(0);
+/// Refills that found the DMA already in the half they were to write.
+static LATE_REFILLS: AtomicU32 = AtomicU32::new(0);
+
+struct Engine {
+    writer: BurstWriter,
     source: StepSource,
-    dir: Option<DirectionOutput<Output<'static>>>,
-    /// PA11 as the pin levels in the timer were computed with.
-    inverted: bool,
     /// Shape last taken from [`SHAPE`].
     shape: u32,
-    /// DIR level for the pulse preloaded for the next period.
-    pulse_next: Option<bool>,
+    /// Width, set-up and idle entry in timer ticks.
+    pulse: StepShape,
+    ledger: StepLedger,
 }
 
-/// Owned by the step interrupt once it is enabled (`start` fills it before).
-static STEPPER: IrqOwned<Stepper> = IrqOwned::new(Stepper {
-    shaper: StepShaper::new(StepShape::safe(board::STEP_TICK_HZ)),
-    source: StepSource::new(),
-    dir: None,
-    inverted: false,
-    shape: 0,
-    pulse_next: None,
-});
+/// Owned by the refill interrupt once it is enabled (`start` fills it before).
+static ENGINE: IrqOwned<Option<Engine>> = IrqOwned::new(None);
 
-/// Sets the timer up (tick `board::STEP_TICK_HZ`, PWM mode 2 on channel 1,
-/// preloads, update interrupt) and starts it idle, DIR set for the positive
-/// direction under PA11 = `dir_inverted`. The STEP pin is already in its
-/// alternate function (`board::split`). `prescaler` is
-/// `calc::step_prescaler` of the timer's clock. Returns the step schedule
-/// for the control loop. Call it before the step interrupt is enabled.
-pub fn start(dir: Output<'static>, prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
-    let t = board::STEP_TIMER;
+fn pulse_shape(s: StepShape) -> PulseShape {
+    PulseShape::new(s.pulse_ticks, s.dir_setup_ticks, s.idle_ticks)
+}
+
+/// Sets TIM1 (tick `board::STEP_TICK_HZ`: its clock, `prescaler` is
+/// `calc::step_prescaler` of it), TIM3 (the
+/// pulse counter) and the DMA channel up, fills the buffer idle and starts
+/// them, DIR set for the positive direction under PA11 = `dir_inverted`.
+/// STEP and DIR are already in their alternate function (`board::split`).
+/// Returns the step schedule for the control loop. Call it before the
+/// refill interrupt is enabled.
+pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
     let shape = StepShape::safe(board::STEP_TICK_HZ);
     DIR_INVERTED.store(dir_inverted, Ordering::Relaxed);
     SHAPE.store(shape.packed(), Ordering::Relaxed);
-    // SAFETY: the step interrupt is not enabled yet: nothing else runs on it.
-    let s = unsafe { STEPPER.get() };
-    let mut dir = DirectionOutput::new(dir);
-    // the shaper starts out assuming the last step went forward
-    dir.set(true, dir_inverted);
-    s.dir = Some(dir);
-    s.inverted = dir_inverted;
-    s.shape = shape.packed();
+    let level = !dir_inverted; // forward
+    let mut engine = Engine {
+        writer: BurstWriter::new(pulse_shape(shape), level),
+        source: StepSource::new(),
+        shape: shape.packed(),
+        pulse: shape,
+        ledger: StepLedger::new(),
+    };
+    // SAFETY: the refill interrupt is not enabled yet: nothing else runs on
+    // the buffer or the engine, and the DMA channel is off.
+    let buffer = unsafe { BUFFER.get() };
+    engine.writer.fill(buffer, || None);
+    // SAFETY: as above.
+    unsafe { *ENGINE.get() = Some(engine) };
+
+    board::enable_step_clocks();
+    let t = board::STEP_TIMER;
     t.cr1().modify(|w| {
         w.set_cen(false);
         w.set_arpe(true);
     });
     t.psc().write_value(prescaler);
+    // the first period: idle, DIR at its level, no pulse
     t.arr().write(|w| w.set_arr((shape.idle_ticks - 1) as u16));
-    t.ccr(0).write(|w| w.set_ccr(u16::MAX));
+    t.rcr().write(|w| w.set_rep(0));
+    t.ccr(0).write(|w| w.set_ccr(0));
+    t.ccr(1).write(|w| w.set_ccr(if level { u16::MAX } else { 0 }));
     t.ccmr_output(0).modify(|w| {
-        w.set_ocm(0, Ocm::PWM_MODE2);
+        w.set_ocm(0, Ocm::PWM_MODE1);
         w.set_ocpe(0, true);
+        w.set_ocm(1, Ocm::PWM_MODE1);
+        w.set_ocpe(1, true);
     });
-    t.ccer().modify(|w| w.set_cce(0, true));
-    t.egr().write(|w| w.set_ug(true)); // load PSC/ARR/CCR1 now
+    // only the complementary outputs: each pin is OCxREF itself
+    t.ccer().modify(|w| {
+        w.set_ccne(0, true);
+        w.set_ccne(1, true);
+    });
+    // OC1REF on TRGO: TIM3 counts its rising edges
+    t.cr2().modify(|w| w.set_mms(Mms::COMPARE_OC1));
+    // a burst of ARR, RCR, CCR1, CCR2 through DMAR at each update
+    t.dcr().write(|w| {
+        w.set_dba(ARR_WORD);
+        w.set_dbl((BURST_HALF_WORDS - 1) as u8);
+    });
+    t.egr().write(|w| w.set_ug(true)); // the first period's registers now
     t.sr().write_value(Default::default());
-    t.dier().modify(|w| w.set_uie(true));
+    // outputs on; a break (the fault path's BG) drives both to their
+    // idle level, low
+    t.bdtr().modify(|w| {
+        w.set_ossi(Ossi::IDLE_LEVEL);
+        w.set_moe(true);
+    });
+
+    let c = board::PULSE_COUNTER;
+    c.cr1().modify(|w| w.set_cen(false));
+    c.smcr().modify(|w| {
+        w.set_ts(Ts::ITR0); // TIM1's TRGO
+        w.set_sms(Sms::EXT_CLOCK_MODE);
+    });
+    c.arr().write(|w| w.set_arr(u16::MAX));
+    c.cnt().write(|w| w.set_cnt(0));
+    c.cr1().modify(|w| w.set_cen(true));
+
+    board::route_step_dma();
+    let ch = board::STEP_DMA.ch(board::STEP_DMA_CH);
+    ch.cr().write(|w| w.set_en(false));
+    ch.par().write_value(t.dmar().as_ptr() as u32);
+    ch.mar().write_value(buffer.as_ptr() as u32);
+    ch.ndtr()
+        .write(|w| w.set_ndt((2 * HALF * BURST_HALF_WORDS) as u16));
+    ch.cr().write(|w| {
+        use pac::bdma::vals::{Dir, Pl, Size};
+        w.set_dir(Dir::FROM_MEMORY);
+        w.set_msize(Size::BITS16);
+        w.set_psize(Size::BITS16);
+        w.set_minc(true);
+        w.set_circ(true);
+        w.set_pl(Pl::VERY_HIGH);
+        w.set_htie(true);
+        w.set_tcie(true);
+        w.set_en(true);
+    });
+    t.dier().modify(|w| w.set_ude(true));
     t.cr1().modify(|w| w.set_cen(true));
     &SCHEDULE
 }
+
+/// STEP and DIR driven low by TIM1 (its outputs' idle level while MOE is
+/// off), so that their pins never float when they become its outputs.
+/// Call it with TIM1 clocked, before the pins are switched over.
+pub fn outputs_low() {
+    let t = board::STEP_TIMER;
+    t.bdtr().modify(|w| {
+        w.set_moe(false);
+        w.set_ossi(Ossi::IDLE_LEVEL);
+    });
+    t.ccer().modify(|w| {
+        w.set_ccne(0, true);
+        w.set_ccne(1, true);
+    });
+}
+
+/// The fault path: a software break (MOE off: STEP and DIR at once at
+/// their idle level, low), then DMA and timer stopped. Register writes
+/// only, from any context.
+pub fn stop() {
+    let t = board::STEP_TIMER;
+    t.egr().write(|w| w.set_bg(0, true));
+    t.dier().modify(|w| w.set_ude(false));
+    board::STEP_DMA
+        .ch(board::STEP_DMA_CH)
+        .cr()
+        .modify(|w| w.set_en(false));
+    t.cr1().modify(|w| w.set_cen(false));
+}
+
+/// TIMx_DMAR's base address: ARR, in words from CR1 (0x2C on both chips).
+const ARR_WORD: u8 = 0x2C / 4;
 
 /// New STEP width / DIR set-up (PA15/PA16); applies from the next step.
 pub fn set_shape(shape: StepShape) {
@@ -137,68 +233,118 @@ pub fn set_dir_inverted(inverted: bool) {
     DIR_INVERTED.store(inverted, Ordering::Relaxed);
 }
 
-/// Nothing is queued and no step is under way: flash work may start
-/// (SPEC §9). Only the control loop fills the schedule, and it cannot run
-/// while the dispatcher does flash work, so this stays true through it.
+/// Nothing is queued, no step is under way and the DMA buffer holds no
+/// pulse: flash work may start (SPEC §9). Only the control loop fills the
+/// schedule, and it cannot run while the dispatcher does flash work, so
+/// this stays true through it (the refill then writes idle entries only).
 pub fn idle() -> bool {
-    SCHEDULE.is_empty() && !SCHEDULE.is_running()
+    SCHEDULE.is_empty() && !SCHEDULE.is_running() && QUIET_REFILLS.load(Ordering::Relaxed) >= 2
 }
 
-/// The latest this interrupt has started after its update event, in timer
-/// ticks (the counter at entry): its measured worst-case latency, which the
-/// DIR set-up stretch assumes below `calc::ISR_LATENCY_NS`.
-static WORST_ENTRY_TICKS: AtomicU32 = AtomicU32::new(0);
-
-/// [`WORST_ENTRY_TICKS`] (for the control loop's log).
-pub fn worst_entry_ticks() -> u32 {
-    WORST_ENTRY_TICKS.load(Ordering::Relaxed)
+/// Refills that came a half too late since the start (the DMA read
+/// entries of the half before they were written again).
+pub fn late_refills() -> u32 {
+    LATE_REFILLS.load(Ordering::Relaxed)
 }
 
-/// The step timer's update interrupt (priority: `PRIO_STEP`).
+/// TIM3's count: pulses made since the start, modulo 2^16.
+fn pulses_made() -> u16 {
+    board::PULSE_COUNTER.cnt().read().cnt()
+}
+
+/// Position of the STEP pin: the schedule's position less the steps
+/// handed to the timer that it has not made yet (TIM3's count), each in
+/// its own direction. Call it from a context the refill may preempt.
+pub fn pin_position() -> i32 {
+    loop {
+        let seq = SEQ.load(Ordering::Relaxed);
+        core::sync::atomic::compiler_fence(Ordering::SeqCst);
+        let pos = SCHEDULE.position();
+        let ledger = StepLedger::from_words(&core::array::from_fn(|k| {
+            LEDGER[k].load(Ordering::Relaxed)
+        }));
+        let made = pulses_made();
+        core::sync::atomic::compiler_fence(Ordering::SeqCst);
+        if seq & 1 == 0 && SEQ.load(Ordering::Relaxed) == seq {
+            return ledger.pin_position(pos, made);
+        }
+    }
+}
+
+/// The DMA channel's interrupt: a half of the buffer was read (priority
+/// `PRIO_STEP`).
 pub struct StepHandler;
 
 impl Handler<board::StepIrq> for StepHandler {
     unsafe fn on_interrupt() {
-        let t = board::STEP_TIMER;
-        // the counter restarted at the update event: it is how late we are
-        let late = u32::from(t.cnt().read().cnt());
-        if !t.sr().read().uif() {
+        let dma = board::STEP_DMA;
+        let n = board::STEP_DMA_CH;
+        let isr = dma.isr().read();
+        let (ht, tc) = (isr.htif(n), isr.tcif(n));
+        dma.ifcr().write(|w| {
+            w.set_htif(n, ht);
+            w.set_tcif(n, tc);
+            w.set_gif(n, ht || tc);
+        });
+        // SAFETY: this interrupt is the buffer's and the engine's only user
+        // once enabled; the DMA reads the other half meanwhile.
+        let (buffer, engine) = unsafe { (BUFFER.get(), ENGINE.get()) };
+        let Some(engine) = engine.as_mut() else {
             return;
+        };
+        // half-transfer: the first half was read; transfer complete: the second
+        let left = dma.ch(n).ndtr().read().ndt() as usize;
+        for (done, first) in [(ht, true), (tc, false)] {
+            if !done {
+                continue;
+            }
+            // the DMA must be in the other half than the one to be written
+            let in_first = left > HALF * BURST_HALF_WORDS;
+            if in_first == first {
+                LATE_REFILLS.fetch_add(1, Ordering::Relaxed);
+            }
+            let half = if first {
+                &mut buffer[..HALF]
+            } else {
+                &mut buffer[HALF..]
+            };
+            refill(engine, half);
         }
-        t.sr().modify(|w| w.set_uif(false));
-        WORST_ENTRY_TICKS.fetch_max(late, Ordering::Relaxed);
-        // SAFETY: this interrupt is the stepper's only user once enabled.
-        on_update(unsafe { STEPPER.get() });
     }
 }
 
-/// Constant time: one `StepSource::advance` (or none, in a long period),
-/// one shaper step, a few register writes.
-fn on_update(s: &mut Stepper) {
-    let t = board::STEP_TIMER;
-    // the period now starting was preloaded last time: DIR for its pulse
-    if let (Some(level), Some(dir)) = (s.pulse_next.take(), s.dir.as_mut()) {
-        // Output is infallible; the level has PA11 applied already
-        dir.set(level, false);
-    }
+/// Writes `half` from the schedule.
+fn refill(e: &mut Engine, half: &mut [Burst]) {
     let inverted = DIR_INVERTED.load(Ordering::Relaxed);
-    if inverted != s.inverted {
-        s.inverted = inverted;
-        s.shaper.dir_pin_flipped();
-    }
     let shape = SHAPE.load(Ordering::Relaxed);
-    if shape != s.shape {
-        s.shape = shape;
-        s.shaper.set_packed_shape(shape);
+    if shape != e.shape {
+        e.shape = shape;
+        e.pulse = e.pulse.with_packed(shape);
+        e.writer.set_shape(pulse_shape(e.pulse));
     }
-    let Stepper { shaper, source, .. } = s;
-    let Period { arr, ccr, dir } = shaper.next_period(|| {
-        source.advance(&SCHEDULE).map(|n| Step {
-            forward: n.forward(),
-            interval_ticks: n.delay_ticks(),
-        })
+    let seq = SEQ.load(Ordering::Relaxed);
+    SEQ.store(seq.wrapping_add(1), Ordering::Relaxed);
+    core::sync::atomic::compiler_fence(Ordering::SeqCst);
+    let Engine {
+        writer,
+        source,
+        ledger,
+        ..
+    } = e;
+    let pulses = writer.fill(half, || {
+        let step = source.advance(&SCHEDULE);
+        ledger.advanced(step.map(|n| n.forward()));
+        step.map(|n| (n.delay_ticks(), n.forward() != inverted))
     });
-    t.arr().write(|w| w.set_arr(arr));
-    t.ccr(0).write(|w| w.set_ccr(ccr));
-    s.pulse_next = dir.map(|forward| forward != s.inverted);
+    for (word, value) in LEDGER.iter().zip(ledger.words()) {
+        word.store(value, Ordering::Relaxed);
+    }
+    core::sync::atomic::compiler_fence(Ordering::SeqCst);
+    SEQ.store(seq.wrapping_add(2), Ordering::Relaxed);
+    let quiet = if pulses == 0 && !writer.busy() {
+        QUIET_REFILLS.load(Ordering::Relaxed).saturating_add(1)
+    } else {
+        0
+    };
+    QUIET_REFILLS.store(quiet, Ordering::Relaxed);
 }

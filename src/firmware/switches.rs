@@ -105,15 +105,14 @@ pub fn set_params(polarity: u16, limit_enable: u16) {
 fn read(i: &mut Inputs) -> Switches {
     let polarity = POLARITY.load(Ordering::Relaxed);
     let schedule = steps::schedule();
-    // The step count that goes with this reading, taken now and not after
-    // the confirmation below: by then the step interrupt may have counted
-    // the next step (the STEP pulse that moved the axis onto the edge ends
-    // with the update event that counts the following one). Read again if
-    // a step was counted during the pin read, so the pair is consistent.
-    let mut position = schedule.position();
+    // The STEP pin's position that goes with this reading (the pulses the
+    // timer has made), taken now and not after the confirmation below, by
+    // when the next pulse may have gone out. Read again if a pulse went out
+    // during the pin read, so the pair is consistent.
+    let mut position = steps::pin_position();
     let s = loop {
         let s = i.pins.read(polarity);
-        let now = schedule.position();
+        let now = steps::pin_position();
         if now == position {
             break s;
         }

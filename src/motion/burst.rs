@@ -3,8 +3,9 @@
 //! "Step engine by timer and DMA"), made from the schedule's per-step
 //! delays by [`BurstWriter`].
 //!
-//! An entry ([`Burst`]) is one timer period, repeated `RCR + 1` times:
-//! ARR, RCR, CCR1 (the STEP pulse at the start of the period, PWM mode 1:
+//! An entry ([`Burst`]) is one timer period: ARR, RCR (always 0: one
+//! period; it is in the burst because it lies between ARR and CCR1), CCR1
+//! (the STEP pulse at the start of the period, PWM mode 1:
 //! 0 = no pulse) and CCR2 (DIR for the whole entry: 0 low, `0xFFFF` high).
 //! The writer turns "a pulse `delay` ticks after the previous one, with DIR
 //! at `level`" into entries so that
@@ -13,9 +14,13 @@
 //!   sum of the entries between them), unless the delay is shorter than
 //!   the entries already written since (the schedule ran dry: the writer
 //!   counts the step as late, [`BurstWriter::late`]);
-//! - an interval over 2^16 ticks is a pulse entry followed by idle entries
-//!   of 2^15-tick periods repeated up to 256 times (the F103's 8-bit RCR),
-//!   exact to the tick, no interrupt;
+//! - no entry is longer than the idle entry ([`PulseShape::idle_ticks`]):
+//!   a longer interval is a pulse entry followed by idle entries, exact to
+//!   the tick. The entries written ahead of the timer then span at most a
+//!   buffer's length of idle entries, which the planner's horizon covers,
+//!   so the writer never needs a step the planner has not queued yet (a
+//!   longer entry, repeated by the timer's repetition counter, would reach
+//!   past it on a slow move and make the steps after it late);
 //! - no entry is shorter than [`MIN_ENTRY_TICKS`], so the next burst always
 //!   lands before the update event that needs it;
 //! - DIR changes only at an update event with no pulse high, at least the
@@ -33,12 +38,9 @@
 /// Shortest entry, ticks: the DMA burst (four half-words) for the entry
 /// after it must complete within it, at any bus load.
 pub const MIN_ENTRY_TICKS: u32 = 64;
-/// Longest single period: a 16-bit ARR.
-const MAX_PERIOD_TICKS: u32 = 1 << 16;
-/// The period of a repeated idle entry.
-const IDLE_UNIT_TICKS: u32 = 1 << 15;
-/// Most repetitions of one entry (an 8-bit RCR on the F103).
-const MAX_REPEAT: u32 = 256;
+/// Longest single period: a 16-bit ARR below its maximum (with ARR at
+/// 0xFFFF, CCR2 = 0xFFFF would drop DIR for the period's last tick).
+const MAX_PERIOD_TICKS: u32 = u16::MAX as u32;
 
 /// One DMA burst: ARR, RCR, CCR1, CCR2, in the timer's register order.
 #[repr(C)]
@@ -52,13 +54,19 @@ pub struct Burst {
 }
 
 impl Burst {
-    fn new(ticks: u32, repeat: u32, pulse_ticks: u32, dir_high: bool) -> Self {
-        debug_assert!(
-            (1..=MAX_PERIOD_TICKS).contains(&ticks) && (1..=MAX_REPEAT).contains(&repeat)
-        );
+    /// All registers zero: what a buffer holds before it is first written.
+    pub const ZERO: Burst = Burst {
+        arr: 0,
+        rcr: 0,
+        ccr1: 0,
+        ccr2: 0,
+    };
+
+    fn new(ticks: u32, pulse_ticks: u32, dir_high: bool) -> Self {
+        debug_assert!((1..=MAX_PERIOD_TICKS).contains(&ticks));
         Self {
             arr: (ticks - 1) as u16,
-            rcr: (repeat - 1) as u16,
+            rcr: 0,
             ccr1: pulse_ticks as u16,
             ccr2: if dir_high { u16::MAX } else { 0 },
         }
@@ -69,7 +77,7 @@ impl Burst {
         [self.arr, self.rcr, self.ccr1, self.ccr2]
     }
 
-    /// Length of the entry, ticks: `(ARR + 1) · (RCR + 1)`.
+    /// Length of the entry, ticks: `(ARR + 1) · (RCR + 1)` (RCR is 0).
     pub fn ticks(&self) -> u32 {
         (u32::from(self.arr) + 1) * (u32::from(self.rcr) + 1)
     }
@@ -96,13 +104,15 @@ pub struct PulseShape {
 
 impl PulseShape {
     /// `width` at least 1 tick; `idle_ticks` (the entry length while no
-    /// step is scheduled: the latency of a start from rest) between
-    /// [`MIN_ENTRY_TICKS`] and 2^16.
+    /// step is scheduled, the latency of a start from rest, and the longest
+    /// entry) between twice [`MIN_ENTRY_TICKS`] and 2^16 − 1.
     pub fn new(width_ticks: u32, dir_setup_ticks: u32, idle_ticks: u32) -> Self {
         Self {
             width: width_ticks.clamp(1, MAX_PERIOD_TICKS / 2),
             dir_setup: dir_setup_ticks.min(MAX_PERIOD_TICKS),
-            idle: idle_ticks.clamp(MIN_ENTRY_TICKS, MAX_PERIOD_TICKS),
+            // twice the shortest entry, so that an interval just over it
+            // splits into two entries of at least the shortest
+            idle: idle_ticks.clamp(2 * MIN_ENTRY_TICKS, MAX_PERIOD_TICKS),
         }
     }
 
@@ -208,10 +218,10 @@ impl BurstWriter {
                     *slot = self.entry();
                     continue;
                 };
-                if level == self.level && (MIN_ENTRY_TICKS..=MAX_PERIOD_TICKS).contains(&delay) {
+                if level == self.level && (MIN_ENTRY_TICKS..=self.shape.idle).contains(&delay) {
                     self.pulses += 1;
                     self.last_interval = delay;
-                    *slot = Burst::new(delay, 1, self.shape.width.min(delay / 2), level);
+                    *slot = Burst::new(delay, self.shape.width.min(delay / 2), level);
                     continue;
                 }
                 self.accept(delay, level);
@@ -286,13 +296,13 @@ impl BurstWriter {
             // no step known: close the pulse with the last interval, or
             // wait idle
             let len = if self.open {
-                self.last_interval.clamp(MIN_ENTRY_TICKS, MAX_PERIOD_TICKS)
+                self.last_interval.clamp(MIN_ENTRY_TICKS, self.shape.idle)
             } else {
                 self.resting = true;
                 self.since = 0;
                 self.shape.idle
             };
-            return self.emit(len, 1, pulse, self.level);
+            return self.emit(len, pulse, self.level);
         };
         // the part at the old level first (a reversal's hold), then the rest
         let (budget, level) = if n.hold > 0 {
@@ -300,11 +310,10 @@ impl BurstWriter {
         } else {
             (n.rest, n.level)
         };
-        let (period, repeat) = split(budget, pulse != 0);
-        let len = period * repeat;
+        let len = split(budget, self.shape.idle);
         n.rest -= len;
         n.hold = n.hold.saturating_sub(len);
-        let b = self.emit(period, repeat, pulse, level);
+        let b = self.emit(len, pulse, level);
         if n.rest == 0 {
             self.next = None;
             self.start_pulse(n.level);
@@ -314,10 +323,10 @@ impl BurstWriter {
         b
     }
 
-    /// An entry of `repeat` periods of `period` ticks, with a pulse of
+    /// An entry of `period` ticks, with a pulse of
     /// `pulse` ticks (0: none; never more than half the period, so the
     /// driver sees both levels) and DIR at `level`.
-    fn emit(&mut self, period: u32, repeat: u32, pulse: u32, level: bool) -> Burst {
+    fn emit(&mut self, period: u32, pulse: u32, level: bool) -> Burst {
         let pulse = if pulse != 0 {
             self.open = false;
             self.pulses += 1;
@@ -325,9 +334,9 @@ impl BurstWriter {
         } else {
             0
         };
-        self.since = self.since.saturating_add(period * repeat);
+        self.since = self.since.saturating_add(period);
         self.level = level;
-        Burst::new(period, repeat, pulse, level)
+        Burst::new(period, pulse, level)
     }
 
     /// The next entry starts with the pulse of the step just reached.
@@ -339,20 +348,14 @@ impl BurstWriter {
     }
 }
 
-/// The next piece (period, repetitions) of `rest` ticks (≥ the minimum
-/// entry): all of it if one period holds it; else a pulse entry takes one
-/// idle unit, an idle entry as many units as fit while leaving at least one
-/// unit (up to [`MAX_REPEAT`]), so what remains is never below the minimum.
-fn split(rest: u32, pulse: bool) -> (u32, u32) {
-    if rest <= MAX_PERIOD_TICKS {
-        (rest, 1)
-    } else if pulse {
-        (IDLE_UNIT_TICKS, 1)
+/// The next entry's length out of `rest` ticks (≥ the minimum entry):
+/// all of it if it fits `longest`, else `longest`, or less where the
+/// remainder would fall below the minimum entry.
+fn split(rest: u32, longest: u32) -> u32 {
+    if rest <= longest {
+        rest
     } else {
-        (
-            IDLE_UNIT_TICKS,
-            (rest / IDLE_UNIT_TICKS - 1).min(MAX_REPEAT),
-        )
+        longest.min(rest - MIN_ENTRY_TICKS)
     }
 }
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import select
 import socket
 import struct
@@ -38,6 +39,20 @@ ELF_DEV = {
                  or ROOT / "target" / "thumbv7m-none-eabi" / "fw-dev" / "modbus-drive"),
 }
 BOARDS = ["g431", "f103"]
+
+
+def _step_tick_ns() -> dict[str, float]:
+    """Each board's step tick in ns, read from Board::step_tick_hz in
+    src/boards.rs (the step timer's clock)."""
+    src = (ROOT / "src" / "boards.rs").read_text()
+    body = re.search(r"pub const fn step_tick_hz\(self\) -> u32 \{(.*?)\n    \}", src, re.S)[1]
+    ticks = {b.lower(): 1e9 / int(v.replace("_", ""))
+             for b, v in re.findall(r"Board::(\w+) => ([0-9_]+)", body)}
+    assert set(ticks) == set(BOARDS), ticks
+    return ticks
+
+
+TICK_NS = _step_tick_ns()
 READY_TIMEOUT_S = 30.0
 NO_REPLY_WAIT_S = 0.3
 

@@ -10,13 +10,11 @@ import time
 from pathlib import Path
 
 
-from conftest import (ROOT, ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, MODE,
+from conftest import (ROOT, TICK_NS, ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, MODE,
                       MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY, STATE_MASK,
                       TARGET_POSITION, TARGET_REACHED, Master)
 
 DISTANCE = 2000
-# the step timer's tick (src/boards.rs: 10 MHz on the G431, 8 MHz on the F103)
-TICK_NS = {"g431": 100, "f103": 125}
 SCHEDULE = Path(os.environ.get("FW_SIM_SCHEDULE_BIN")
                 or ROOT / "target" / "debug" / "examples" / "step_schedule")
 
