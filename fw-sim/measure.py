@@ -87,15 +87,13 @@ MAX_ACCEL = int(re.search(r"pub const MAX_ACCEL: u64 = ([0-9_]+);",
 ON_TIME_RATES = {b: list(range(25_000, LIMITS[b] + 1, 25_000)) for b in c.BOARDS}
 CRUISE_STEPS = 2_000  # steps at the top rate in each move
 # the step timer's tick (Board::step_tick_hz in src/boards.rs)
-TICK_NS = {"g431": 100, "f103": 125}
+TICK_NS = c.TICK_NS
 SCHEDULE = Path(os.environ.get("FW_SIM_SCHEDULE_BIN")
                 or ROOT / "target" / "debug" / "examples" / "step_schedule")
 STEPS_PER_REV = 10_000  # PA10 default (SPEC §7)
-# what the DIR set-up stretch assumes of the step interrupt's entry
-ISR_LATENCY_NS = int(re.search(r"pub const ISR_LATENCY_NS: u32 = ([0-9_]+);",
-                               (ROOT / "src" / "firmware" / "calc.rs").read_text())[1])
-LATENCY_LOG = re.compile(r"step interrupt: worst latency (\d+) ns")
-MISSED_LOG = re.compile(r"step timer: (\d+) update event\(s\) with UIF still set")
+# the firmware's warning when a DMA refill came a buffer half late
+# (src/firmware/control.rs)
+LATE_REFILL_LOG = re.compile(r"step engine: (\d+) refill\(s\) came a buffer half late")
 LATENCY_MOVE_S = 0.3  # emulated seconds at the top rate, each way
 
 

@@ -15,8 +15,8 @@ use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
 use flash::{FlashRegion, RegionError};
-use modbus_drive::motion::schedule::brake_rate;
 use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
+use modbus_drive::motion::schedule::brake_rate;
 use modbus_drive::motion::{Segment, StepSchedule, StepSource};
 use modbus_drive::rtu::{CharFormat, LineConfig};
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -225,7 +225,9 @@ fn the_pin_position_is_the_schedules_less_the_steps_not_made() {
         .into_iter()
         .enumerate()
     {
-        sched.push(segment(720 + 100 * i as u64, count, forward)).unwrap();
+        sched
+            .push(segment(720 + 100 * i as u64, count, forward))
+            .unwrap();
         for _ in 0..1000 {
             e.refill(&sched);
             let written = e.pulses.len();
@@ -256,7 +258,10 @@ fn the_ledger_round_trips_its_hand_over_and_wraps_with_the_counter() {
     l.advanced(Some(true));
     l.advanced(Some(true));
     assert_eq!(StepLedger::from_words(&l.words()), l);
-    assert_eq!(StepLedger::from_words(&[0; LEDGER_WORDS]), StepLedger::new());
+    assert_eq!(
+        StepLedger::from_words(&[0; LEDGER_WORDS]),
+        StepLedger::new()
+    );
     // 70 002 given, the last pending: 70 001 counted; 69 990 made, all but
     // one of the backward ones
     let made = (69_990u32 % 65_536) as u16;
@@ -285,7 +290,10 @@ fn a_limit_brakes_at_the_next_refill_within_the_quick_stop_distance_spec_8_7() {
     let after = &e.pulses[before..];
     // never faster (to the tick the delays are rounded to), ending slow
     assert!(after[1..].windows(2).all(|w| w[1].0 + 1 >= w[0].0));
-    assert!(after.last().is_some_and(|&(gap, _)| gap > 7200), "{after:?}");
+    assert!(
+        after.last().is_some_and(|&(gap, _)| gap > 7200),
+        "{after:?}"
+    );
     assert!(sched.limit_brake().is_some_and(|b| b.done() && b.forward()));
 }
 

@@ -12,7 +12,7 @@ use crate::motor::MotorOptions;
 pub const USAGE: &str = "\
 usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--modbus-tcp HOST:PORT]...
               [--pty-link PATH]
-              [--trace-steps FILE] [--trace-line FILE] [--trace-pins FILE] [--stats FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
+              [--trace-steps FILE] [--trace-line FILE] [--trace-pins FILE] [--stats FILE] [--profile FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
               [--home-switch FROM:TO] [--write-protect] [--run-for SECONDS] [--quiet]
               [--encoder] [--encoder-counts N] [--steps-per-rev N] [--stall-at STEPS]
               [--slip STEPS@POS] [--encoder-noise COUNTS]
@@ -32,6 +32,8 @@ Runs the unmodified firmware image of a board on an emulated STM32.
                 the master (counted from 1 since the start)
   --power-cut N the supply fails as the N-th flash program or erase starts:
                 the firmware restarts from the --state file (SRAM lost)
+  --profile     rewritten with --stats: instructions per firmware function
+                since reset, most first (`insns name` lines)
   --stats       rewritten every 50 ms (wall): emulated time_ns, busy and
                 sleeping core cycles, step pulses
   --state       file holding the parameter flash pages (kept across runs)
@@ -72,6 +74,7 @@ pub struct Args {
     pub trace_line: Option<PathBuf>,
     pub trace_pins: Option<PathBuf>,
     pub stats: Option<PathBuf>,
+    pub profile: Option<PathBuf>,
     /// Line faults: (1-based index of the received character, kind).
     pub noise: Vec<(u64, LineFault)>,
     pub power_cut: Option<u64>,
@@ -100,6 +103,7 @@ impl Args {
             trace_line: None,
             trace_pins: None,
             stats: None,
+            profile: None,
             noise: Vec::new(),
             power_cut: None,
             write_protect: false,
@@ -154,6 +158,7 @@ impl Args {
                 "--trace-line" => a.trace_line = Some(v.into()),
                 "--trace-pins" => a.trace_pins = Some(v.into()),
                 "--stats" => a.stats = Some(v.into()),
+                "--profile" => a.profile = Some(v.into()),
                 "--power-cut" => a.power_cut = Some(num(&flag, &v)?),
                 "--noise" => {
                     for item in v.split(',') {

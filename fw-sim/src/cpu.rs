@@ -189,6 +189,9 @@ fn install_hooks(uc: &mut Uc, image: &Image) -> Result<(), String> {
             let m = uc.get_data_mut();
             m.slice_insns += n as u64;
             m.block_pc = addr as u32;
+            if let Some(p) = m.profile.as_mut() {
+                p.record(addr as u32, n);
+            }
             if m.slice_insns >= m.budget || std::mem::take(&mut m.stop_soon) {
                 let _ = uc.emu_stop();
             } else if m.pending_hint {

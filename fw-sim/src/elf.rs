@@ -56,6 +56,14 @@ impl Image {
         Ok(out)
     }
 
+    /// The name of the symbol holding `addr`, if one does.
+    pub fn function(&self, addr: u32) -> Option<&str> {
+        let a = addr & !1;
+        let i = self.symbols.partition_point(|s| s.0 <= a);
+        let (s, size, name) = &self.symbols[i.checked_sub(1)?];
+        (a < s + (*size).max(1)).then_some(name.as_str())
+    }
+
     pub fn symbol(&self, addr: u32) -> String {
         let a = addr & !1;
         let i = self.symbols.partition_point(|s| s.0 <= a);

@@ -110,6 +110,8 @@ pub struct Machine {
     /// Start address of the basic block being executed.
     pub block_pc: u32,
     pub block_cache: std::collections::HashMap<u64, u32, BuildHasherDefault<AddrHasher>>,
+    /// `--profile`: instructions per block.
+    pub profile: Option<crate::profile::Profile>,
     /// The clocks derived from RCC (refreshed when RCC is written).
     pub clocks: crate::periph::rcc::Clocks,
     pub switches: Switches,
@@ -180,6 +182,7 @@ impl Machine {
             last_masks: (false, 0),
             block_pc: 0,
             block_cache: Default::default(),
+            profile: None,
             clocks: crate::periph::rcc::Clocks::default(),
             switches,
             position: 0,

@@ -15,6 +15,7 @@ mod mem;
 mod motor;
 mod periph;
 mod pin_trace;
+mod profile;
 mod rtt;
 mod scs;
 mod trace;
@@ -124,6 +125,9 @@ fn run() -> Result<i32, String> {
     machine.flash.cut_at = args.power_cut;
     machine.flash.write_protected = args.write_protect;
     machine.motor = args.motor.map(motor::Motor::new);
+    if args.profile.is_some() {
+        machine.profile = Some(profile::Profile::default());
+    }
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
         None
@@ -149,6 +153,7 @@ fn run() -> Result<i32, String> {
         noise: args.noise.clone(),
         rx_count: 0,
         stats: args.stats.clone(),
+        profile: args.profile.clone(),
         last_stats: Instant::now(),
     };
     r.run()
@@ -174,6 +179,7 @@ struct Runner {
     noise: Vec<(u64, LineFault)>,
     rx_count: u64,
     stats: Option<std::path::PathBuf>,
+    profile: Option<std::path::PathBuf>,
     last_stats: Instant,
 }
 
@@ -332,11 +338,14 @@ impl Runner {
     /// `--stats`: a snapshot of the counters a measurement needs, written
     /// whole to a new file and renamed, so a reader never sees half of it.
     fn write_stats(&mut self) {
-        let Some(path) = &self.stats else { return };
         if self.last_stats.elapsed() < STATS_EVERY {
             return;
         }
         self.last_stats = Instant::now();
+        if let (Some(path), Some(p)) = (&self.profile, &self.uc.get_data().profile) {
+            p.write(&self.image, path);
+        }
+        let Some(path) = &self.stats else { return };
         let m = self.uc.get_data();
         let text = format!(
             "time_ns {}\nbusy_cycles {}\nsleep_cycles {}\nsteps {}\n",

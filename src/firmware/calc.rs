@@ -277,17 +277,32 @@ impl StepLedger {
     }
 
     /// In words, for a hand-over through atomics; all zeros is
-    /// [`StepLedger::new`].
+    /// [`StepLedger::new`]. The first ([`StepLedger::head_word`]) changes
+    /// with every step, the others ([`StepLedger::start_word`]) only when
+    /// a new run starts ([`StepLedger::newest_run`]).
     pub fn words(&self) -> [u32; LEDGER_WORDS] {
-        let mut w = [0; LEDGER_WORDS];
-        w[0] = u32::from(self.given)
+        core::array::from_fn(|k| match k {
+            0 => self.head_word(),
+            k => self.start_word(k - 1),
+        })
+    }
+
+    /// The steps given, the newest run and the flags.
+    pub fn head_word(&self) -> u32 {
+        u32::from(self.given)
             | u32::from(self.newest) << 16
             | u32::from(!self.forward) << 24
-            | u32::from(self.pending) << 25;
-        for (k, pair) in self.starts.chunks(2).enumerate() {
-            w[1 + k] = u32::from(pair[0]) | u32::from(pair[1]) << 16;
-        }
-        w
+            | u32::from(self.pending) << 25
+    }
+
+    /// The starts of runs `2k` and `2k + 1`.
+    pub fn start_word(&self, k: usize) -> u32 {
+        u32::from(self.starts[2 * k]) | u32::from(self.starts[2 * k + 1]) << 16
+    }
+
+    /// Where the newest run is kept: it moves on with each new run.
+    pub fn newest_run(&self) -> u8 {
+        self.newest
     }
 
     /// From [`StepLedger::words`].

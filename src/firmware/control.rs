@@ -48,6 +48,8 @@ pub async fn run(
 ) -> ! {
     let mut ticker = Ticker::every(CONTROL_PERIOD);
     let mut log = EventLog::new();
+    // PA15 / PA16 as last applied: the shape (a few divisions) is computed
+    // only when they change
     let mut last_shape = None;
     let mut pins_ok = true;
     let mut late_refills = 0;
@@ -79,11 +81,7 @@ pub async fn run(
                     d.params().switch_polarity(),
                     d.params().limit_enable(),
                 ),
-                StepShape::from_params(
-                    d.params().step_pulse_width(),
-                    d.params().dir_setup(),
-                    board::STEP_TICK_HZ,
-                ),
+                (d.params().step_pulse_width(), d.params().dir_setup()),
                 d.params().brake_engage_ms(),
             )
         }) else {
@@ -100,14 +98,22 @@ pub async fn run(
         steps::set_dir_inverted(dir_inverted);
         switches::set_params(polarity, limit_enable);
         if last_shape != Some(shape) {
-            steps::set_shape(shape);
+            let (pulse, dir_setup) = shape;
+            steps::set_shape(StepShape::from_params(
+                pulse,
+                dir_setup,
+                board::STEP_TICK_HZ,
+            ));
             last_shape = Some(shape);
         }
         log.drain(); // state transitions, faults, limit stops, homing
         let late = steps::late_refills();
         if late > late_refills {
             late_refills = late;
-            defmt::warn!("step engine: {=u32} refill(s) came a buffer half late", late);
+            defmt::warn!(
+                "step engine: {=u32} refill(s) came a buffer half late",
+                late
+            );
         }
     }
 }

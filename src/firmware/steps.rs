@@ -19,15 +19,16 @@
 //! the limit-switch interrupt writes the active limits into it
 //! (`set_limits`), so the next refill brakes with 0x6085 (SPEC §8.7).
 //!
-//! Pulses made are TIM3's count, never inferred: [`pin_position`] is the
-//! schedule's position less the steps handed to the timer and not yet
-//! made, which the homing latch takes at a switch edge.
+//! Pulses made are TIM3's count, never inferred: the STEP pin's position
+//! ([`read_at_pin_position`]) is the schedule's position less the steps
+//! handed to the timer and not yet made, which the homing latch takes at
+//! a switch edge.
 //!
 //! Shared state, none of it behind a lock (priority.rs: nothing masks the
 //! refill): [`SCHEDULE`] lock-free, [`ENGINE`] and [`BUFFER`] owned by the
 //! refill interrupt (set up before it is enabled; the DMA reads the buffer
 //! half the refill is not writing), the hand-over of PA15/PA16 and PA11 in
-//! atomics, and what [`pin_position`] reads under a sequence count.
+//! atomics, and what [`read_at_pin_position`] reads under a sequence count.
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
@@ -65,7 +66,7 @@ static DIR_INVERTED: AtomicBool = AtomicBool::new(false);
 /// STEP width and DIR set-up in ticks, packed (`StepShape::packed`).
 static SHAPE: AtomicU32 = AtomicU32::new(0);
 
-/// The refill's `StepLedger` for [`pin_position`], written under [`SEQ`]
+/// The refill's `StepLedger` for [`read_at_pin_position`], written under [`SEQ`]
 /// (`StepLedger::words`).
 static LEDGER: [AtomicU32; LEDGER_WORDS] = [const { AtomicU32::new(0) }; LEDGER_WORDS];
 /// Odd while the refill writes the values above.
@@ -129,7 +130,8 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
     t.arr().write(|w| w.set_arr((shape.idle_ticks - 1) as u16));
     t.rcr().write(|w| w.set_rep(0));
     t.ccr(0).write(|w| w.set_ccr(0));
-    t.ccr(1).write(|w| w.set_ccr(if level { u16::MAX } else { 0 }));
+    t.ccr(1)
+        .write(|w| w.set_ccr(if level { u16::MAX } else { 0 }));
     t.ccmr_output(0).modify(|w| {
         w.set_ocm(0, Ocm::PWM_MODE1);
         w.set_ocpe(0, true);
@@ -252,22 +254,29 @@ fn pulses_made() -> u16 {
     board::PULSE_COUNTER.cnt().read().cnt()
 }
 
-/// Position of the STEP pin: the schedule's position less the steps
-/// handed to the timer that it has not made yet (TIM3's count), each in
-/// its own direction. Call it from a context the refill may preempt.
-pub fn pin_position() -> i32 {
+/// `read()` (the switch pins) with the STEP pin's position when it ran:
+/// the schedule's position less the steps handed to the timer that it has
+/// not made yet (TIM3's count), each in its own direction. The count is
+/// read before and after `read`; if a pulse went out in between, the pair
+/// is taken again (a few times at most, then the count before it stands:
+/// the position is then the step before or at the edge). Call it from a
+/// context the refill may preempt.
+pub fn read_at_pin_position<T>(mut read: impl FnMut() -> T) -> (T, i32) {
+    let mut tries = 0;
     loop {
         let seq = SEQ.load(Ordering::Relaxed);
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         let pos = SCHEDULE.position();
-        let ledger = StepLedger::from_words(&core::array::from_fn(|k| {
-            LEDGER[k].load(Ordering::Relaxed)
-        }));
+        let ledger =
+            StepLedger::from_words(&core::array::from_fn(|k| LEDGER[k].load(Ordering::Relaxed)));
         let made = pulses_made();
+        let value = read();
+        let still = pulses_made() == made;
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
-        if seq & 1 == 0 && SEQ.load(Ordering::Relaxed) == seq {
-            return ledger.pin_position(pos, made);
+        if seq & 1 == 0 && SEQ.load(Ordering::Relaxed) == seq && (still || tries >= 3) {
+            return (value, ledger.pin_position(pos, made));
         }
+        tries += 1;
     }
 }
 
@@ -331,13 +340,17 @@ fn refill(e: &mut Engine, half: &mut [Burst]) {
         ledger,
         ..
     } = e;
+    let runs = ledger.newest_run();
     let pulses = writer.fill(half, || {
         let step = source.advance(&SCHEDULE);
         ledger.advanced(step.map(|n| n.forward()));
         step.map(|n| (n.delay_ticks(), n.forward() != inverted))
     });
-    for (word, value) in LEDGER.iter().zip(ledger.words()) {
-        word.store(value, Ordering::Relaxed);
+    LEDGER[0].store(ledger.head_word(), Ordering::Relaxed);
+    if ledger.newest_run() != runs {
+        for (k, word) in LEDGER[1..].iter().enumerate() {
+            word.store(ledger.start_word(k), Ordering::Relaxed);
+        }
     }
     core::sync::atomic::compiler_fence(Ordering::SeqCst);
     SEQ.store(seq.wrapping_add(2), Ordering::Relaxed);

@@ -106,18 +106,9 @@ fn read(i: &mut Inputs) -> Switches {
     let polarity = POLARITY.load(Ordering::Relaxed);
     let schedule = steps::schedule();
     // The STEP pin's position that goes with this reading (the pulses the
-    // timer has made), taken now and not after the confirmation below, by
-    // when the next pulse may have gone out. Read again if a pulse went out
-    // during the pin read, so the pair is consistent.
-    let mut position = steps::pin_position();
-    let s = loop {
-        let s = i.pins.read(polarity);
-        let now = steps::pin_position();
-        if now == position {
-            break s;
-        }
-        position = now;
-    };
+    // timer had made when the pins were read), taken now and not after the
+    // confirmation below, by when the next pulse may have gone out.
+    let (s, position) = steps::read_at_pin_position(|| i.pins.read(polarity));
     let (mut cw, mut ccw) = (s.cw_limit(), s.ccw_limit());
     if cw || ccw {
         cortex_m::asm::delay(board::SYSCLK_HZ / 1_000_000 * CONFIRM_US);

@@ -16,7 +16,10 @@ fn play(entries: &[Burst], shape: PulseShape) -> Vec<(u64, bool)> {
         let [arr, rcr, ccr1, _] = b.registers();
         assert!(b.ticks() >= MIN_ENTRY_TICKS, "entry {i}: {b:?}");
         assert_eq!(rcr, 0, "entry {i}: {b:?}");
-        assert!(b.ticks() <= shape.idle_ticks(), "entry {i}: longer than the idle entry");
+        assert!(
+            b.ticks() <= shape.idle_ticks(),
+            "entry {i}: longer than the idle entry"
+        );
         if b.pulse_ticks() != 0 {
             assert_eq!(rcr, 0, "entry {i}: a pulse entry repeats its pulse");
             assert!(u32::from(ccr1) <= u32::from(arr), "entry {i}: {b:?}");
