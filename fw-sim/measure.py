@@ -8,7 +8,7 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
 - reply latency: from the end of a request's last stop bit to the start bit
   of the reply's first character (`--trace-line`), at 115200 and 19200 baud,
   and at 115200 while the motor runs at the board's step rate limit;
-- CPU load while stepping in velocity mode at 50k, 100k steps/s and the
+- CPU load while stepping in velocity mode at 50k, 200k steps/s and the
   board's step rate limit (Board::max_step_rate in src/boards.rs):
   the share of core cycles not spent asleep in WFI/WFE (`--stats`), under the
   runner's one-cycle-per-instruction assumption (docs/fw-sim.md, "Time");
@@ -16,16 +16,16 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
   0x6081 rising to the board's limit, each traced pulse (`--trace-steps`)
   compared with the core planner's schedule for the same move at the board's
   step tick (examples/step_schedule.rs) within one tick;
-- the step interrupt's worst entry latency: a move at the highest rate the
-  board keeps on time while the master floods the bus with reads, the
-  maximum of the firmware's own log line `step interrupt: worst latency N
-  ns` and whether the runner warned of an update event with UIF still set.
+- the step engine's DMA refills under a flood: a move at the highest rate
+  the board keeps on time while the master floods the bus with reads, and
+  the firmware's own count of refills that came too late (its log line
+  `step engine: N refill(s) came a buffer half late`).
 
 - the window after reset in which the safety outputs are not yet driven:
   core cycles from the reset vector until ENABLE, BRAKE, STEP and DE are
   all outputs (`--trace-pins`).
 
-`--only latency` runs the step-interrupt section alone, taking each board's
+`--only flood` runs the flood section alone, taking each board's
 rate from the docs/generated/fw-sim.md of an earlier full run, and prints
 it without writing the file; `--only reset` runs the reset-window section
 alone and prints it.
@@ -79,12 +79,15 @@ def _board_limits() -> dict[str, int]:
 
 
 LIMITS = _board_limits()
-RATES = {b: sorted({50_000, 100_000, LIMITS[b]}) for b in c.BOARDS}
+RATES = {b: sorted({50_000, 200_000, LIMITS[b]}) for b in c.BOARDS}
 # the planner's steepest ramp (MAX_ACCEL, steps/s²): the shortest moves
 # that reach each rate
 MAX_ACCEL = int(re.search(r"pub const MAX_ACCEL: u64 = ([0-9_]+);",
                           (ROOT / "src" / "motion" / "planner" / "mod.rs").read_text())[1])
-ON_TIME_RATES = {b: list(range(25_000, LIMITS[b] + 1, 25_000)) for b in c.BOARDS}
+# the rates the on-time section tries, and the grid the boards' limits are
+# rounded down to (Board::max_step_rate)
+STEP_GRID = 50_000
+ON_TIME_RATES = {b: list(range(STEP_GRID, LIMITS[b] + 1, STEP_GRID)) for b in c.BOARDS}
 CRUISE_STEPS = 2_000  # steps at the top rate in each move
 # the step timer's tick (Board::step_tick_hz in src/boards.rs)
 TICK_NS = c.TICK_NS
@@ -256,13 +259,13 @@ def read_flood(port: int, stop: threading.Event, answered: list[int]):
             time.sleep(0.003)
 
 
-def entry_latency(board: str, rate: int, work: Path) -> tuple[int, int, int, int | None]:
+def flooded_move(board: str, rate: int, work: Path) -> tuple[int, int, int]:
     """A position move of `rate` steps/s at the steepest ramp there and
-    back while `read_flood` runs. (distance, reads answered, worst latency
-    ns from the firmware's log, update events with UIF still set or None)."""
-    st = work / f"{board}-latency.stats"
-    # the development image, which logs the latency line (info)
-    fw = c.Firmware(work, board, ["--stats", str(st)], dev=True)
+    back while `read_flood` runs. (distance, reads answered, refills the
+    firmware reported late: the DMA read a buffer half before the refill
+    had written it again)."""
+    st = work / f"{board}-flood.stats"
+    fw = c.Firmware(work, board, ["--stats", str(st)])
     distance = int(rate * LATENCY_MOVE_S) + rate * rate // MAX_ACCEL
     answered = [0]
     try:
@@ -292,7 +295,7 @@ def entry_latency(board: str, rate: int, work: Path) -> tuple[int, int, int, int
                 stop.set()
                 flooder.join()
             answered[0] += count[0]
-            time.sleep(0.2)  # the last reply is out, and a new worst is logged
+            time.sleep(0.2)  # the last reply is out, and a late refill is logged
             # a fresh client: the old one's socket heard the flood's replies
             m = c.Master(fw.client())
             m.wait(lambda sw: sw & c.TARGET_REACHED and not sw & c.MOTOR_RUNNING, 10,
@@ -301,42 +304,31 @@ def entry_latency(board: str, rate: int, work: Path) -> tuple[int, int, int, int
         fw.alive()
     finally:
         fw.stop()
-    log = fw.stderr()
-    late = [int(x) for x in LATENCY_LOG.findall(log)]
-    assert late, f"{board}: no latency log line:\n{log}"
-    missed = [int(x) for x in MISSED_LOG.findall(log)]
-    return distance, answered[0], max(late), max(missed) if missed else None
+    late = [int(x) for x in LATE_REFILL_LOG.findall(fw.stderr())]
+    return distance, answered[0], max(late, default=0)
 
 
-def latency_section(work: Path, rates: dict[str, int]) -> list[str]:
-    lines = ["", "## Step interrupt: worst entry latency", "",
-             "At entry the step interrupt reads the step timer's counter, which",
-             "restarted at the update event, and keeps the largest value; the control",
-             "loop logs it each time it grows (`step interrupt: worst latency N ns`,",
-             "src/firmware/control.rs). The figure below is the largest of those log",
-             "lines: the time from the update event to the handler's first read of the",
-             "counter, in whole ticks of the step timer, with the emulator's one cycle",
-             "per instruction (docs/fw-sim.md, \"Time\"; a real core with flash wait",
-             "states and pipeline refills takes longer). A period the interrupt misses",
-             "altogether does not show in it (the counter has restarted again): the",
-             "runner warns of every update event that comes with UIF still set, and",
-             "the last column says whether it did.", "",
+def flood_section(work: Path, rates: dict[str, int]) -> list[str]:
+    lines = ["", "## DMA refills while the bus is flooded", "",
+             "The step engine's refill (the DMA channel's half-transfer and",
+             "transfer-complete interrupt, src/firmware/steps.rs) must write each",
+             "buffer half again before the DMA comes back to it; a refill that finds",
+             "the DMA already in the half it is to write counts itself late, and the",
+             "control loop logs the count (`step engine: N refill(s) came a buffer",
+             "half late`, src/firmware/control.rs). The last column is the largest",
+             "count logged (0: no such line).", "",
              "Each board: a position move at the highest rate it keeps every pulse on",
              f"time (the section above, bus polled), ramps at MAX_ACCEL, {LATENCY_MOVE_S} s",
              "of emulated time at that rate each way, there and back. From each move's",
              "start to its last pulse the master floods the bus with reads of 0x6041",
              "for this drive, the next request 3 ms of wall-clock time after each",
-             "reply (less emulated time when the emulator lags). The DIR set-up stretch",
-             f"assumes {ISR_LATENCY_NS} ns (calc::ISR_LATENCY_NS).", "",
-             "| board | steps/s | distance each way | reads answered | worst latency ns "
-             "| ticks | within ISR_LATENCY_NS | update events with UIF still set |",
-             "|---|---|---|---|---|---|---|---|"]
+             "reply (less emulated time when the emulator lags).", "",
+             "| board | steps/s | distance each way | reads answered | refills late |",
+             "|---|---|---|---|---|"]
     for board in c.BOARDS:
         rate = rates[board]
-        distance, answered, late, missed = entry_latency(board, rate, work)
-        lines.append(f"| {board} | {rate} | {distance} | {answered} | {late} "
-                     f"| {late / TICK_NS[board]:.0f} | {'yes' if late <= ISR_LATENCY_NS else 'no'} "
-                     f"| {'none' if missed is None else f'{missed} (warned)'} |")
+        distance, answered, late = flooded_move(board, rate, work)
+        lines.append(f"| {board} | {rate} | {distance} | {answered} | {late} |")
         print(lines[-1], flush=True)
     return lines
 
@@ -420,12 +412,12 @@ def rates_from_file() -> dict[str, int]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--only", choices=["latency", "stepping-latency", "reset"],
+    ap.add_argument("--only", choices=["flood", "stepping-latency", "reset"],
                     help="run one section and print it; the file is not written")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="fw-sim-measure-"))
-    if args.only == "latency":
-        print("\n".join(latency_section(work, rates_from_file())))
+    if args.only == "flood":
+        print("\n".join(flood_section(work, rates_from_file())))
         return 0
     if args.only == "stepping-latency":
         print("\n".join(stepping_latency_section(work)))
@@ -475,7 +467,7 @@ def main() -> int:
             lines.append(f"| {board} | {rate} | {measured:.0f} | {load:.1f} | {speed:.2f} |")
             print(lines[-1], flush=True)
     lines += ["", "## Highest step rate with every pulse on time", "",
-              "Position moves from rest at 0x6081 rising in 25 000 steps/s increments",
+              f"Position moves from rest at 0x6081 rising in {STEP_GRID} steps/s increments",
               "up to the board's step rate limit (the firmware clamps above it), ramps",
               "at the planner's steepest",
               f"acceleration (MAX_ACCEL, {MAX_ACCEL} steps/s²), each long enough for",
@@ -500,7 +492,7 @@ def main() -> int:
             bus = "polled" if polled else "quiet"
             for rate, distance, n, shortest, worst, first in on_time(board, work, polled):
                 ok = worst <= 1 and n == distance
-                if ok and highest.get((board, bus), 0) == rate - 25_000:
+                if ok and highest.get((board, bus), 0) == rate - STEP_GRID:
                     highest[board, bus] = rate
                 lines.append(f"| {board} | {bus} | {rate} | {distance} | {n} | {shortest:.3f} "
                              f"| {worst:.2f} | {first:+.2f} | {'yes' if ok else 'no'} |")
@@ -510,7 +502,7 @@ def main() -> int:
         ceiling = (" (the planner's ceiling)" if top == MAX_STEP_RATE
                    else " (the board's limit)" if top == LIMITS[board] else "")
         lines.append(f"- {board}, bus {bus}: every pulse on time up to **{top} steps/s**{ceiling}.")
-    lines += latency_section(work, {b: highest.get((b, "polled"), 25_000) for b in c.BOARDS})
+    lines += flood_section(work, {b: highest.get((b, "polled"), STEP_GRID) for b in c.BOARDS})
     lines += reset_window_section(work)
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
