@@ -38,13 +38,8 @@ impl Board {
     /// (`motion::MAX_STEP_RATE`; the planner checks it at compile time).
     pub const fn max_step_rate(self) -> u32 {
         match self {
-            // the planner's ceiling: the G431 keeps every pulse on time there
-            Board::G431 => 200_000,
-            // on time one grid step above, but there the step interval is
-            // no whole number of ticks, and the limit brake starts from the
-            // whole-tick delay of the step it takes over (motion::schedule,
-            // "Limit brake"): here it is exact
-            Board::F103 => 125_000,
+            Board::G431 => 250_000,
+            Board::F103 => 200_000,
         }
     }
 

@@ -27,8 +27,9 @@ use modbus_drive::motion::{MAX_ACCEL, MAX_STEP_RATE};
 const STEPS_PER_REV: f64 = 10_000.0;
 /// 0x6083 / 0x6084 / 0x6085 / 0x609A at the acceleration limit (0.1 r/s²).
 const ACCEL_LIMIT_REG: u16 = 2000;
-/// 0x6081 at the step rate limit (0.1 r/s).
-const VELOCITY_LIMIT_REG: i32 = 200;
+/// 0x6081 at the planner's step rate ceiling (0.1 r/s), which each board
+/// clamps to its own limit.
+const VELOCITY_LIMIT_REG: i32 = (MAX_STEP_RATE / 1000) as i32;
 
 const REACHED: u16 = 1 << 10;
 const BIT12: u16 = 1 << 12;
@@ -123,11 +124,19 @@ fn move_at_the_limits(board: Board, velocity_reg: i32, target: i32) {
 #[test]
 fn a_move_at_the_acceleration_and_velocity_limits_runs_on_every_board() {
     for board in Board::ALL {
-        // ramps of 10 000 steps each and a cruise between them
-        move_at_the_limits(board, VELOCITY_LIMIT_REG, 30_000);
+        let ramp = ramp_steps(board);
+        // a ramp up, a cruise as long, a ramp down
+        move_at_the_limits(board, VELOCITY_LIMIT_REG, 3 * ramp);
         // backwards, and a velocity above the limit clamped to it
-        move_at_the_limits(board, 10 * VELOCITY_LIMIT_REG, -25_000);
+        move_at_the_limits(board, 10 * VELOCITY_LIMIT_REG, -5 * ramp / 2);
     }
+}
+
+/// Steps from rest to the board's step rate limit at its acceleration
+/// limit: v² / 2a.
+fn ramp_steps(board: Board) -> i32 {
+    let v = u64::from(board.max_step_rate());
+    (v * v / (2 * board.max_accel())) as i32
 }
 
 /// A short move (a triangle that never cruises) at the limit, from a
@@ -163,7 +172,8 @@ fn a_quick_stop_at_the_deceleration_limit_stops_on_every_board() {
         let mut rig = position_rig(board, |a| a, VELOCITY_LIMIT_REG);
         rig.bus.write_single(0x605A, 2).expect("option 2");
         latch(&mut rig, 1_000_000);
-        rig.run_until(1_000_000, |r| r.axis.position() > 20_000);
+        let cruising = i64::from(2 * ramp_steps(board));
+        rig.run_until(1_000_000, |r| r.axis.position() > cruising);
         let at = rig.axis.position();
         rig.bus.write_single(0x6040, 0x000B).expect("quick stop");
         rig.run_until(1_000_000, |r| r.at_rest());
@@ -191,7 +201,7 @@ fn a_quick_stop_at_the_deceleration_limit_stops_on_every_board() {
 fn the_limit_brake_at_the_deceleration_limit_stops_on_every_board() {
     for board in Board::ALL {
         let tick = board.step_tick_hz();
-        let edge = 40_000;
+        let edge = i64::from(4 * ramp_steps(board));
         let mut rig = position_rig(board, |a| a.with_ccw_limit(edge), VELOCITY_LIMIT_REG);
         latch(&mut rig, 1_000_000);
         // the control loop every period until the edge, which goes to the

@@ -51,7 +51,7 @@ use slots::SlotInfo;
 /// limit ([`crate::boards::Board::max_step_rate`], in
 /// [`PlannerConfig::max_step_rate`]) is at most this; faster requests are
 /// clamped to the board's limit (like PA12).
-pub const MAX_STEP_RATE: u32 = 200_000;
+pub const MAX_STEP_RATE: u32 = 250_000;
 
 /// Ceiling of every board's acceleration, steps/s². Above it the start of a
 /// ramp would need more single-step segments than [`SCHEDULE_SLOTS`] to
