@@ -8,7 +8,7 @@
 //! makes them, per step.
 
 use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
-use modbus_drive::motion::{Fill, Goal, Planner, PlannerConfig, Ramp, StepSchedule, StepSource};
+use modbus_drive::motion::{Fill, Goal, Planner, Ramp, StepSchedule, StepSource};
 
 use crate::{dither, CONTROL_PERIOD_US};
 
@@ -53,7 +53,7 @@ fn duration(half: &[Burst]) -> u64 {
 /// entries' own lengths decide when) that half is refilled. `clock` is
 /// read around every refill (a down-counter, as in `simulate_move`).
 pub fn simulate_dma_move(target: i64, ramp: Ramp, clock: fn() -> u32) -> RefillCost {
-    let cfg = PlannerConfig::default();
+    let cfg = crate::bench_config();
     let ticks_per_us = u64::from(cfg.tick_hz() / 1_000_000);
     let mut planner = Planner::new(cfg);
     let sched = StepSchedule::new();

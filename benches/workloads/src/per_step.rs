@@ -22,7 +22,7 @@
 //! therefore a floor for a per-step design written like the rest of the
 //! core (safe Rust: no assembly), not an estimate of one.
 
-use modbus_drive::motion::{PlannerConfig, SCHEDULE_STEPS as RING};
+use modbus_drive::motion::SCHEDULE_STEPS as RING;
 
 use crate::{CONTROL_PERIOD_US, RAMP_ACCEL_STEPS_PER_S2, RAMP_MOVE_STEPS};
 
@@ -51,7 +51,7 @@ pub struct PerStep {
 
 impl Default for PerStep {
     fn default() -> Self {
-        let f = PlannerConfig::default().tick_hz();
+        let f = crate::BENCH_TICK_HZ;
         Self::new(RAMP_MOVE_STEPS, RAMP_ACCEL_STEPS_PER_S2.into(), f.into())
     }
 }
@@ -165,7 +165,7 @@ fn exact_root(w: u64) -> u32 {
 #[inline(never)]
 pub fn per_step_move(s: &mut PerStep) -> u32 {
     *s = PerStep::default();
-    let cfg = PlannerConfig::default();
+    let cfg = crate::bench_config();
     let per_us = u64::from(cfg.tick_hz() / 1_000_000);
     let (period, horizon) = (
         CONTROL_PERIOD_US * per_us,
@@ -191,7 +191,7 @@ mod tests {
     #[test]
     fn every_step_at_its_exact_time() {
         let mut s = PerStep::default();
-        let f = f64::from(PlannerConfig::default().tick_hz());
+        let f = f64::from(crate::BENCH_TICK_HZ);
         let a = f64::from(RAMP_ACCEL_STEPS_PER_S2);
         let (total, peak) = (f64::from(RAMP_MOVE_STEPS), f64::from(RAMP_MOVE_STEPS / 2));
         let time = |n: u32| {
