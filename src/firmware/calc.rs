@@ -276,17 +276,11 @@ impl StepLedger {
         pin
     }
 
-    /// In words, for a hand-over through atomics; all zeros is
-    /// [`StepLedger::new`]. The first ([`StepLedger::head_word`]) changes
-    /// with every step, the others ([`StepLedger::start_word`]) only when
-    /// a new run starts ([`StepLedger::newest_run`]).
-    pub fn words(&self) -> [u32; LEDGER_WORDS] {
-        core::array::from_fn(|k| match k {
-            0 => self.head_word(),
-            k => self.start_word(k - 1),
-        })
-    }
-
+    /// The hand-over through atomics is [`StepLedger::head_word`] and the
+    /// [`StepLedger::start_word`]s, read back by [`StepLedger::from_words`];
+    /// all zeros is [`StepLedger::new`]. The head word changes with every
+    /// step, the others only when a new run starts
+    /// ([`StepLedger::newest_run`]).
     /// The steps given, the newest run and the flags.
     pub fn head_word(&self) -> u32 {
         u32::from(self.given)
@@ -305,7 +299,7 @@ impl StepLedger {
         self.newest
     }
 
-    /// From [`StepLedger::words`].
+    /// From the head word and the start words, in that order.
     pub fn from_words(w: &[u32; LEDGER_WORDS]) -> Self {
         let mut starts = [0; LEDGER_RUNS];
         for (k, pair) in starts.chunks_mut(2).enumerate() {
