@@ -195,10 +195,11 @@ impl StepShape {
     }
 }
 
-/// Direction runs a [`StepLedger`] remembers: more than the step engine's
-/// buffer can hold unmade (each run takes at least a pulse entry and a
-/// DIR set-up entry of the buffer's halves and preload).
-pub const LEDGER_RUNS: usize = 16;
+/// Direction runs a [`StepLedger`] remembers: more than can be unmade at
+/// once. A run starts only from rest (the planner's rule), with a move
+/// planned at a control period; the step engine's buffer holds less than
+/// a control period of entries, so at most two runs are ever unmade.
+pub const LEDGER_RUNS: usize = 4;
 /// Words of a [`StepLedger`]'s hand-over.
 pub const LEDGER_WORDS: usize = 1 + LEDGER_RUNS / 2;
 

@@ -89,6 +89,7 @@ struct Engine {
 /// Owned by the refill interrupt once it is enabled (`start` fills it before).
 static ENGINE: IrqOwned<Option<Engine>> = IrqOwned::new(None);
 
+#[inline(always)]
 fn pulse_shape(s: StepShape) -> PulseShape {
     PulseShape::new(s.pulse_ticks, s.dir_setup_ticks, s.idle_ticks)
 }
@@ -121,10 +122,9 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
 
     board::enable_step_clocks();
     let t = board::STEP_TIMER;
-    t.cr1().modify(|w| {
-        w.set_cen(false);
-        w.set_arpe(true);
-    });
+    // the timers were reset by their drivers (`board::split`): whole
+    // registers are written, not modified
+    t.cr1().write(|w| w.set_arpe(true));
     t.psc().write_value(prescaler);
     // the first period: idle, DIR at its level, no pulse
     t.arr().write(|w| w.set_arr((shape.idle_ticks - 1) as u16));
@@ -132,19 +132,19 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
     t.ccr(0).write(|w| w.set_ccr(0));
     t.ccr(1)
         .write(|w| w.set_ccr(if level { u16::MAX } else { 0 }));
-    t.ccmr_output(0).modify(|w| {
+    t.ccmr_output(0).write(|w| {
         w.set_ocm(0, Ocm::PWM_MODE1);
         w.set_ocpe(0, true);
         w.set_ocm(1, Ocm::PWM_MODE1);
         w.set_ocpe(1, true);
     });
     // only the complementary outputs: each pin is OCxREF itself
-    t.ccer().modify(|w| {
+    t.ccer().write(|w| {
         w.set_ccne(0, true);
         w.set_ccne(1, true);
     });
     // OC1REF on TRGO: TIM3 counts its rising edges
-    t.cr2().modify(|w| w.set_mms(Mms::COMPARE_OC1));
+    t.cr2().write(|w| w.set_mms(Mms::COMPARE_OC1));
     // a burst of ARR, RCR, CCR1, CCR2 through DMAR at each update
     t.dcr().write(|w| {
         w.set_dba(ARR_WORD);
@@ -154,20 +154,17 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
     t.sr().write_value(Default::default());
     // outputs on; a break (the fault path's BG) drives both to their
     // idle level, low
-    t.bdtr().modify(|w| {
+    t.bdtr().write(|w| {
         w.set_ossi(Ossi::IDLE_LEVEL);
         w.set_moe(true);
     });
 
     let c = board::PULSE_COUNTER;
-    c.cr1().modify(|w| w.set_cen(false));
-    c.smcr().modify(|w| {
+    c.smcr().write(|w| {
         w.set_ts(Ts::ITR0); // TIM1's TRGO
         w.set_sms(Sms::EXT_CLOCK_MODE);
     });
-    c.arr().write(|w| w.set_arr(u16::MAX));
-    c.cnt().write(|w| w.set_cnt(0));
-    c.cr1().modify(|w| w.set_cen(true));
+    c.cr1().write(|w| w.set_cen(true));
 
     board::route_step_dma();
     let ch = board::STEP_DMA.ch(board::STEP_DMA_CH);
@@ -188,7 +185,7 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
         w.set_tcie(true);
         w.set_en(true);
     });
-    t.dier().modify(|w| w.set_ude(true));
+    t.dier().write(|w| w.set_ude(true));
     t.cr1().modify(|w| w.set_cen(true));
     &SCHEDULE
 }
@@ -202,7 +199,7 @@ pub fn outputs_low() {
         w.set_moe(false);
         w.set_ossi(Ossi::IDLE_LEVEL);
     });
-    t.ccer().modify(|w| {
+    t.ccer().write(|w| {
         w.set_ccne(0, true);
         w.set_ccne(1, true);
     });
@@ -301,28 +298,23 @@ impl Handler<board::StepIrq> for StepHandler {
         let Some(engine) = engine.as_mut() else {
             return;
         };
-        // half-transfer: the first half was read; transfer complete: the second
-        let left = dma.ch(n).ndtr().read().ndt() as usize;
-        for (done, first) in [(ht, true), (tc, false)] {
-            if !done {
-                continue;
+        // half-transfer: the first half was read; transfer complete: the
+        // second. The DMA must be in the other half than the one written.
+        let dma_in_first = dma.ch(n).ndtr().read().ndt() as usize > HALF * BURST_HALF_WORDS;
+        let (first, second) = buffer.split_at_mut(HALF);
+        for (done, half, late) in [(ht, first, dma_in_first), (tc, second, !dma_in_first)] {
+            if done {
+                if late {
+                    LATE_REFILLS.store(late_refills().wrapping_add(1), Ordering::Relaxed);
+                }
+                refill(engine, half);
             }
-            // the DMA must be in the other half than the one to be written
-            let in_first = left > HALF * BURST_HALF_WORDS;
-            if in_first == first {
-                LATE_REFILLS.fetch_add(1, Ordering::Relaxed);
-            }
-            let half = if first {
-                &mut buffer[..HALF]
-            } else {
-                &mut buffer[HALF..]
-            };
-            refill(engine, half);
         }
     }
 }
 
-/// Writes `half` from the schedule.
+/// Writes `half` from the schedule. One copy for both halves.
+#[inline(never)]
 fn refill(e: &mut Engine, half: &mut [Burst]) {
     let inverted = DIR_INVERTED.load(Ordering::Relaxed);
     let shape = SHAPE.load(Ordering::Relaxed);

@@ -14,7 +14,9 @@ static TABLE: [u16; 256] = MODBUS.table()[0];
 /// Two bytes per lookup pair: `TABLE_PAIR[i]` is the CRC register after
 /// byte `i` and then a zero byte went through [`TABLE`] from 0. The CRC is
 /// linear, so a pair `lo, hi` xored into the register costs
-/// `TABLE_PAIR[lo'] ^ TABLE[hi']` (slicing by 2; 512 more bytes of flash).
+/// `TABLE_PAIR[lo'] ^ TABLE[hi']` (slicing by 2; 512 more bytes of flash,
+/// feature `crc-pairs`).
+#[cfg(feature = "crc-pairs")]
 static TABLE_PAIR: [u16; 256] = {
     let mut t = [0u16; 256];
     let mut i = 0;
@@ -28,21 +30,26 @@ static TABLE_PAIR: [u16; 256] = {
 
 /// CRC of `bytes` as a number; on the wire it goes low byte first.
 ///
-/// The crate's own table, walked two bytes at a time (a last odd byte one
-/// at a time): fewer instructions per byte than the one-byte loop or the
-/// generic `Crc::checksum` (the QEMU benchmark, `benches/run-qemu.sh`,
-/// counts them); every frame is checked and every reply signed, so this is
-/// a large part of a frame's cost. Equal to
-/// `MODBUS.checksum` on every length (tested below).
+/// The crate's own table, walked two bytes at a time with `crc-pairs` (a
+/// last odd byte one at a time): fewer instructions per byte than the
+/// one-byte loop or the generic `Crc::checksum` (the QEMU benchmark,
+/// `benches/run-qemu.sh`, counts them); every frame is checked and every
+/// reply signed, so this is a large part of a frame's cost. Without the
+/// feature, one byte at a time. Equal to `MODBUS.checksum` on every length
+/// (tested below).
 #[inline(always)]
 pub fn crc16(bytes: &[u8]) -> u16 {
     let mut crc = CRC_16_MODBUS.init;
-    let mut pairs = bytes.chunks_exact(2);
-    for pair in &mut pairs {
-        let x = crc ^ u16::from_le_bytes([pair[0], pair[1]]);
-        crc = TABLE_PAIR[usize::from(x as u8)] ^ TABLE[usize::from(x >> 8)];
-    }
-    for &b in pairs.remainder() {
+    #[cfg(feature = "crc-pairs")]
+    let bytes = {
+        let mut pairs = bytes.chunks_exact(2);
+        for pair in &mut pairs {
+            let x = crc ^ u16::from_le_bytes([pair[0], pair[1]]);
+            crc = TABLE_PAIR[usize::from(x as u8)] ^ TABLE[usize::from(x >> 8)];
+        }
+        pairs.remainder()
+    };
+    for &b in bytes {
         crc = (crc >> 8) ^ TABLE[usize::from(crc as u8 ^ b)];
     }
     crc
