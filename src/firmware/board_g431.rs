@@ -100,7 +100,7 @@ pub fn config() -> Config {
 }
 
 /// What `embassy_stm32::init` leaves out: flash prefetch (the instruction
-/// cache alone misses on every jump into cold code, the step interrupt
+/// cache alone misses on every jump into cold code, the step refill
 /// included); the watchdog and the step timer stopped while a debug probe
 /// halts the core, so a breakpoint neither resets the chip nor leaves STEP
 /// pulsing at the last rate.

@@ -179,7 +179,7 @@ impl StepShape {
     }
 
     /// Pulse width and DIR set-up in one word, for an atomic hand-over to
-    /// the step interrupt (both are at most `MAX_SHAPE_NS` in ticks, which
+    /// the step engine's refill (both are at most `MAX_SHAPE_NS` in ticks, which
     /// fits 16 bits at any tick up to 655 MHz).
     pub const fn packed(self) -> u32 {
         (self.pulse_ticks & 0xFFFF) | (self.dir_setup_ticks & 0xFFFF) << 16

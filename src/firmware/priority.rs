@@ -1,9 +1,9 @@
 //! Interrupt priorities and the one masking rule: nothing but a fault ever
-//! masks the step interrupt.
+//! masks the step engine's refill.
 //!
 //! | priority | interrupt | shares state with lower levels through |
 //! |---|---|---|
-//! | P0 | step timer (TIM3) | atomics only (`StepSchedule`, steps.rs) |
+//! | P0 | step engine's DMA channel (the refill) | atomics only (`StepSchedule`, the pin-position ledger, steps.rs) |
 //! | P1 | switches (EXTI15_10); embassy-time driver (TIM2) | the critical section |
 //! | P2 | RS-485 USART; SysTick (the software DE's lead / tail, rs485.rs) | atomics, buffer hand-over by index (rs485.rs) |
 //! | thread | executor: control loop, dispatcher | — |
@@ -13,10 +13,11 @@
 //! own) is [`BasepriCs`]: it raises BASEPRI to [`MASK`] (P1), which masks
 //! P1 and everything below and leaves P0 running. That is sound because no
 //! code at P0 takes the critical section or touches data behind one: the
-//! step interrupt runs the core's lock-free `StepSource` and writes timer
-//! and GPIO registers, nothing else. [`init`] demotes every other
-//! interrupt of the chip to P1 or below, so no embassy-enabled line (the
-//! EXTI lines it unmasks at init) can sit at P0 beside it.
+//! refill runs the core's lock-free `StepSource` into its own DMA buffer
+//! and reads the DMA channel's flags and count, nothing else. [`init`]
+//! demotes every other interrupt of the chip to P1 or below, so no
+//! embassy-enabled line (the EXTI lines it unmasks at init) can sit at P0
+//! beside it.
 //!
 //! HardFault and NMI are above BASEPRI; their handlers (fault.rs) take no
 //! critical section either.
@@ -81,7 +82,7 @@ critical_section::set_impl!(BasepriCs);
 // `release` restores the level the outer one saw. The fences keep the
 // compiler from moving memory accesses out of the section. Neither half is
 // inlined: the image takes the section at a dozen sites and a call costs a
-// few cycles there, never on the step interrupt (which takes none).
+// few cycles there, never on the step engine's refill (which takes none).
 unsafe impl critical_section::Impl for BasepriCs {
     #[inline(never)]
     unsafe fn acquire() -> u8 {

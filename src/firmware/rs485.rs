@@ -49,7 +49,7 @@
 //!   through an atomic flag and a pended interrupt.
 //!
 //! `FRAME_READY` and [`TX_DONE`] only wake tasks (embassy-sync signals;
-//! their critical section is short and leaves the step interrupt alone).
+//! their critical section is short and leaves the step engine's refill alone).
 
 use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, AtomicU32, AtomicU8, Ordering};

@@ -8,27 +8,27 @@
 //! its lines first, whatever their state (an edge it cannot attribute would
 //! otherwise re-enter the handler for ever), reads the three pins at once
 //! and hands the enabled limits (PA14) to the step schedule
-//! (`StepSchedule::set_limits`): the step interrupt then brakes any motion
-//! towards an active limit with 0x6085 at its next step, without waiting
-//! for the control loop (motion/schedule/mod.rs "Limit brake"; disarmed in homing,
-//! where the core's sequencer decides). The control loop reads the pins
+//! (`StepSchedule::set_limits`): the step engine's next refill then brakes
+//! any motion towards an active limit with 0x6085 (behind the entries
+//! already written), without waiting for the control loop
+//! (motion/schedule/mod.rs "Limit brake"; disarmed in homing, where the
+//! core's sequencer decides). The control loop reads the pins
 //! every millisecond too ([`sample`], which also re-sends the limits, so a
 //! change of PA13/PA14 or a missed edge is caught within 1 ms) and
 //! debounces them for the core ([`sample`], calc.rs `LatchedSwitch`).
 //!
 //! Homing origin (SPEC §8.6): at every reading that finds a switch away
-//! from its debounced state, the first such reading latches the step
-//! schedule's position (`StepSchedule::position`); the control loop hands
-//! it to the core with the debounced change (`Device::control_latched`),
+//! from its debounced state, the first such reading latches the STEP pin's
+//! position (`steps::read_at_pin_position`: the schedule's position less
+//! the steps not yet made, which TIM3 counts); the control loop hands it
+//! to the core with the debounced change (`Device::control_latched`),
 //! which takes it as the origin if it lies on the current search leg. The
-//! step interrupt outranks the critical section (priority.rs) and may step
-//! during the read; the count is read before and after the pins and the
-//! pins again if it changed, so count and levels belong together.
+//! refill outranks the critical section (priority.rs) and may run during
+//! the read; the pulse count is read before and after the pins and the
+//! pins again if it changed, so position and levels belong together.
 //!
-//! The count is taken with the first read, never after the confirmation
-//! below: the STEP pulse that moves the axis onto the edge ends with the
-//! update event at which the step interrupt counts the next step, so the
-//! latch must be taken within one STEP pulse width of the edge.
+//! The position is taken with the first read, never after the
+//! confirmation below, during which the next pulse may rise.
 //!
 //! A limit brakes only when a second read of its pin [`CONFIRM_US`] after
 //! the first agrees: a spike shorter than that (motor cables next to the

@@ -142,8 +142,8 @@ pub use source::{NextStep, StepSource};
 
 /// Entries of the per-step ring (a power of two): delays plus the rare
 /// direction markers, one slot for the end sentinel and the pending step.
-/// At the highest step rate (200 000 steps/s) a full ring lasts 2.5 ms,
-/// more than two 1 ms control periods.
+/// At the highest step rate ([`crate::motion::MAX_STEP_RATE`]) a full ring
+/// lasts more than two 1 ms control periods.
 pub const SCHEDULE_STEPS: usize = 512;
 
 /// Fractional bits of schedule times: Q32.32 ticks.
