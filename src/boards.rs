@@ -27,19 +27,22 @@ impl Board {
         }
     }
 
-    /// Highest step rate, steps/s, at which this board's step engine
-    /// (src/firmware/steps.rs) makes every pulse on time, with a master
-    /// polling throughout: the figure `fw-sim/measure.py` finds under
-    /// emulation ("Highest step rate with every pulse on time" in
-    /// docs/generated/fw-sim.md), rounded down to its 25 000 steps/s grid.
-    /// The drive clamps every speed to it as it clamps to PA12 (SPEC §8.4,
-    /// docs/drive.md "Units and limits"): no board accepts a speed it
-    /// cannot step on time. Never above the planner's ceiling
-    /// (`motion::MAX_STEP_RATE`; the planner checks it at compile time).
+    /// Highest step rate, steps/s: at most the rate at which this board's
+    /// step engine (src/firmware/steps.rs) makes every pulse on time with
+    /// a master polling throughout — the figure `fw-sim/measure.py` finds
+    /// under emulation ("Highest step rate with every pulse on time" in
+    /// docs/generated/fw-sim.md, on its 50 000 steps/s grid) — and at most
+    /// the rate whose period still holds the firmware's safe minimum STEP
+    /// pulse (`MIN_STEP_PULSE_NS` in src/firmware/calc.rs) high and as long
+    /// low: 200 000 steps/s at 2.5 µs, which is where both boards stop
+    /// (docs/firmware.md, "Step rate limits"). The drive clamps every speed
+    /// to it as it clamps to PA12 (SPEC §8.4, docs/drive.md "Units and
+    /// limits"): no board accepts a speed it cannot step on time. Never
+    /// above the planner's ceiling (`motion::MAX_STEP_RATE`; the planner
+    /// checks it at compile time).
     pub const fn max_step_rate(self) -> u32 {
         match self {
-            Board::G431 => 250_000,
-            Board::F103 => 200_000,
+            Board::G431 | Board::F103 => 200_000,
         }
     }
 

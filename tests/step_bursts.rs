@@ -103,7 +103,7 @@ fn a_move_at_each_boards_timer_clock() {
 }
 
 #[test]
-fn slow_moves_use_the_repetition_counter() {
+fn slow_moves_are_exact_in_entries_no_longer_than_the_idle_one() {
     // 2 steps/s at 170 MHz: 85 M ticks an interval
     burst_move(170_000_000, 5, 2.0, 50.0, 50.0, 4);
 }

@@ -4,7 +4,7 @@ images: it starts, reaches its target and puts exactly its steps on the
 STEP pin, forwards and back. The F103's 8 MHz step tick once made the first
 step of such a move wrap into a delay of minutes (tests/board_ticks.rs runs
 every limit on the host at both ticks). The profile velocity, 5 r/s, is one
-both images' step interrupt keeps up with under emulation; the velocity
+both images' step engines keep up with under emulation; the velocity
 limit is not what this test is about.
 """
 

@@ -34,10 +34,11 @@
 //! pushes with `&StepSchedule`, the interrupt pops with the same shared
 //! reference. The firmware keeps it in a `static` (all zeros: .bss,
 //! src/firmware/steps.rs), hands it to [`crate::Device::control`] in the
-//! control loop and owns a [`StepSource`] inside the step-timer interrupt.
+//! control loop and owns a [`StepSource`] inside the step engine's refill
+//! interrupt (on a host: `motion::sim::SimAxis`).
 //! Exactly one context may push and exactly one may pop.
 //!
-//! The drive has one core, and the step interrupt is never preempted by
+//! The drive has one core, and the consumer's interrupt is never preempted by
 //! thread mode or by the limit-switch interrupt (it has the highest
 //! priority): each context sees the other's stores whole and in program
 //! order, so only the compiler must keep them in order. Every access is
