@@ -19,11 +19,10 @@ from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, 
                       SWITCH_ON_DISABLED, TARGET_POSITION, TARGET_REACHED, TICK_NS, Master,
                       with_crc)
 
-# Each board's top step rate with every pulse kept while frames flood the
-# bus (0x6081 in 0.1 r/s at the default 10000 steps/rev: 200 = 200 000
-# steps/s, the planner's ceiling); the F103 loses its schedule at 200 000
-# steps/s under the flood
-TOP_VELOCITY = {"g431": 200, "f103": 100}
+# Each board's top step rate (Board::max_step_rate) with every pulse kept
+# while frames flood the bus (0x6081 in 0.1 r/s at the default 10000
+# steps/rev: 200 = 200 000 steps/s)
+TOP_VELOCITY = {"g431": 200, "f103": 200}
 ACCEL = 4000  # 0.1 r/s²: 400 r/s², a 50 ms ramp to the top rate
 DISTANCE = 60_000
 # the firmware's warning when its DMA refill came too late
