@@ -73,7 +73,8 @@ static LEDGER: [AtomicU32; LEDGER_WORDS] = [const { AtomicU32::new(0) }; LEDGER_
 static SEQ: AtomicU32 = AtomicU32::new(0);
 /// Refills in a row that wrote no pulse (the buffer holds none once two did).
 static QUIET_REFILLS: AtomicU32 = AtomicU32::new(0);
-/// Refills that found the DMA already in the half they were to write.
+/// Refills that found the DMA already in the half they were to write while
+/// the buffer held pulses.
 static LATE_REFILLS: AtomicU32 = AtomicU32::new(0);
 
 struct Engine {
@@ -113,8 +114,10 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
         pulse: shape,
         ledger: StepLedger::new(),
     };
-    // SAFETY: the refill interrupt is not enabled yet: nothing else runs on
-    // the buffer or the engine, and the DMA channel is off.
+    // SAFETY: the DMA channel is off and raises no interrupt until it is
+    // enabled below (embassy's init has enabled its NVIC line already;
+    // the handler finds no engine until this store): nothing else runs on
+    // the buffer or the engine.
     let buffer = unsafe { BUFFER.get() };
     engine.writer.fill(buffer, || None);
     // SAFETY: as above.
@@ -304,7 +307,10 @@ impl Handler<board::StepIrq> for StepHandler {
         let (first, second) = buffer.split_at_mut(HALF);
         for (done, half, late) in [(ht, first, dma_in_first), (tc, second, !dma_in_first)] {
             if done {
-                if late {
+                // a buffer with no pulse in it (idle: two quiet refills)
+                // loses nothing when a half plays twice, as while a flash
+                // erase stalls the core
+                if late && QUIET_REFILLS.load(Ordering::Relaxed) < 2 {
                     LATE_REFILLS.store(late_refills().wrapping_add(1), Ordering::Relaxed);
                 }
                 refill(engine, half);
