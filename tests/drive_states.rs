@@ -580,3 +580,28 @@ fn halt_decelerates_with_0x6084() {
         }
     }
 }
+
+/// A step output that is handed steps ahead of its pin (the firmware's
+/// timer + DMA engine) tells the schedule how many it has not made
+/// (`StepSchedule::set_pin_lag`): 0x6064 is the pin's position, and the
+/// target is reached (bit 10) and the motor at rest (bit 9 clear) only
+/// once the pin has caught up.
+#[test]
+fn the_position_and_target_reached_wait_for_the_pin() {
+    let mut rig = rig();
+    moving(&mut rig, 500);
+    rig.run_until(1_000_000, |r| r.statusword() & REACHED != 0);
+    assert_eq!(rig.position(), 500);
+    // the last three steps counted are still on their way to the pin
+    rig.sched.set_pin_lag(3);
+    rig.control();
+    assert_eq!(rig.position(), 497, "0x6064 is the pin's");
+    let sw = rig.statusword();
+    assert_eq!(sw & REACHED, 0, "not reached before the pin: {sw:#06x}");
+    assert_ne!(sw & RUNNING, 0, "still running: {sw:#06x}");
+    rig.sched.set_pin_lag(0);
+    rig.control();
+    assert_eq!(rig.position(), 500);
+    let sw = rig.statusword();
+    assert_eq!((sw & REACHED, sw & RUNNING), (REACHED, 0), "{sw:#06x}");
+}

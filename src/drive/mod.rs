@@ -380,7 +380,7 @@ impl Drive {
             switches.home(),
         );
         self.switches = sw;
-        self.raw_position = self.planner.actual_position(sched);
+        self.raw_position = self.pin_position(sched);
         if self.frame_seen {
             self.frame_seen = false;
             self.last_frame_us = now_us;
@@ -433,13 +433,22 @@ impl Drive {
             self.event(DriveEvent::ScheduleUnderrun);
         }
 
-        self.raw_position = self.planner.actual_position(sched);
+        self.raw_position = self.pin_position(sched);
         self.velocity = self.planner.actual_velocity(sched);
-        self.running = sched.is_running() || !sched.is_empty();
+        let lagging = sched.pin_lag() != 0;
+        self.running = sched.is_running() || !sched.is_empty() || lagging;
         self.ramping = self.planner.ramping(sched);
-        self.at_rest = self.planner.at_rest(sched);
+        self.at_rest = self.planner.at_rest(sched) && !lagging;
         self.after_motion();
         self.update_brake();
+    }
+
+    /// The raw position of the STEP pin: what the schedule counts less the
+    /// steps the step output has not made yet (`StepSchedule::pin_lag`).
+    /// What the drive reports, homes and compares with the encoder; the
+    /// planner plans from the schedule's own count.
+    fn pin_position(&self, sched: &StepSchedule) -> i64 {
+        self.planner.actual_position(sched) - i64::from(sched.pin_lag())
     }
 
     /// State changes that wait for the motor to be at rest.

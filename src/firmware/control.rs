@@ -68,6 +68,7 @@ pub async fn run(
             defmt::info!("switches: {}", switch_states);
         }
         let count = encoder.read(encoder_wanted);
+        steps::publish_pin_lag();
         let Some((outputs, params, shape, engage_ms)) = with_device(|d| {
             if let Some(c) = count {
                 d.set_encoder_count(c);

@@ -261,20 +261,37 @@ fn pulses_made() -> u16 {
 /// is taken again (a few times at most, then the count before it stands:
 /// the position is then the step before or at the edge). Call it from a
 /// context the refill may preempt.
-pub fn read_at_pin_position<T>(mut read: impl FnMut() -> T) -> (T, i32) {
+pub fn read_at_pin_position<T>(read: impl FnMut() -> T) -> (T, i32) {
+    let (value, _, pin) = snapshot(read);
+    (value, pin)
+}
+
+/// Tells the schedule how far the STEP pin is behind its position
+/// (`StepSchedule::set_pin_lag`), for the control loop before each
+/// control call: the drive reports the pin and waits for it to reach the
+/// target.
+pub fn publish_pin_lag() {
+    let ((), pos, pin) = snapshot(|| ());
+    SCHEDULE.set_pin_lag(pos.wrapping_sub(pin));
+}
+
+/// `read()` with the schedule's position and the STEP pin's, consistent
+/// (see [`read_at_pin_position`]).
+fn snapshot<T>(mut read: impl FnMut() -> T) -> (T, i32, i32) {
     let mut tries = 0;
     loop {
         let seq = SEQ.load(Ordering::Relaxed);
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         let pos = SCHEDULE.position();
-        let ledger =
-            StepLedger::from_words(&core::array::from_fn(|k| LEDGER[k].load(Ordering::Relaxed)));
+        let ledger = StepLedger::from_words(&core::array::from_fn(|k| {
+            LEDGER[k].load(Ordering::Relaxed)
+        }));
         let made = pulses_made();
         let value = read();
         let still = pulses_made() == made;
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         if seq & 1 == 0 && SEQ.load(Ordering::Relaxed) == seq && (still || tries >= 3) {
-            return (value, ledger.pin_position(pos, made));
+            return (value, pos, ledger.pin_position(pos, made));
         }
         tries += 1;
     }

@@ -54,6 +54,9 @@ pub struct StepSchedule {
     pub(super) brake_rate: AtomicU32,
     /// The limit brake's state (`BRAKE_*`).
     pub(super) brake: AtomicU8,
+    /// Steps counted in the position that the step output has not made
+    /// yet ([`StepSchedule::set_pin_lag`]).
+    pub(super) pin_lag: AtomicI32,
 }
 
 impl Default for StepSchedule {
@@ -81,6 +84,7 @@ impl StepSchedule {
             limits: AtomicU8::new(0),
             brake_rate: AtomicU32::new(0),
             brake: AtomicU8::new(BRAKE_NONE),
+            pin_lag: AtomicI32::new(0),
         }
     }
 
@@ -323,6 +327,23 @@ impl StepSchedule {
     }
 
     // ---- either side ----
+
+    /// The step output tells how far the STEP pin is behind
+    /// [`StepSchedule::position`]: the steps the position counts that are
+    /// not on the pin yet (signed, in the position's sense). An output
+    /// that makes each step as it is counted leaves it 0 (the host
+    /// simulation); the firmware's timer + DMA engine, which is handed
+    /// steps ahead of its timer, sets it from its pulse counter every
+    /// control period. The drive reports the pin's position and is at rest
+    /// only once it is 0 (`Drive`).
+    pub fn set_pin_lag(&self, lag: i32) {
+        self.pin_lag.store(lag, Ordering::Relaxed);
+    }
+
+    /// [`StepSchedule::set_pin_lag`]'s value.
+    pub fn pin_lag(&self) -> i32 {
+        self.pin_lag.load(Ordering::Relaxed)
+    }
 
     /// Raw step count: steps made forward minus steps made backward.
     /// Derived from the position base and the index of the pending step
