@@ -283,9 +283,8 @@ fn snapshot<T>(mut read: impl FnMut() -> T) -> (T, i32, i32) {
         let seq = SEQ.load(Ordering::Relaxed);
         core::sync::atomic::compiler_fence(Ordering::SeqCst);
         let pos = SCHEDULE.position();
-        let ledger = StepLedger::from_words(&core::array::from_fn(|k| {
-            LEDGER[k].load(Ordering::Relaxed)
-        }));
+        let ledger =
+            StepLedger::from_words(&core::array::from_fn(|k| LEDGER[k].load(Ordering::Relaxed)));
         let made = pulses_made();
         let value = read();
         let still = pulses_made() == made;
