@@ -56,24 +56,30 @@ impl Image {
         Ok(out)
     }
 
-    /// The name of the symbol holding `addr`, if one does.
-    pub fn function(&self, addr: u32) -> Option<&str> {
+    /// The symbol at or below `addr` (Thumb bit cleared): its start, size
+    /// and name, and `addr`'s offset in it.
+    fn nearest(&self, addr: u32) -> Option<(u32, u32, &str, u32)> {
         let a = addr & !1;
         let i = self.symbols.partition_point(|s| s.0 <= a);
         let (s, size, name) = &self.symbols[i.checked_sub(1)?];
-        (a < s + (*size).max(1)).then_some(name.as_str())
+        Some((*s, *size, name.as_str(), a - s))
     }
 
+    /// The name of the symbol holding `addr`, if one does.
+    pub fn function(&self, addr: u32) -> Option<&str> {
+        let (_, size, name, off) = self.nearest(addr)?;
+        (off < size.max(1)).then_some(name)
+    }
+
+    /// `name+offset` of the symbol holding `addr`, or of the nearest
+    /// unsized one below it; "?" if none.
     pub fn symbol(&self, addr: u32) -> String {
-        let a = addr & !1;
-        let i = self.symbols.partition_point(|s| s.0 <= a);
-        if i > 0 {
-            let (s, size, name) = &self.symbols[i - 1];
-            if a < s + (*size).max(1) || *size == 0 {
-                return format!("{name}+{:#x}", a - s);
+        match self.nearest(addr) {
+            Some((_, size, name, off)) if off < size.max(1) || size == 0 => {
+                format!("{name}+{off:#x}")
             }
+            _ => "?".into(),
         }
-        "?".into()
     }
 
     /// Every halfword in the loaded code equal to `op` (the WFI, WFE, SEV

@@ -66,8 +66,8 @@ static DIR_INVERTED: AtomicBool = AtomicBool::new(false);
 /// STEP width and DIR set-up in ticks, packed (`StepShape::packed`).
 static SHAPE: AtomicU32 = AtomicU32::new(0);
 
-/// The refill's `StepLedger` for [`read_at_pin_position`], written under [`SEQ`]
-/// (`StepLedger::words`).
+/// The refill's `StepLedger` for [`read_at_pin_position`], written under
+/// [`SEQ`] (`StepLedger::head_word`, then its `start_word`s).
 static LEDGER: [AtomicU32; LEDGER_WORDS] = [const { AtomicU32::new(0) }; LEDGER_WORDS];
 /// Odd while the refill writes the values above.
 static SEQ: AtomicU32 = AtomicU32::new(0);
@@ -80,9 +80,8 @@ static LATE_REFILLS: AtomicU32 = AtomicU32::new(0);
 struct Engine {
     writer: BurstWriter,
     source: StepSource,
-    /// Shape last taken from [`SHAPE`].
-    shape: u32,
-    /// Width, set-up and idle entry in timer ticks.
+    /// Width, set-up and idle entry in timer ticks, as last taken from
+    /// [`SHAPE`].
     pulse: StepShape,
     ledger: StepLedger,
 }
@@ -110,7 +109,6 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
     let mut engine = Engine {
         writer: BurstWriter::new(pulse_shape(shape), level),
         source: StepSource::new(),
-        shape: shape.packed(),
         pulse: shape,
         ledger: StepLedger::new(),
     };
@@ -340,8 +338,7 @@ impl Handler<board::StepIrq> for StepHandler {
 fn refill(e: &mut Engine, half: &mut [Burst]) {
     let inverted = DIR_INVERTED.load(Ordering::Relaxed);
     let shape = SHAPE.load(Ordering::Relaxed);
-    if shape != e.shape {
-        e.shape = shape;
+    if shape != e.pulse.packed() {
         e.pulse = e.pulse.with_packed(shape);
         e.writer.set_shape(pulse_shape(e.pulse));
     }
