@@ -6,6 +6,8 @@
 #[path = "../src/firmware/calc.rs"]
 #[allow(dead_code)]
 mod calc;
+#[path = "../src/firmware/feed.rs"]
+mod feed;
 #[path = "../src/firmware/flash.rs"]
 #[allow(dead_code)]
 mod flash;
@@ -14,6 +16,7 @@ use calc::*;
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
+use feed::EngineFeed;
 use flash::{FlashRegion, RegionError};
 use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
 use modbus_drive::motion::schedule::brake_rate;
@@ -118,15 +121,21 @@ const HALF: usize = 8;
 
 /// The step engine's refill (steps.rs `refill`) on the host: the core's
 /// `StepSource` through `BurstWriter` into one buffer half, the ledger kept
-/// as the firmware keeps it; and TIM1 played from the entries: per pulse,
-/// (ticks since the previous pulse, DIR high).
+/// as the firmware keeps it (its `EngineFeed`, or with `reference` the
+/// plain closure feed, which has no plain steps); and TIM1 played from the
+/// entries: per pulse, (ticks since the previous pulse, DIR high).
 struct Engine {
     writer: BurstWriter,
     source: StepSource,
     ledger: StepLedger,
+    reference: bool,
+    /// PA11, and as the refill before applied it.
+    inverted: bool,
+    inverted_before: bool,
     /// Ticks since the last pulse's rise.
     since: u64,
     pulses: Vec<(u64, bool)>,
+    entries: Vec<Burst>,
 }
 
 impl Engine {
@@ -139,8 +148,12 @@ impl Engine {
             ),
             source: StepSource::new(),
             ledger: StepLedger::new(),
+            reference: false,
+            inverted: false,
+            inverted_before: false,
             since: 0,
             pulses: Vec::new(),
+            entries: Vec::new(),
         }
     }
 
@@ -151,13 +164,22 @@ impl Engine {
             writer,
             source,
             ledger,
+            inverted,
             ..
         } = self;
-        writer.fill(&mut half, || {
-            let step = source.advance(sched);
-            ledger.advanced(step.map(|n| n.forward()));
-            step.map(|n| (n.delay_ticks(), n.forward()))
-        });
+        if self.reference {
+            let inverted = *inverted;
+            writer.fill(&mut half, &mut || {
+                let step = source.advance(sched);
+                ledger.advanced(step.map(|n| n.forward()));
+                step.map(|n| (n.delay_ticks(), n.forward() != inverted))
+            });
+        } else {
+            let mut feed = EngineFeed::new(source, sched, ledger, *inverted, self.inverted_before);
+            writer.fill(&mut half, &mut feed);
+        }
+        self.inverted_before = self.inverted;
+        self.entries.extend_from_slice(&half);
         for b in half {
             let [arr, rcr, ccr1, _] = b.registers();
             for _ in 0..=rcr {
@@ -299,6 +321,58 @@ fn a_limit_brakes_at_the_next_refill_within_the_quick_stop_distance_spec_8_7() {
         "{after:?}"
     );
     assert!(sched.limit_brake().is_some_and(|b| b.done() && b.forward()));
+}
+
+/// One engine per feed over its own schedule, driven alike: segments
+/// pushed as room allows, PA11 as `inverted` gives it per refill, a limit
+/// from refill `limit_at` on.
+fn run_both_feeds(
+    segs: &[(u64, u32, bool)],
+    inverted: &[bool],
+    limit_at: Option<usize>,
+) -> [(Vec<Burst>, Vec<u32>, i32); 2] {
+    [false, true].map(|reference| {
+        let sched = StepSchedule::new();
+        sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
+        let mut e = Engine::new(F103_TICK_HZ);
+        e.reference = reference;
+        let mut ledgers = Vec::new();
+        let mut next = 0;
+        for i in 0..400 {
+            while next < segs.len() {
+                let (interval, count, forward) = segs[next];
+                if sched.push(segment(interval, count, forward)).is_err() {
+                    break;
+                }
+                next += 1;
+            }
+            e.inverted = inverted[i % inverted.len()];
+            if limit_at == Some(i) {
+                sched.set_limits(true, true);
+            }
+            e.refill(&sched);
+            ledgers.push(e.ledger.head_word());
+        }
+        (e.entries, ledgers, sched.position())
+    })
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 64, ..Default::default() })]
+
+    /// The refill's plain path (`EngineFeed`, `StepSource::advance_plain`)
+    /// writes every entry, ledger and position the general path writes:
+    /// short, long and late steps, reversals, PA11 changing between
+    /// refills, the limit brake.
+    #[test]
+    fn the_plain_path_writes_what_the_general_path_writes(
+        segs in proptest::collection::vec((1u64..20_000, 1u32..300, proptest::bool::ANY), 1..8),
+        inverted in proptest::collection::vec(proptest::bool::weighted(0.1), 1..50),
+        limit_at in proptest::option::of(0usize..300),
+    ) {
+        let [plain, general] = run_both_feeds(&segs, &inverted, limit_at);
+        proptest::prop_assert_eq!(plain, general);
+    }
 }
 
 // ---------------------------------------------------------------- switches

@@ -52,7 +52,7 @@ fn burst_move(tick_hz: u32, dist: i64, v: f64, a: f64, d: f64, chunk: usize) {
     let mut entries = Vec::new();
     let mut buf = vec![Burst::default(); chunk];
     while k < steps.len() || w.busy() {
-        w.fill(&mut buf, || {
+        w.fill(&mut buf, &mut || {
             let s = steps.get(k)?;
             k += 1;
             let delay = s.tick() - prev;
@@ -61,7 +61,7 @@ fn burst_move(tick_hz: u32, dist: i64, v: f64, a: f64, d: f64, chunk: usize) {
         });
         entries.extend_from_slice(&buf);
     }
-    w.fill(&mut buf, || None);
+    w.fill(&mut buf, &mut || None);
     entries.extend_from_slice(&buf);
     assert_eq!(w.late(), 0);
     let pulses = play(&entries);

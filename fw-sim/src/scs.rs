@@ -84,9 +84,15 @@ impl Scs {
         self.ccr & 0x200 != 0
     }
 
+    /// A peripheral's interrupt line. It pends its interrupt as the
+    /// Cortex-M generic user guides put it ("Level-sensitive and pulse
+    /// interrupts"): when the line is high and the interrupt not active,
+    /// or on a rising edge. A line held high through its handler pends
+    /// nothing more until the handler returns ([`Scs::exit`]).
     pub fn set_level(&mut self, irq: usize, high: bool) {
+        let rising = high && !self.level[irq];
         self.level[irq] = high;
-        if high {
+        if rising || (high && !self.active.contains(&(16 + irq))) {
             self.pending[16 + irq] = true;
         }
     }
@@ -433,5 +439,35 @@ impl Scs {
             _ => return Access::Unmodelled,
         }
         Access::Ok(0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_line_high_through_its_handler_pends_again_only_on_an_edge_or_at_return() {
+        let (irq, e) = (11, 16 + 11);
+        let mut s = Scs::new(true, 0);
+        s.set_level(irq, true);
+        assert!(s.pending[e], "high while not active");
+        s.enter(e);
+        assert!(!s.pending[e]);
+        s.set_level(irq, true); // the handler has not cleared its flag yet
+        assert!(!s.pending[e], "held high while active");
+        s.set_level(irq, false); // now it has
+        s.exit();
+        assert!(!s.pending[e], "low at return");
+
+        s.set_level(irq, true);
+        s.enter(e);
+        s.exit();
+        assert!(s.pending[e], "still high at return");
+
+        s.enter(e);
+        s.set_level(irq, false);
+        s.set_level(irq, true);
+        assert!(s.pending[e], "a rising edge while active");
     }
 }

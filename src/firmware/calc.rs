@@ -252,6 +252,12 @@ impl StepLedger {
         }
     }
 
+    /// `n` more steps given in the direction of the last one, which is
+    /// still pending (`StepSource::advance_plain`'s steps).
+    pub fn advanced_plain(&mut self, n: u16) {
+        self.given = self.given.wrapping_add(n);
+    }
+
     /// The STEP pin's position, from the schedule's position `pos` and the
     /// pulses the timer has made (`made`, mod 2^16): the steps the schedule
     /// counted and the timer has not made yet are taken back, run by run

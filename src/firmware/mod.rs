@@ -6,8 +6,8 @@
 //! task) → `rx_slots.rs` (the closed frame handed over) → `dispatch.rs` (`Device::poll`, then the reply at the time it
 //! gave and a new line format) → `rs485.rs` (one burst, DE). Follow one
 //! set-point: `control.rs` (1 kHz loop, `Device::control` fills the core's
-//! `StepSchedule`) → `steps.rs` (step timer interrupt,
-//! `StepSource::advance`). Switches: `switches.rs` (EXTI → the schedule's
+//! `StepSchedule`) → `steps.rs` (the timer + DMA step engine; its refill
+//! takes the steps through `feed.rs`, `StepSource::advance`). Switches: `switches.rs` (EXTI → the schedule's
 //! limit brake); parameter flash: `flash.rs`;
 //! pins and peripherals: `board_g431.rs` / `board_f103.rs`; arithmetic:
 //! `calc.rs` (host-tested).
@@ -36,6 +36,7 @@ mod control;
 mod dispatch;
 mod encoder;
 mod fault;
+mod feed;
 mod flash;
 mod owned;
 mod priority;

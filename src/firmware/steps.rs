@@ -40,6 +40,7 @@ use modbus_drive::motion::{StepSchedule, StepSource};
 
 use super::board;
 use super::calc::{StepLedger, StepShape, LEDGER_WORDS};
+use super::feed::EngineFeed;
 use super::owned::IrqOwned;
 
 /// The step schedule between the control loop and the refill. Its `const`
@@ -84,6 +85,8 @@ struct Engine {
     /// [`SHAPE`].
     pulse: StepShape,
     ledger: StepLedger,
+    /// PA11 as the last refill applied it.
+    inverted: bool,
 }
 
 /// Owned by the refill interrupt once it is enabled (`start` fills it before).
@@ -111,13 +114,14 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
         source: StepSource::new(),
         pulse: shape,
         ledger: StepLedger::new(),
+        inverted: dir_inverted,
     };
     // SAFETY: the DMA channel is off and raises no interrupt until it is
     // enabled below (embassy's init has enabled its NVIC line already;
     // the handler finds no engine until this store): nothing else runs on
     // the buffer or the engine.
     let buffer = unsafe { BUFFER.get() };
-    engine.writer.fill(buffer, || None);
+    engine.writer.fill(buffer, &mut || None);
     // SAFETY: as above.
     unsafe { *ENGINE.get() = Some(engine) };
 
@@ -349,14 +353,14 @@ fn refill(e: &mut Engine, half: &mut [Burst]) {
         writer,
         source,
         ledger,
+        inverted: inverted_before,
         ..
     } = e;
     let runs = ledger.newest_run();
-    let pulses = writer.fill(half, || {
-        let step = source.advance(&SCHEDULE);
-        ledger.advanced(step.map(|n| n.forward()));
-        step.map(|n| (n.delay_ticks(), n.forward() != inverted))
-    });
+    let mut feed = EngineFeed::new(source, &SCHEDULE, ledger, inverted, *inverted_before);
+    let pulses = writer.fill(half, &mut feed);
+    drop(feed);
+    *inverted_before = inverted;
     LEDGER[0].store(ledger.head_word(), Ordering::Relaxed);
     if ledger.newest_run() != runs {
         for (k, word) in LEDGER[1..].iter().enumerate() {

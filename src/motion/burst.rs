@@ -137,6 +137,30 @@ struct Next {
     hold: u32,
 }
 
+/// Where [`BurstWriter::fill`] takes its steps from. A closure
+/// `FnMut() -> Option<(u32, bool)>` is one that has no plain steps.
+pub trait StepFeed {
+    /// The next step, `(delay, dir_level)`: its pulse `delay` ticks after
+    /// the previous one (or after the start of the last idle entry, from
+    /// rest), with DIR at `dir_level`; `None` while there is none.
+    fn next_step(&mut self) -> Option<(u32, bool)>;
+
+    /// The next step's delay if it is *plain*: in the direction and at the
+    /// DIR level of the step given before it, with nothing else for the
+    /// feed to look at. `None` leaves the step to
+    /// [`StepFeed::next_step`]. The writer's cruise path takes its steps
+    /// here, at no cost per step beyond the delay's range check.
+    fn plain_step(&mut self) -> Option<u32> {
+        None
+    }
+}
+
+impl<F: FnMut() -> Option<(u32, bool)>> StepFeed for F {
+    fn next_step(&mut self) -> Option<(u32, bool)> {
+        self()
+    }
+}
+
 /// Makes [`Burst`] entries from per-step delays (module docs).
 #[derive(Clone, Debug)]
 pub struct BurstWriter {
@@ -196,46 +220,68 @@ impl BurstWriter {
         self.open || self.next.is_some()
     }
 
-    /// Writes `out` whole: the entries of the steps `next_step` gives
-    /// (`(delay, dir_level)`: its pulse `delay` ticks after the previous
-    /// one, or after the start of the last idle entry from rest), asked
+    /// Writes `out` whole: the entries of the steps `feed` gives, asked
     /// for only when the writer needs one, and idle entries when it gives
     /// none. Returns the pulses written.
-    pub fn fill(
-        &mut self,
-        out: &mut [Burst],
-        mut next_step: impl FnMut() -> Option<(u32, bool)>,
-    ) -> u32 {
+    pub fn fill(&mut self, out: &mut [Burst], feed: &mut impl StepFeed) -> u32 {
         let before = self.pulses;
-        for slot in out {
+        let mut slots = out.iter_mut();
+        'slots: while let Some(mut slot) = slots.next() {
             if self.open && self.next.is_none() {
-                // The common case on ramps and at cruise: the pulse just
-                // reached starts this entry and the next step follows in
-                // the same direction within one period. The entry is that
-                // step's delay, whole: what `accept` and `entry` would
-                // write, without their cases.
-                let Some((delay, level)) = next_step() else {
-                    *slot = self.entry();
-                    continue;
+                // Cruise and ramps: a pulse is open and the feed's steps
+                // are plain, so each is one entry, its delay whole, at
+                // the open pulse's level (what the general path below
+                // writes for them, without its cases).
+                let (width, idle, level) = (self.shape.width, self.shape.idle, self.level);
+                let (mut written, mut last, mut full) = (0, self.last_interval, false);
+                while let Some(delay) = feed.plain_step() {
+                    last = delay;
+                    if !(MIN_ENTRY_TICKS..=idle).contains(&delay) {
+                        self.accept(delay, level);
+                        break;
+                    }
+                    written += 1;
+                    *slot = Burst::new(delay, width.min(delay / 2), level);
+                    match slots.next() {
+                        Some(s) => slot = s,
+                        None => {
+                            full = true;
+                            break;
+                        }
+                    }
+                }
+                self.pulses += written;
+                self.last_interval = last;
+                if full {
+                    break;
+                }
+            }
+            // a step whose pulse starts right where the entries end leaves
+            // the pulse open: its entry's length is the step after it, so
+            // a slot may need two steps
+            let mut asked = 0;
+            while self.next.is_none() && asked < 2 {
+                let Some((delay, level)) = feed.next_step() else {
+                    break;
                 };
-                if level == self.level && (MIN_ENTRY_TICKS..=self.shape.idle).contains(&delay) {
+                asked += 1;
+                if self.open
+                    && level == self.level
+                    && (MIN_ENTRY_TICKS..=self.shape.idle).contains(&delay)
+                {
+                    // As on the plain path above, for a feed without plain
+                    // steps: the pulse just reached starts this entry and
+                    // the next step follows in the same direction within
+                    // one period. The entry is that step's delay, whole:
+                    // what `accept` and `entry` would write (the pulse is
+                    // open, so no tick was written since it), without
+                    // their cases.
                     self.pulses += 1;
                     self.last_interval = delay;
                     *slot = Burst::new(delay, self.shape.width.min(delay / 2), level);
-                    continue;
+                    continue 'slots;
                 }
                 self.accept(delay, level);
-            }
-            // a step whose pulse starts right where the entries end leaves
-            // the pulse open: its entry's length is the step after it
-            for _ in 0..2 {
-                if self.next.is_some() {
-                    break;
-                }
-                match next_step() {
-                    Some((delay, level)) => self.accept(delay, level),
-                    None => break,
-                }
             }
             *slot = self.entry();
         }

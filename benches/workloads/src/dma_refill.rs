@@ -39,7 +39,7 @@ pub fn timed_refill(
     src: &mut StepSource,
     sched: &StepSchedule,
 ) -> u32 {
-    w.fill(half, || {
+    w.fill(half, &mut || {
         src.advance(sched).map(|n| (n.delay_ticks(), n.forward()))
     })
 }
@@ -68,7 +68,7 @@ pub fn simulate_dma_move(target: i64, ramp: Ramp, clock: fn() -> u32) -> RefillC
     });
     // both halves written before the DMA starts (from rest: idle entries)
     for half in buf.iter_mut() {
-        writer.fill(half, || None);
+        writer.fill(half, &mut || None);
     }
     let mut dur = [duration(&buf[0]), duration(&buf[1])];
     // the DMA reads half 0 from tick 0; its end is the first refill

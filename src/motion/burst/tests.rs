@@ -65,7 +65,7 @@ fn write(
     // each dry point gives nothing once
     let mut dried = usize::MAX;
     while k < steps.len() || w.busy() {
-        w.fill(&mut buf, || {
+        w.fill(&mut buf, &mut || {
             if k < steps.len() && !(dry(k) && dried != k) {
                 k += 1;
                 Some(steps[k - 1])
@@ -79,7 +79,7 @@ fn write(
         assert!(rounds < 1_000_000);
     }
     // and a last fill: the pulse entry of the last step is closed
-    w.fill(&mut buf, || None);
+    w.fill(&mut buf, &mut || None);
     out.extend_from_slice(&buf);
     (out, w)
 }
@@ -199,7 +199,7 @@ fn reversals_keep_dir_set_up_and_hold() {
 fn idle_entries_while_nothing_is_scheduled() {
     let mut w = BurstWriter::new(shape(), true);
     let mut buf = [Burst::default(); 8];
-    assert_eq!(w.fill(&mut buf, || None), 0);
+    assert_eq!(w.fill(&mut buf, &mut || None), 0);
     for b in buf {
         assert_eq!((b.ticks(), b.pulse_ticks(), b.dir_high()), (7200, 0, true));
     }

@@ -95,6 +95,28 @@ impl StepSource {
         })
     }
 
+    /// [`StepSource::advance`] when its next step is a plain delay in
+    /// the pending step's direction with nothing to look at (its fast
+    /// path): that delay, the step taken. `None`, nothing done, for
+    /// everything else, which `advance` then handles. For a caller that
+    /// knows the direction already (the step engine's cruise path).
+    #[inline(always)]
+    pub fn advance_plain(&mut self, sched: &StepSchedule) -> Option<u32> {
+        let next = sched.next.load(Ordering::Relaxed);
+        let delay = sched.entry(next).load(Ordering::Relaxed);
+        if delay as i32 <= 0 || !sched.quiet.load(Ordering::Relaxed) {
+            return None;
+        }
+        sched.next.store(next.wrapping_add(1), Ordering::Relaxed);
+        Some(delay)
+    }
+
+    /// The direction of the pending step (or, idle, of the next one
+    /// after no marker).
+    pub fn forward(&self) -> bool {
+        self.forward
+    }
+
     /// Everything but the next plain delay: starts from rest, the end of
     /// the queue, markers, long delays, flush, limits, the brake. Constant
     /// time too (at most one marker before a step, module docs).

@@ -1,0 +1,77 @@
+//! The step engine's step feed: the core's `StepSource` on the schedule,
+//! each step's DIR level under PA11, and every step given to the timer
+//! kept in the refill's `StepLedger`. HAL-free, so `tests/firmware_calc.rs`
+//! includes it by path and runs the refill's own feed on the host.
+
+use modbus_drive::motion::burst::StepFeed;
+use modbus_drive::motion::{StepSchedule, StepSource};
+
+use super::calc::StepLedger;
+
+/// One refill's [`StepFeed`]. Its plain steps skip the ledger's per-step
+/// work (they are in the direction of the step before them): they are
+/// counted, and the count goes to the ledger before the next other step
+/// and when the feed is dropped.
+pub struct EngineFeed<'a> {
+    source: &'a mut StepSource,
+    sched: &'a StepSchedule,
+    ledger: &'a mut StepLedger,
+    inverted: bool,
+    /// Plain steps may be given: the writer's DIR level is this feed's
+    /// for the pending step (PA11 as at the refill before, or a step has
+    /// gone through [`StepFeed::next_step`] since).
+    plain: bool,
+    plain_steps: u16,
+}
+
+impl<'a> EngineFeed<'a> {
+    /// DIR is `forward != inverted` (PA11); `inverted_before` is PA11 as
+    /// the refill before this one applied it.
+    pub fn new(
+        source: &'a mut StepSource,
+        sched: &'a StepSchedule,
+        ledger: &'a mut StepLedger,
+        inverted: bool,
+        inverted_before: bool,
+    ) -> Self {
+        Self {
+            source,
+            sched,
+            ledger,
+            inverted,
+            plain: inverted == inverted_before,
+            plain_steps: 0,
+        }
+    }
+
+    fn settle(&mut self) {
+        self.ledger.advanced_plain(self.plain_steps);
+        self.plain_steps = 0;
+    }
+}
+
+impl StepFeed for EngineFeed<'_> {
+    fn next_step(&mut self) -> Option<(u32, bool)> {
+        self.settle();
+        self.plain = true;
+        let step = self.source.advance(self.sched);
+        self.ledger.advanced(step.map(|n| n.forward()));
+        step.map(|n| (n.delay_ticks(), n.forward() != self.inverted))
+    }
+
+    #[inline(always)]
+    fn plain_step(&mut self) -> Option<u32> {
+        if !self.plain {
+            return None;
+        }
+        let delay = self.source.advance_plain(self.sched)?;
+        self.plain_steps = self.plain_steps.wrapping_add(1);
+        Some(delay)
+    }
+}
+
+impl Drop for EngineFeed<'_> {
+    fn drop(&mut self) {
+        self.settle();
+    }
+}
