@@ -56,29 +56,25 @@ import conftest as c  # noqa: E402  (the test harness: runner, master, register 
 OUT = ROOT / "docs" / "generated" / "fw-sim.md"
 BAUD_PA52 = c.PA_BASE + 52
 REQUESTS = 20
-# the planner's ceiling, read from the source it lives in
-def _max_step_rate() -> int:
-    for path in sorted((ROOT / "src" / "motion").rglob("*.rs")):
-        m = re.search(r"pub const MAX_STEP_RATE: u32 = ([0-9_]+);", path.read_text())
-        if m:
-            return int(m[1])
-    raise RuntimeError("MAX_STEP_RATE not found under src/motion")
+# the planner's ceiling for each board, read from the source it lives in:
+# MAX_STEP_RATE at the ring length the board's image is built with (the
+# feature long-schedule, in its Cargo feature)
+def _ceilings() -> dict[str, int]:
+    src = (ROOT / "src" / "motion" / "planner" / "mod.rs").read_text()
+    rate = {long: int(re.search(rf'#\[cfg\({"feature" if long else "not[(]feature"} = "long-schedule"\)?\)\]\n'
+                                r"pub const MAX_STEP_RATE: u32 = ([0-9_]+);", src)[1])
+            for long in (True, False)}
+    cargo = (ROOT / "Cargo.toml").read_text()
+    return {b: rate["long-schedule" in re.search(rf"^board-{b} = \[(.*)\]$", cargo, re.M)[1]]
+            for b in c.BOARDS}
 
 
-MAX_STEP_RATE = _max_step_rate()
+MAX_STEP_RATE = _ceilings()
 
 
 # each board's step rate limit (Board::max_step_rate in src/boards.rs): the
 # firmware clamps faster set-points to it, so nothing faster can be measured
-def _board_limits() -> dict[str, int]:
-    src = (ROOT / "src" / "boards.rs").read_text()
-    body = re.search(r"pub const fn max_step_rate\(self\) -> u32 \{(.*?)\n    \}", src, re.S)[1]
-    limits = {b.lower(): int(v) for b, v in re.findall(r"Board::(\w+) => ([0-9_]+)", body)}
-    assert set(limits) == set(c.BOARDS), limits
-    return limits
-
-
-LIMITS = _board_limits()
+LIMITS = c.LIMITS
 RATES = {b: sorted({50_000, 200_000, LIMITS[b]}) for b in c.BOARDS}
 # the planner's steepest ramp (MAX_ACCEL, steps/s²): the shortest moves
 # that reach each rate
@@ -98,6 +94,14 @@ STEPS_PER_REV = 10_000  # PA10 default (SPEC §7)
 # (src/firmware/control.rs)
 LATE_REFILL_LOG = re.compile(r"step engine: (\d+) refill\(s\) came a buffer half late")
 LATENCY_MOVE_S = 0.3  # emulated seconds at the top rate, each way
+
+
+def unlimited_to(m: c.Master, rate: int):
+    """PA12 at its maximum (6000 r/min) and PA15 at the widest STEP pulse
+    `rate` allows (conftest.pulse_for): nothing but the board's own limit
+    clamps a speed up to `rate` (SPEC §8.4, docs/drive.md)."""
+    m.write(c.PA_BASE + 12, 6000)
+    m.write(c.PA_BASE + 15, c.pulse_for(rate))
 
 
 def latencies(fw: c.Firmware, trace: Path, n: int) -> list[float]:
@@ -147,6 +151,7 @@ def load_at(board: str, rate: int, work: Path) -> tuple[float, float, float]:
         m.write(c.MODE, 3)
         m.write(c.ACCELERATION, 10_000)
         m.write(c.DECELERATION, 10_000)
+        unlimited_to(m, rate)
         m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
         deadline = time.monotonic() + 30
         # 0x606C is in r/min (SPEC §5)
@@ -202,6 +207,7 @@ def on_time(board: str, work: Path, polled: bool) -> list[tuple[int, int, int, f
             distance = rate * rate // MAX_ACCEL + CRUISE_STEPS
             at += sign * distance
             sign = -sign
+            unlimited_to(m, rate)
             m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
             m.write32(c.TARGET_POSITION, at)
             m.write(c.CONTROLWORD, 0x001F)
@@ -274,6 +280,7 @@ def flooded_move(board: str, rate: int, work: Path) -> tuple[int, int, int]:
         m.write(c.MODE, 1)
         m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
         m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        unlimited_to(m, rate)
         m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
         steps0 = stats(st)["steps"]
         for k, target in enumerate((distance, 0)):
@@ -344,6 +351,7 @@ def stepping_latency(board: str, rate: int, work: Path) -> list[float]:
         m.write(c.MODE, 3)
         m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
         m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        unlimited_to(m, rate)
         m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
         deadline = time.monotonic() + 30
         # 0x606C is in r/min (SPEC §5)
@@ -499,7 +507,7 @@ def main() -> int:
                 print(lines[-1], flush=True)
     lines += [""]
     for (board, bus), top in sorted(highest.items()):
-        ceiling = (" (the planner's ceiling)" if top == MAX_STEP_RATE
+        ceiling = (" (the planner's ceiling)" if top == MAX_STEP_RATE[board]
                    else " (the board's limit)" if top == LIMITS[board] else "")
         lines.append(f"- {board}, bus {bus}: every pulse on time up to **{top} steps/s**{ceiling}.")
     lines += flood_section(work, {b: highest.get((b, "polled"), STEP_GRID) for b in c.BOARDS})

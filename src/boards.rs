@@ -31,20 +31,18 @@ impl Board {
     /// step engine (src/firmware/steps.rs) makes every pulse on time with
     /// a master polling throughout — the figure `fw-sim/measure.py` finds
     /// under emulation ("Highest step rate with every pulse on time" in
-    /// docs/generated/fw-sim.md, on its 50 000 steps/s grid) — and at most
-    /// the rate whose period still holds the firmware's safe minimum STEP
-    /// pulse (`MIN_STEP_PULSE_NS` in src/firmware/calc.rs) high and as long
-    /// low: 200 000 steps/s at 2.5 µs, which is where both boards stop
-    /// (docs/firmware.md, "Step rate limits"). The drive clamps every speed
-    /// to it as it clamps to PA12 (SPEC §8.4, docs/drive.md "Units and
-    /// limits"): no board accepts a speed it cannot step on time. Never
-    /// above the planner's ceiling (`motion::MAX_STEP_RATE`; the planner
-    /// checks it at compile time).
+    /// docs/generated/fw-sim.md, on its 50 000 steps/s grid) — and never
+    /// above the planner's ceiling for the image's ring
+    /// (`motion::MAX_STEP_RATE`; each image checks its board at compile
+    /// time). The drive clamps every speed to it as it clamps to PA12
+    /// (SPEC §8.4, docs/drive.md "Units and limits"): no board accepts a
+    /// speed it cannot step on time. PA15's pulse width clamps further
+    /// (`Params::step_rate_cap`).
     pub const fn max_step_rate(self) -> u32 {
         // one arm a board: fw-sim/measure.py and the tests read them
         match self {
-            Board::G431 => 200_000,
-            Board::F103 => 200_000,
+            Board::G431 => 500_000,
+            Board::F103 => 250_000,
         }
     }
 

@@ -5,8 +5,9 @@
 //! acceleration. Limits (docs/drive.md "Units and limits", SPEC §8.4–§8.6):
 //! acceleration and deceleration up to 2 000 000 steps/s² (0x6083 / 0x6084
 //! / 0x6085 / 0x609A = 2000 at PA10 = 10000), the board's own step rate
-//! limit (`Board::max_step_rate`, at most 200 000 steps/s: 0x6081 = 200
-//! asks for the ceiling and is clamped to the board's), homing 0x6099 /
+//! limit (`Board::max_step_rate`: 0x6081 at the planner's ceiling asks
+//! for more and is clamped to the board's; PA15 gives the widest STEP
+//! pulse that limit allows, PA12 its maximum), homing 0x6099 /
 //! 0x609B up to 100000 capped at 300 r/min (methods 1–4) and 1200 r/min
 //! (5–8), and at the board's limit.
 //!
@@ -67,6 +68,13 @@ fn the_register_limits_are_the_planners() {
 /// through frames with the control loop on its grid.
 fn position_rig(board: Board, axis: impl FnOnce(SimAxis) -> SimAxis, velocity: i32) -> Rig {
     let mut rig = Rig::on_board(board, axis);
+    // PA12 at 6000 r/min and PA15 at the widest pulse the board's limit
+    // allows (1 / (2 × width)): the board's limit is the one that clamps
+    let width_ns = 500_000_000 / board.max_step_rate();
+    rig.bus.write_single(0x0064 + 12, 6000).expect("PA12");
+    rig.bus
+        .write_single(0x0064 + 15, (width_ns / 100).min(25) as u16)
+        .expect("PA15");
     for cw in [0x0006, 0x0007, 0x000F] {
         rig.bus.write_single(0x6040, cw).expect("controlword");
         rig.run_us(rig.period_us);
@@ -220,7 +228,9 @@ fn the_limit_brake_at_the_deceleration_limit_stops_on_every_board() {
         }
         let sw = rig.axis.switches();
         rig.sched.set_limits(sw.cw_limit(), sw.ccw_limit());
-        let until = rig.axis.now_ticks() + rig.axis.us_to_ticks(200_000);
+        // the brake's time from the limit, v / d, and 50 ms
+        let brake_us = u64::from(board.max_step_rate()) * 1_000_000 / board.max_accel();
+        let until = rig.axis.now_ticks() + rig.axis.us_to_ticks(brake_us + 50_000);
         let steps = &mut rig.steps;
         rig.axis.run_until(&rig.sched, until, |s| steps.push(s));
         assert!(

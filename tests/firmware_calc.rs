@@ -68,7 +68,7 @@ fn reply_waits_out_the_delay_from_the_last_byte_even_across_a_wrap_spec_1() {
 // ---------------------------------------------------------------- step output
 
 #[test]
-fn step_shape_never_goes_below_the_safe_minimums() {
+fn step_shape_keeps_the_pulse_asked_for_and_never_goes_below_the_dir_set_up_minimum() {
     for hz in [G431_TICK_HZ, F103_TICK_HZ] {
         let safe = StepShape::safe(hz);
         let ns = |ticks: u32| u64::from(ticks) * 1_000_000_000 / u64::from(hz);
@@ -77,18 +77,18 @@ fn step_shape_never_goes_below_the_safe_minimums() {
             ns(safe.dir_setup_ticks) >= 5000,
             "DIR set-up ≥ 5 µs at {hz} Hz"
         );
-        assert_eq!(
-            StepShape::from_params(10, 20, hz),
-            safe,
-            "below the minimum → minimum"
-        );
-        let wide = StepShape::from_params(100, 200, hz); // 10 µs, 20 µs
+        // the pulse as the core reads PA15 (Params::step_pulse_ns), to the
+        // tick above; PA16 below its minimum gives the minimum
+        let short = StepShape::from_params(500, 20, hz);
+        assert!((500..500 + 1_000_000_000 / u64::from(hz)).contains(&ns(short.pulse_ticks)));
+        assert_eq!(short.dir_setup_ticks, safe.dir_setup_ticks);
+        let wide = StepShape::from_params(10_000, 200, hz); // 10 µs, 20 µs
         assert_eq!(ns(wide.pulse_ticks), 10_000);
         assert_eq!(ns(wide.dir_setup_ticks), 20_000);
         assert_eq!(
-            StepShape::from_params(u16::MAX, u16::MAX, hz),
-            StepShape::from_params(1000, 1000, hz),
-            "capped at 100 µs"
+            StepShape::from_params(100_000, u16::MAX, hz),
+            StepShape::from_params(100_000, 1000, hz),
+            "DIR set-up capped at 100 µs"
         );
     }
     assert_eq!(StepShape::safe(G431_TICK_HZ).pulse_ticks, 425);

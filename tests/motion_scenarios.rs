@@ -278,6 +278,45 @@ fn pa10_scales_and_pa12_caps_the_move() {
     }
 }
 
+/// The STEP pulse width (PA15) caps the step rate at 1 / (2 × width), as
+/// PA12 caps it (docs/drive.md): the default 2.5 µs at 200 000 steps/s, a
+/// shorter pulse up to the board's own limit, a longer one lower.
+#[test]
+fn pa15_caps_the_step_rate_at_its_pulse_width() {
+    let limit = f64::from(modbus_drive::boards::Board::G431.max_step_rate());
+    // (PA15 in 0.1 µs, expected cruise steps/s) with 60 r/s asked
+    for (pa15, cruise) in [
+        (0u16, 200_000.0),
+        (50, 100_000.0),
+        (5, limit.min(1_000_000.0)),
+    ] {
+        let mut rig = Rig::new(SimAxis::new(10_000_000));
+        rig.bus.write_single(0x0064 + 12, 6000).unwrap();
+        rig.bus.write_single(0x0064 + 15, pa15).unwrap();
+        power_up(&mut rig);
+        rig.send_ok("01 06 60 60 00 01 56 14");
+        rig.write_i32(0x6081, 600);
+        rig.write(0x6083, &[2000, 2000]); // 200 r/s² × PA10: 2e6 steps/s²
+        let target = 2 * cruise as i32;
+        rig.write_i32(0x607A, target);
+        rig.write(0x6040, &[0x001F]);
+        rig.write(0x6040, &[0x000F]);
+        arrives_at_with(&mut rig, target, cruise, 2_000_000.0);
+        let peak = rig
+            .steps
+            .windows(2)
+            .map(|w| {
+                f64::from(rig.tick_hz) * common::axis::Q
+                    / w[1].exact().wrapping_sub(w[0].exact()) as f64
+            })
+            .fold(0.0, f64::max);
+        assert!(
+            (cruise * 0.995..=cruise * 1.005).contains(&peak),
+            "PA15 {pa15}: peak {peak} steps/s, cap {cruise}"
+        );
+    }
+}
+
 /// `arrives_at` with the velocity and acceleration bounds of the move.
 fn arrives_at_with(rig: &mut Rig, target: i32, v_max: f64, a_max: f64) {
     rig.run_until(30_000_000, |r| r.at_rest());

@@ -18,7 +18,10 @@ pub use legacy::{Block as LegacyBlock, PA_BASE, PA_LAST};
 pub use monitor::{
     dp_value, DpItem, DriveMonitor, StoreStatus, DP_BASE, DP_ERR, DP_ITEMS, DP_LAST,
 };
-pub use pa::{pa_entries, PaDef, PaEntry, Params, FIRMWARE_VERSION, PA, PA_COUNT};
+pub use pa::{
+    pa_entries, PaDef, PaEntry, Params, DEFAULT_STEP_PULSE_NS, FIRMWARE_VERSION, MAX_STEP_SHAPE_NS,
+    PA, PA_COUNT,
+};
 pub use table::{
     position, string_bytes, Access, DataType, Entry, Object, Range, Span, SAVED, SAVED_COUNT,
     STRING_BYTES, STRING_WORDS, TABLE,

@@ -122,6 +122,12 @@ const fn rw(n: usize, name: &'static str, unit: &'static str, range: Range, defa
     }
 }
 
+/// The STEP pulse width at PA15 = 0, ns: long enough for opto-coupled
+/// driver inputs, which is why it is the default (200 000 steps/s).
+pub const DEFAULT_STEP_PULSE_NS: u32 = 2_500;
+/// The longest STEP pulse or DIR set-up PA15 / PA16 may ask for, ns.
+pub const MAX_STEP_SHAPE_NS: u32 = 100_000;
+
 const FW: i32 = FIRMWARE_VERSION as i32;
 const U16: i32 = u16::MAX as i32;
 const DE: i32 = MAX_DE_BITS as i32;
@@ -136,7 +142,7 @@ const ASSIGNED: &[Pa] = &[
     rw(12, "maximum speed", "r/min", Between(1, 6000), 3000),
     rw(13, "switch polarity (bit 0 CW, 1 CCW, 2 home; 1 = NC)", "bits", Between(0, 7), 0),
     rw(14, "limit switch enable (bit 0 CW, 1 CCW)", "bits", Between(0, 3), 3),
-    rw(15, "STEP pulse width (0 = the board's minimum)", "0.1 µs", Any, 0),
+    rw(15, "STEP pulse width (0 = 2.5 µs; caps the step rate at 1 / (2 × width))", "0.1 µs", Any, 0),
     rw(16, "DIR set-up time (0 = the board's minimum)", "0.1 µs", Any, 0),
     // 1..COUNTS_PER_REV_MIN: too coarse to check a following error against (SPEC §8.8)
     rw(17, "encoder counts per revolution (0 = none)", "counts",
@@ -288,9 +294,24 @@ impl Params {
     pub fn limit_enable(&self) -> u16 {
         self.values[14]
     }
-    /// PA15: STEP pulse width, 0.1 µs (0: the board's safe minimum).
+    /// PA15: STEP pulse width, 0.1 µs (0: [`DEFAULT_STEP_PULSE_NS`]).
     pub fn step_pulse_width(&self) -> u16 {
         self.values[15]
+    }
+    /// The STEP pulse width PA15 asks for, ns: [`DEFAULT_STEP_PULSE_NS`]
+    /// at 0, at most [`MAX_STEP_SHAPE_NS`]. The step output keeps it and
+    /// as long low, so it bounds the step rate ([`Params::step_rate_cap`]).
+    pub fn step_pulse_ns(&self) -> u32 {
+        match self.values[15] {
+            0 => DEFAULT_STEP_PULSE_NS,
+            v => (u32::from(v) * 100).min(MAX_STEP_SHAPE_NS),
+        }
+    }
+    /// The highest step rate whose period holds the STEP pulse
+    /// ([`Params::step_pulse_ns`]) high and as long low, steps/s: the
+    /// drive clamps every speed to it as to PA12 (SPEC §8.4).
+    pub fn step_rate_cap(&self) -> u32 {
+        500_000_000 / self.step_pulse_ns()
     }
     /// PA16: DIR set-up time before the STEP edge, 0.1 µs (0: the board's
     /// safe minimum).

@@ -24,6 +24,8 @@ pub(super) struct Settings {
     /// below are recomputed when they change.
     pub(super) steps_per_rev_reg: u16,
     pub(super) max_speed_rpm_reg: u16,
+    /// PA15 as last seen: the pulse width's step rate cap follows it.
+    pulse_width_reg: u16,
     /// PA10 in force (a u16 register, at least 1): a u32 so that a ramp
     /// register times it is one 32×32-bit multiply, which cannot overflow.
     pub(super) steps_per_rev: u32,
@@ -33,6 +35,9 @@ pub(super) struct Settings {
     /// 0.1 steps/s² ([`PlannerConfig::velocity_cap`] / `accel_cap`): they
     /// clamp every ramp as PA12 does.
     velocity_cap: u64,
+    /// The step rate PA15's pulse width allows ([`Params::step_rate_cap`]),
+    /// 0.1 steps/s: it clamps too.
+    pulse_cap: u64,
     accel_cap: u64,
     pub(super) limit_enable: u16,
     pub(super) comm_loss_ms: u16,
@@ -45,6 +50,7 @@ impl Settings {
         let mut s = Self {
             // not PA10's register: `update` derives the step figures
             steps_per_rev_reg: cfg.pa().steps_per_rev().wrapping_add(1),
+            pulse_width_reg: cfg.pa().step_pulse_width().wrapping_add(1),
             velocity_cap: planner.velocity_cap(),
             accel_cap: planner.accel_cap(),
             ..Self::default()
@@ -73,10 +79,16 @@ impl Settings {
             engage_ms: pa.brake_engage_ms(),
         };
         let (spr_reg, rpm_reg) = (pa.steps_per_rev(), pa.max_speed_rpm());
-        if spr_reg != self.steps_per_rev_reg || rpm_reg != self.max_speed_rpm_reg {
+        let pulse_reg = pa.step_pulse_width();
+        if spr_reg != self.steps_per_rev_reg
+            || rpm_reg != self.max_speed_rpm_reg
+            || pulse_reg != self.pulse_width_reg
+        {
             self.steps_per_rev_reg = spr_reg;
             self.max_speed_rpm_reg = rpm_reg;
+            self.pulse_width_reg = pulse_reg;
             self.steps_per_rev = u32::from(spr_reg.max(1));
+            self.pulse_cap = u64::from(pa.step_rate_cap()) * 10;
             self.max_velocity = self.rpm_to_velocity(u64::from(rpm_reg));
         }
     }
@@ -129,39 +141,47 @@ impl Settings {
 
 impl Settings {
     /// r/min → 0.1 steps/s at PA10, capped at the board's maximum step
-    /// rate.
+    /// rate and at the rate PA15's pulse width allows.
     fn rpm_to_velocity(&self, rpm: u64) -> u64 {
-        div_u64(rpm * u64::from(self.steps_per_rev), 6).min(self.velocity_cap)
+        div_u64(rpm * u64::from(self.steps_per_rev), 6)
+            .min(self.velocity_cap)
+            .min(self.pulse_cap)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::boards::Board;
 
     #[test]
-    fn settings_follow_every_pa10_and_pa12_change() {
-        // SPEC §7 PA10 (steps/rev) and PA12 (max speed) are derived only
-        // when they change (Settings::update); each change must show.
+    fn settings_follow_every_pa10_pa12_and_pa15_change() {
+        // SPEC §7 PA10 (steps/rev) and PA12 (max speed), and PA15's step
+        // rate cap, are derived only when they change (Settings::update);
+        // each change must show.
         let mut od = OdValues::default();
         od.set_profile_velocity(-7);
         let mut pa = Params::defaults();
         let mut s = Settings::from(Config::new(&od, &pa), PlannerConfig::default());
-        for (spr, rpm) in [
-            (400, 3000),
-            (400, 100),
-            (0, 100),
-            (12_800, 100),
-            (12_800, 3000),
+        for (spr, rpm, pa15) in [
+            (400, 3000, 0),
+            (400, 100, 0),
+            (0, 100, 0),
+            (12_800, 100, 0),
+            (12_800, 3000, 0),
+            (12_800, 3000, 5),
+            (12_800, 3000, 1000),
+            (12_800, 3000, 0),
         ] {
             pa.set_unchecked(10, spr);
             pa.set_unchecked(12, rpm);
+            pa.set_unchecked(15, pa15);
             s.update(Config::new(&od, &pa));
             let spr = u64::from(spr.max(1));
             assert_eq!(u64::from(s.steps_per_rev), spr);
-            let v = (u64::from(rpm) * spr / 6).min(u64::from(Board::G431.max_step_rate()) * 10);
-            assert_eq!(s.max_velocity, v, "PA10 {spr} PA12 {rpm}");
+            let v = (u64::from(rpm) * spr / 6)
+                .min(PlannerConfig::default().velocity_cap())
+                .min(u64::from(pa.step_rate_cap()) * 10);
+            assert_eq!(s.max_velocity, v, "PA10 {spr} PA12 {rpm} PA15 {pa15}");
             assert_eq!(s.profile_velocity, od.profile_velocity());
         }
     }

@@ -6,6 +6,7 @@
 //! and checks it on the host — the rest of `src/firmware/` only builds for
 //! the boards.
 
+use modbus_drive::dictionary::{DEFAULT_STEP_PULSE_NS, MAX_STEP_SHAPE_NS};
 use modbus_drive::rtu::{DriverEnable, LineConfig};
 
 // ---------------------------------------------------------------- serial line
@@ -95,12 +96,8 @@ impl DeDrive {
 
 // ---------------------------------------------------------------- step output
 
-/// Safe minimum STEP pulse width: 2.5 µs.
-pub const MIN_STEP_PULSE_NS: u32 = 2_500;
 /// Safe minimum DIR set-up time before the STEP edge: 5 µs.
 pub const MIN_DIR_SETUP_NS: u32 = 5_000;
-/// Longest pulse or set-up time a parameter may ask for: 100 µs.
-pub const MAX_SHAPE_NS: u32 = 100_000;
 /// Longest period of the 16-bit step timer, in ticks.
 pub const MAX_PERIOD_TICKS: u32 = 1 << 16;
 /// The step engine's idle entry, also its longest: no step due, and the
@@ -136,8 +133,8 @@ const fn shape_ns(v_100ns: u16, min_ns: u32) -> u32 {
     let ns = v_100ns as u32 * 100;
     if ns < min_ns {
         min_ns
-    } else if ns > MAX_SHAPE_NS {
-        MAX_SHAPE_NS
+    } else if ns > MAX_STEP_SHAPE_NS {
+        MAX_STEP_SHAPE_NS
     } else {
         ns
     }
@@ -145,9 +142,11 @@ const fn shape_ns(v_100ns: u16, min_ns: u32) -> u32 {
 
 /// STEP pulse width and DIR set-up time in step-timer ticks.
 ///
-/// From PA15 (STEP pulse width) and PA16 (DIR set-up), both in 0.1 µs; SPEC
-/// §7 leaves them unassigned (reserved, default 0), so 0 or anything below
-/// the safe minimum gives the minimum, and anything above 100 µs is capped.
+/// The pulse width is the core's reading of PA15
+/// (`Params::step_pulse_ns`: 2.5 µs at 0, else as asked, which also caps
+/// the step rate); PA16 (DIR set-up) is in 0.1 µs, where 0 or anything
+/// below the safe minimum gives the minimum. SPEC §7 leaves both
+/// unassigned (reserved, default 0); anything above 100 µs is capped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct StepShape {
     pub pulse_ticks: u32,
@@ -156,14 +155,10 @@ pub struct StepShape {
 }
 
 impl StepShape {
-    pub const fn from_params(
-        pa15_pulse_100ns: u16,
-        pa16_dir_setup_100ns: u16,
-        tick_hz: u32,
-    ) -> Self {
+    pub const fn from_params(pulse_ns: u32, pa16_dir_setup_100ns: u16, tick_hz: u32) -> Self {
         let idle_ticks = ns_to_ticks(IDLE_PERIOD_NS, tick_hz);
         Self {
-            pulse_ticks: ns_to_ticks(shape_ns(pa15_pulse_100ns, MIN_STEP_PULSE_NS), tick_hz),
+            pulse_ticks: ns_to_ticks(pulse_ns, tick_hz),
             dir_setup_ticks: ns_to_ticks(shape_ns(pa16_dir_setup_100ns, MIN_DIR_SETUP_NS), tick_hz),
             idle_ticks: if idle_ticks > MAX_PERIOD_TICKS {
                 MAX_PERIOD_TICKS
@@ -173,13 +168,13 @@ impl StepShape {
         }
     }
 
-    /// The safe defaults.
+    /// The defaults (PA15 = PA16 = 0).
     pub const fn safe(tick_hz: u32) -> Self {
-        Self::from_params(0, 0, tick_hz)
+        Self::from_params(DEFAULT_STEP_PULSE_NS, 0, tick_hz)
     }
 
     /// Pulse width and DIR set-up in one word, for an atomic hand-over to
-    /// the step engine's refill (both are at most `MAX_SHAPE_NS` in ticks, which
+    /// the step engine's refill (both are at most `MAX_STEP_SHAPE_NS` in ticks, which
     /// fits 16 bits at any tick up to 655 MHz).
     pub const fn packed(self) -> u32 {
         (self.pulse_ticks & 0xFFFF) | (self.dir_setup_ticks & 0xFFFF) << 16

@@ -82,7 +82,7 @@ pub async fn run(
                     d.params().switch_polarity(),
                     d.params().limit_enable(),
                 ),
-                (d.params().step_pulse_width(), d.params().dir_setup()),
+                (d.params().step_pulse_ns(), d.params().dir_setup()),
                 d.params().brake_engage_ms(),
             )
         }) else {

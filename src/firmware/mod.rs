@@ -55,6 +55,10 @@ use modbus_drive::params::ParamStore;
 use modbus_drive::rtu::LineConfig;
 use modbus_drive::Device;
 
+// This image's step rate limit within the planner's ceiling at the ring
+// length it is built with (the feature `long-schedule`).
+const _: () = assert!(board::BOARD.max_step_rate() <= modbus_drive::motion::MAX_STEP_RATE);
+
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
     // Why the chip reset (DP-rES), before anything can add a flag; then the

@@ -41,18 +41,29 @@ ELF_DEV = {
 BOARDS = ["g431", "f103"]
 
 
-def _step_tick_ns() -> dict[str, float]:
-    """Each board's step tick in ns, read from Board::step_tick_hz in
-    src/boards.rs (the step timer's clock)."""
+def _board_figures(fn: str) -> dict[str, int]:
+    """Each board's arm of `Board::<fn>` in src/boards.rs (one arm a
+    board)."""
     src = (ROOT / "src" / "boards.rs").read_text()
-    body = re.search(r"pub const fn step_tick_hz\(self\) -> u32 \{(.*?)\n    \}", src, re.S)[1]
-    ticks = {b.lower(): 1e9 / int(v.replace("_", ""))
-             for b, v in re.findall(r"Board::(\w+) => ([0-9_]+)", body)}
-    assert set(ticks) == set(BOARDS), ticks
-    return ticks
+    body = re.search(rf"pub const fn {fn}\(self\) -> u32 \{{(.*?)\n    \}}", src, re.S)[1]
+    figures = {b.lower(): int(v.replace("_", ""))
+               for b, v in re.findall(r"Board::(\w+) => ([0-9_]+)", body)}
+    assert set(figures) == set(BOARDS), (fn, figures)
+    return figures
 
 
-TICK_NS = _step_tick_ns()
+# each board's step tick in ns (the step timer's clock)
+TICK_NS = {b: 1e9 / hz for b, hz in _board_figures("step_tick_hz").items()}
+# each board's step rate limit, steps/s: the firmware clamps every speed to it
+LIMITS = _board_figures("max_step_rate")
+
+
+def pulse_for(rate: int) -> int:
+    """PA15 (0.1 µs) for the widest STEP pulse that `rate` steps/s allows
+    (`Params::step_rate_cap`: the period holds the pulse high and as long
+    low): 0, the 2.5 µs default, up to 200 000 steps/s."""
+    width_ns = 500_000_000 // rate
+    return 0 if width_ns >= 2_500 else width_ns // 100
 READY_TIMEOUT_S = 30.0
 NO_REPLY_WAIT_S = 0.3
 

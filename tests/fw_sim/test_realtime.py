@@ -14,17 +14,18 @@ import time
 from pathlib import Path
 
 from pymodbus.exceptions import ModbusIOException
-from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, ELF, MODE,
-                      MOTOR_RUNNING, PROFILE_VELOCITY, STATE_MASK,
+from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, ELF, LIMITS,
+                      MODE, MOTOR_RUNNING, PA_BASE, PROFILE_VELOCITY, STATE_MASK,
                       SWITCH_ON_DISABLED, TARGET_POSITION, TARGET_REACHED, TICK_NS, Master,
-                      with_crc)
+                      pulse_for, with_crc)
 
 # Each board's top step rate (Board::max_step_rate) with every pulse kept
 # while frames flood the bus (0x6081 in 0.1 r/s at the default 10000
-# steps/rev: 200 = 200 000 steps/s)
-TOP_VELOCITY = {"g431": 200, "f103": 200}
-ACCEL = 4000  # 0.1 r/s²: 400 r/s², a 50 ms ramp to the top rate
-DISTANCE = 60_000
+# steps/rev: 200 = 200 000 steps/s), with the widest STEP pulse it allows
+TOP_VELOCITY = {b: rate * 10 // 10_000 for b, rate in LIMITS.items()}
+ACCEL = 4000  # 0.1 r/s²: 400 r/s², clamped to the boards' 2e6 steps/s²
+# a cruise at the top rate of at least 20 000 steps between the ramps
+DISTANCE = {b: max(60_000, rate * rate // 2_000_000 + 20_000) for b, rate in LIMITS.items()}
 # the firmware's warning when its DMA refill came too late
 # (src/firmware/control.rs): the DMA then played entries of a half before
 # they were written again
@@ -80,13 +81,14 @@ def test_every_pulse_is_kept_at_the_top_rate_while_frames_flood_the_bus(start_fw
     fw = start_fw(board, "--trace-steps", str(steps), "--trace-line", str(line))
     m = Master(fw.client())
     m.enable()
-    start_move(m, DISTANCE, TOP_VELOCITY[board])
+    m.write(PA_BASE + 15, pulse_for(LIMITS[board]))
+    start_move(m, DISTANCE[board], TOP_VELOCITY[board])
     stop = threading.Event()
     flooder = threading.Thread(target=flood, args=(fw.port, line, stop))
     flooder.start()
-    # the move takes about 0.35 s of emulated time; flood all of it
+    # the move takes under a second of emulated time; flood all of it
     deadline = time.monotonic() + 30
-    while len(read_csv(steps)) < DISTANCE and time.monotonic() < deadline:
+    while len(read_csv(steps)) < DISTANCE[board] and time.monotonic() < deadline:
         time.sleep(0.1)
     stop.set()
     flooder.join()
@@ -102,9 +104,9 @@ def test_every_pulse_is_kept_at_the_top_rate_while_frames_flood_the_bus(start_fw
                 raise
             time.sleep(0.5)
     fw.alive()
-    assert m.read32(ACTUAL_POSITION) == DISTANCE, "0x6064 = distance"
+    assert m.read32(ACTUAL_POSITION) == DISTANCE[board], "0x6064 = distance"
     flooded = read_csv(steps)
-    assert len(flooded) == DISTANCE, f"{board}: {len(flooded)} pulses for {DISTANCE} steps"
+    assert len(flooded) == DISTANCE[board], f"{board}: {len(flooded)} pulses for {DISTANCE[board]} steps"
     assert {p["dir"] for p in flooded} == {"1"}
     assert all(int(p["width_ns"]) > 0 for p in flooded)
     # the same move back without the flood is the reference schedule: the
@@ -112,8 +114,8 @@ def test_every_pulse_is_kept_at_the_top_rate_while_frames_flood_the_bus(start_fw
     start_move(m, 0, TOP_VELOCITY[board])
     m.wait(settled, 10, "back at 0")
     assert m.read32(ACTUAL_POSITION) == 0
-    quiet = read_csv(steps)[DISTANCE:]
-    assert len(quiet) == DISTANCE
+    quiet = read_csv(steps)[DISTANCE[board]:]
+    assert len(quiet) == DISTANCE[board]
     t_flood = [int(p["time_ns"]) for p in flooded]
     t_quiet = [int(p["time_ns"]) for p in quiet]
     d_flood = [b - a for a, b in zip(t_flood, t_flood[1:])]

@@ -10,10 +10,10 @@ import time
 
 import pytest
 
-from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, MODE,
-                      MOTOR_RUNNING, PROFILE_VELOCITY, TARGET_POSITION, TARGET_REACHED, Master)
+from conftest import (ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, LIMITS, MODE,
+                      MOTOR_RUNNING, PA_BASE, PROFILE_VELOCITY, TARGET_POSITION, TARGET_REACHED,
+                      Master, pulse_for)
 
-DISTANCE = 25_000
 ACCEL = 2000  # 0.1 r/s²: 200 r/s², 2 000 000 steps/s² at 10000 steps/rev
 
 
@@ -21,28 +21,33 @@ def settled(sw):
     return sw & TARGET_REACHED and not sw & MOTOR_RUNNING
 
 
-# 0x6081 in 0.1 r/s at 10000 steps/rev: 100 = 100 000 steps/s; each board
-# at its top rate (Board::max_step_rate)
-@pytest.mark.parametrize("board,velocity", [("f103", 100), ("f103", 200), ("g431", 200)])
-def test_pulses_equal_the_position_at_the_top_rate(start_fw, tmp_path, board, velocity):
+# steps/s at 10000 steps/rev; each board at its top rate
+# (Board::max_step_rate), with the widest STEP pulse that rate allows
+@pytest.mark.parametrize("board,rate", [("f103", 100_000), ("f103", LIMITS["f103"]),
+                                        ("g431", LIMITS["g431"])])
+def test_pulses_equal_the_position_at_the_top_rate(start_fw, tmp_path, board, rate):
     steps = tmp_path / "steps.csv"
+    velocity = rate * 10 // 10_000  # 0x6081, 0.1 r/s
+    # ramps at 2e6 steps/s² and a cruise of at least 5000 steps
+    distance = max(25_000, rate * rate // 2_000_000 + 5_000)
     fw = start_fw(board, "--trace-steps", str(steps))
     m = Master(fw.client())
     m.enable()
+    m.write(PA_BASE + 15, pulse_for(rate))
     m.write(MODE, 1)
     m.write32(PROFILE_VELOCITY, velocity)
     m.write(ACCELERATION, ACCEL)
     m.write(DECELERATION, ACCEL)
-    m.write32(TARGET_POSITION, DISTANCE)
+    m.write32(TARGET_POSITION, distance)
     m.write(CONTROLWORD, 0x001F)
     m.write(CONTROLWORD, 0x000F)
     m.wait(settled, 20, "target reached")
-    assert m.read32(ACTUAL_POSITION) == DISTANCE
+    assert m.read32(ACTUAL_POSITION) == distance
     # no wait: 0x6064 and target reached follow the pin (StepSchedule::pin_lag)
     fw.alive()
     with open(steps) as f:
         pulses = list(csv.DictReader(f))
-    assert len(pulses) == DISTANCE, f"{board}: {len(pulses)} pulses for 0x6064 = {DISTANCE}"
+    assert len(pulses) == distance, f"{board}: {len(pulses)} pulses for 0x6064 = {distance}"
     # the mechanism itself: the refill kept ahead of the DMA throughout
     assert "refill(s) came a buffer half late" not in fw.stderr(), fw.stderr()
 

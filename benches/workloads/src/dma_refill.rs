@@ -7,7 +7,7 @@
 //! that refill: the CPU's whole share of the pulses once the hardware
 //! makes them, per step.
 
-use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
+use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape, StepFeed};
 use modbus_drive::motion::{Fill, Goal, Planner, Ramp, StepSchedule, StepSource};
 
 use crate::{dither, CONTROL_PERIOD_US};
@@ -31,6 +31,26 @@ pub struct RefillCost {
     pub refill_clock: u32,
 }
 
+/// The refill's steps as the firmware's feed (src/firmware/feed.rs) gives
+/// them, less its pin-position ledger: plain steps straight from the ring
+/// (`StepSource::advance_plain`), the rest through `advance`.
+struct Feed<'a> {
+    src: &'a mut StepSource,
+    sched: &'a StepSchedule,
+}
+
+impl StepFeed for Feed<'_> {
+    fn next_step(&mut self) -> Option<(u32, bool)> {
+        self.src
+            .advance(self.sched)
+            .map(|n| (n.delay_ticks(), n.forward()))
+    }
+
+    fn plain_step(&mut self) -> Option<u32> {
+        self.src.advance_plain(self.sched)
+    }
+}
+
 /// One half-buffer refill (out of line, so the M4 bench can time it).
 #[inline(never)]
 pub fn timed_refill(
@@ -39,9 +59,7 @@ pub fn timed_refill(
     src: &mut StepSource,
     sched: &StepSchedule,
 ) -> u32 {
-    w.fill(half, &mut || {
-        src.advance(sched).map(|n| (n.delay_ticks(), n.forward()))
-    })
+    w.fill(half, &mut Feed { src, sched })
 }
 
 fn duration(half: &[Burst]) -> u64 {

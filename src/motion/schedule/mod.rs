@@ -144,7 +144,11 @@ pub use source::{NextStep, StepSource};
 /// Entries of the per-step ring (a power of two): delays plus the rare
 /// direction markers, one slot for the end sentinel and the pending step.
 /// At the highest step rate ([`crate::motion::MAX_STEP_RATE`]) a full ring
-/// lasts more than two 1 ms control periods.
+/// lasts more than two 1 ms control periods. The feature `long-schedule`
+/// doubles it (4 KiB of RAM), and with it that rate.
+#[cfg(feature = "long-schedule")]
+pub const SCHEDULE_STEPS: usize = 1024;
+#[cfg(not(feature = "long-schedule"))]
 pub const SCHEDULE_STEPS: usize = 512;
 
 /// Fractional bits of schedule times: Q32.32 ticks.

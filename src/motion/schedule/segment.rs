@@ -4,7 +4,11 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use super::{MAX_DELAY_TICKS, SCHEDULE_STEPS, TICK_FRAC_BITS};
+use super::{MAX_DELAY_TICKS, TICK_FRAC_BITS};
+
+/// Most steps one pass of [`Expansion::run`]'s narrow loop takes: its
+/// 32-bit bounds ([`Expansion::narrow`]) hold up to here.
+pub(super) const NARROW_STEPS: usize = 512;
 
 /// A run of steps with linearly changing interval (see the module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -226,7 +230,7 @@ impl Expansion {
         const LIM: u64 = 1 << 31;
         let m = |t: u64| (t as i64).unsigned_abs();
         let (a1, a2, a3, a4) = (m(self.add), m(self.add2), m(self.add3), m(self.add4));
-        if steps > SCHEDULE_STEPS || a1 >= 1 << 48 || (a2 | a3 | a4) >= LIM {
+        if steps > NARROW_STEPS || a1 >= 1 << 48 || (a2 | a3 | a4) >= LIM {
             return false;
         }
         // 32-bit factors from here (one `umull` per product): l ≤ 2^9,
@@ -250,6 +254,13 @@ impl Expansion {
     /// and terms from a loop whose state fits the Cortex-M's registers.
     #[inline(always)]
     pub(super) fn run(&mut self, entries: &[AtomicU32]) {
+        for chunk in entries.chunks(NARROW_STEPS) {
+            self.run_chunk(chunk);
+        }
+    }
+
+    #[inline(always)]
+    fn run_chunk(&mut self, entries: &[AtomicU32]) {
         if !self.narrow(entries.len()) {
             for entry in entries {
                 entry.store(self.step(), Ordering::Relaxed);
