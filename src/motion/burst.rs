@@ -226,7 +226,7 @@ impl BurstWriter {
     pub fn fill(&mut self, out: &mut [Burst], feed: &mut impl StepFeed) -> u32 {
         let before = self.pulses;
         let mut slots = out.iter_mut();
-        'slots: while let Some(mut slot) = slots.next() {
+        while let Some(mut slot) = slots.next() {
             if self.open && self.next.is_none() {
                 // Cruise and ramps: a pulse is open and the feed's steps
                 // are plain, so each is one entry, its delay whole, at
@@ -265,22 +265,6 @@ impl BurstWriter {
                     break;
                 };
                 asked += 1;
-                if self.open
-                    && level == self.level
-                    && (MIN_ENTRY_TICKS..=self.shape.idle).contains(&delay)
-                {
-                    // As on the plain path above, for a feed without plain
-                    // steps: the pulse just reached starts this entry and
-                    // the next step follows in the same direction within
-                    // one period. The entry is that step's delay, whole:
-                    // what `accept` and `entry` would write (the pulse is
-                    // open, so no tick was written since it), without
-                    // their cases.
-                    self.pulses += 1;
-                    self.last_interval = delay;
-                    *slot = Burst::new(delay, self.shape.width.min(delay / 2), level);
-                    continue 'slots;
-                }
                 self.accept(delay, level);
             }
             *slot = self.entry();

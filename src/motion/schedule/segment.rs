@@ -4,7 +4,7 @@
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use super::{MAX_DELAY_TICKS, TICK_FRAC_BITS};
+use super::{MAX_DELAY_TICKS, SCHEDULE_STEPS, TICK_FRAC_BITS};
 
 /// Most steps one pass of [`Expansion::run`]'s narrow loop takes: its
 /// 32-bit bounds ([`Expansion::narrow`]) hold up to here.
@@ -254,8 +254,13 @@ impl Expansion {
     /// and terms from a loop whose state fits the Cortex-M's registers.
     #[inline(always)]
     pub(super) fn run(&mut self, entries: &[AtomicU32]) {
-        for chunk in entries.chunks(NARROW_STEPS) {
-            self.run_chunk(chunk);
+        if SCHEDULE_STEPS <= NARROW_STEPS {
+            // a push is shorter than the ring: one pass (no loop in the image)
+            self.run_chunk(entries);
+        } else {
+            for chunk in entries.chunks(NARROW_STEPS) {
+                self.run_chunk(chunk);
+            }
         }
     }
 
