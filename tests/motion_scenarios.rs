@@ -263,14 +263,7 @@ fn pa10_scales_and_pa12_caps_the_move() {
         let rpm = (cruise * 60.0 / f64::from(pa10)) as i32;
         assert_eq!(rig.velocity_rpm(), rpm, "PA10 {pa10}, PA12 {pa12}");
         arrives_at_with(&mut rig, target, cruise, 50.0 * f64::from(pa10));
-        let peak = rig
-            .steps
-            .windows(2)
-            .map(|w| {
-                f64::from(rig.tick_hz) * common::axis::Q
-                    / w[1].exact().wrapping_sub(w[0].exact()) as f64
-            })
-            .fold(0.0, f64::max);
+        let peak = peak_rate(&rig);
         assert!(
             (cruise * 0.995..=cruise * 1.005).contains(&peak),
             "PA10 {pa10}, PA12 {pa12}: peak {peak} steps/s"
@@ -302,19 +295,24 @@ fn pa15_caps_the_step_rate_at_its_pulse_width() {
         rig.write(0x6040, &[0x001F]);
         rig.write(0x6040, &[0x000F]);
         arrives_at_with(&mut rig, target, cruise, 2_000_000.0);
-        let peak = rig
-            .steps
-            .windows(2)
-            .map(|w| {
-                f64::from(rig.tick_hz) * common::axis::Q
-                    / w[1].exact().wrapping_sub(w[0].exact()) as f64
-            })
-            .fold(0.0, f64::max);
+        let peak = peak_rate(&rig);
         assert!(
             (cruise * 0.995..=cruise * 1.005).contains(&peak),
             "PA15 {pa15}: peak {peak} steps/s, cap {cruise}"
         );
     }
+}
+
+/// The highest step rate between two steps of the move, from their exact
+/// times.
+fn peak_rate(rig: &Rig) -> f64 {
+    rig.steps
+        .windows(2)
+        .map(|w| {
+            f64::from(rig.tick_hz) * common::axis::Q
+                / w[1].exact().wrapping_sub(w[0].exact()) as f64
+        })
+        .fold(0.0, f64::max)
 }
 
 /// `arrives_at` with the velocity and acceleration bounds of the move.
