@@ -448,6 +448,32 @@ impl Device {
         self.drive
             .control(now_us, switches, edges, schedule, sink, cfg);
         self.last_control_us = Some(now_us);
+        self.drive_events();
+    }
+
+    /// The last control call stopped its fill at the planner's fill budget
+    /// ([`crate::motion::PlannerConfig::with_fill_budget`]): call
+    /// [`Self::top_up`] until this is false, letting other work (a
+    /// frame) run in between. Never without a budget.
+    pub fn fill_paused(&self) -> bool {
+        self.drive.fill_paused()
+    }
+
+    /// One more part of a paused control call ([`Self::fill_paused`]),
+    /// at that call's time; nothing when it has not paused. The parts
+    /// together do what one control call without a budget does.
+    pub fn top_up(&mut self, schedule: &StepSchedule) {
+        self.top_up_with(schedule, &mut ());
+    }
+
+    /// [`Self::top_up`], telling `sink` of every step it pushes
+    /// ([`Self::control_with`]).
+    pub fn top_up_with<S: StepSink>(&mut self, schedule: &StepSchedule, sink: &mut S) {
+        self.drive.top_up(schedule, sink);
+        self.drive_events();
+    }
+
+    fn drive_events(&mut self) {
         while let Some(e) = self.drive.take_event() {
             self.push_event(Event::Drive(e));
         }

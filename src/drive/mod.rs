@@ -220,6 +220,9 @@ pub struct Drive {
     at_rest: bool,
     switches: Switches,
     now_us: u64,
+    /// The last control call's fill paused at its budget
+    /// ([`Drive::top_up`]).
+    fill_paused: bool,
     frame_seen: bool,
     last_frame_us: u64,
     /// Encoder, measured position and following-error check (SPEC §8.8).
@@ -273,6 +276,7 @@ impl Drive {
             at_rest: true,
             switches: Switches::default(),
             now_us: 0,
+            fill_paused: false,
             frame_seen: true,
             last_frame_us: 0,
             feedback: Feedback::default(),
@@ -422,15 +426,46 @@ impl Drive {
             self.replan = false;
             self.apply_goal(sched, cfg.od());
         }
+        self.fill(sched, sink);
+    }
+
+    /// The last control call's fill paused at the planner's fill budget
+    /// ([`crate::motion::PlannerConfig::with_fill_budget`]): call
+    /// [`Drive::top_up`] until this is false (never without a budget).
+    pub fn fill_paused(&self) -> bool {
+        self.fill_paused
+    }
+
+    /// Goes on with a paused fill ([`Drive::fill_paused`]) at the last
+    /// control call's time, one more part; nothing when it has not
+    /// paused. The control call's last steps (what is shown of the motion,
+    /// state changes at rest) come with the part that completes it: the
+    /// parts together do what one control call without a budget does.
+    pub fn top_up<S: StepSink>(&mut self, sched: &StepSchedule, sink: &mut S) {
+        if self.fill_paused {
+            self.fill(sched, sink);
+        }
+    }
+
+    /// The control call's fill and, once it has not paused, what follows it.
+    fn fill<S: StepSink>(&mut self, sched: &StepSchedule, sink: &mut S) {
         let underruns = self.planner.underruns();
+        self.fill_paused = false;
         for _ in 0..8 {
-            match self.planner.fill_with(now_us, sched, sink) {
+            match self.planner.fill_with(self.now_us, sched, sink) {
                 Fill::Ended => self.motion_ended(),
+                Fill::Paused => {
+                    self.fill_paused = true;
+                    break;
+                }
                 _ => break,
             }
         }
         if self.planner.underruns() != underruns {
             self.event(DriveEvent::ScheduleUnderrun);
+        }
+        if self.fill_paused {
+            return;
         }
 
         self.raw_position = self.pin_position(sched);

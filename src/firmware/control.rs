@@ -20,6 +20,8 @@
 //! (fault.rs). It passes PA23 to the fault path, which holds ENABLE that
 //! long while the brake engages.
 
+use core::task::Poll;
+
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};
 use modbus_drive::drive::io::PowerOutputs;
@@ -36,6 +38,13 @@ use super::switches;
 /// Control loop period: the core's (`Device::poll_at` comes one period
 /// after each call, so a ticker at this period is never late).
 pub const CONTROL_PERIOD: Duration = Duration::from_micros(modbus_drive::device::CONTROL_PERIOD_US);
+
+/// Steps one part of the control call may push into the schedule
+/// (`PlannerConfig::with_fill_budget`): the longest a frame that closes
+/// during the control call waits for the thread is one part, not the call
+/// (docs/firmware.md, "Reply latency while stepping"). Smaller parts cost
+/// more executor rounds a period.
+pub const FILL_BUDGET: u32 = 64;
 
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;
@@ -69,12 +78,31 @@ pub async fn run(
         }
         let count = encoder.read(encoder_wanted);
         steps::publish_pin_lag();
+        // The control call in parts (the planner's fill budget, main.rs):
+        // a frame that closes meanwhile waits for one part, not the call.
+        let mut paused = after_others(|| {
+            with_device(|d| {
+                if let Some(c) = count {
+                    d.set_encoder_count(c);
+                }
+                encoder_wanted = d.params().encoder_counts_per_rev() > 0;
+                d.control_latched(now_us, switch_states, edges, schedule);
+                d.fill_paused()
+            })
+        })
+        .await
+        .unwrap_or(false);
+        while paused {
+            paused = after_others(|| {
+                with_device(|d| {
+                    d.top_up(schedule);
+                    d.fill_paused()
+                })
+            })
+            .await
+            .unwrap_or(false);
+        }
         let Some((outputs, params, shape, engage_ms)) = with_device(|d| {
-            if let Some(c) = count {
-                d.set_encoder_count(c);
-            }
-            encoder_wanted = d.params().encoder_counts_per_rev() > 0;
-            d.control_latched(now_us, switch_states, edges, schedule);
             (
                 d.drive().outputs(),
                 (
@@ -117,4 +145,23 @@ pub async fn run(
             );
         }
     }
+}
+
+/// Runs `f` in one poll of this task, then lets every task woken
+/// meanwhile run before this one goes on. The task queues itself again
+/// *before* `f`: embassy's executor runs each batch of woken tasks in the
+/// reverse order of their wake-ups, so the dispatcher, woken by a frame
+/// while `f` runs, comes first in the next batch.
+async fn after_others<R>(f: impl FnOnce() -> R) -> R {
+    let mut f = Some(f);
+    let mut out = None;
+    core::future::poll_fn(|cx| {
+        if let Some(r) = out.take() {
+            return Poll::Ready(r);
+        }
+        cx.waker().wake_by_ref();
+        out = f.take().map(|f| f());
+        Poll::Pending
+    })
+    .await
 }

@@ -81,10 +81,11 @@ async fn main(spawner: Spawner) {
     // (a static) after it has been moved to the dispatcher: its RAM twice.
     let (line, address, de, dir_inverted) = {
         // The planner times steps in the step timer's ticks
-        // (calc::step_prescaler) and keeps to the board's limits.
+        // (calc::step_prescaler) and keeps to the board's limits; it fills
+        // the schedule in parts that the control loop spaces out.
         let mut device = Device::with_planner_config(
             Identity::new(board::NAME),
-            PlannerConfig::for_board(board::BOARD),
+            PlannerConfig::for_board(board::BOARD).with_fill_budget(control::FILL_BUDGET),
         );
         device.set_reset_cause(reset_cause);
         #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
