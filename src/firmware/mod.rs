@@ -150,10 +150,7 @@ async fn main(spawner: Spawner) {
         "task spawned twice"
     ));
     #[cfg(feature = "board-f103")]
-    spawner.spawn(defmt::unwrap!(
-        rs485::frame_gap_task().ok(),
-        "task spawned twice"
-    ));
+    rs485::start_frame_gap();
 
     // The step engine's pins and pulse counter stay owned here for good,
     // and so does the F103's DE pin (an output that rs485 drives through
