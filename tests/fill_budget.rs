@@ -4,6 +4,9 @@
 //! unbounded fill pushes, each part after the first stays within the
 //! budget, and the schedule never runs dry.
 
+mod common;
+
+use common::axis::Rig;
 use modbus_drive::boards::Board;
 use modbus_drive::motion::sim::{RunStop, SimAxis, StepRecord};
 use modbus_drive::motion::{Fill, Goal, Planner, PlannerConfig, Ramp, StepSchedule, FIT_COST};
@@ -205,5 +208,55 @@ proptest! {
     ) {
         let board = if f103 { Board::F103 } else { Board::G431 };
         same_schedule(board, &goals, (a * 10.0) as u64, budget);
+    }
+}
+
+/// The whole device with the firmware's budget, driven through frames
+/// with the control loop on its grid (the parts of each control call made
+/// by the simulation host, as the firmware's loop makes them): the same
+/// steps, the same statusword and position read at every period as the
+/// device without a budget, over moves at the board's limits and a
+/// target changed mid-move.
+#[test]
+fn the_device_in_parts_moves_as_the_device_whole() {
+    for board in Board::ALL {
+        let cfg = PlannerConfig::for_board(board);
+        let mut rigs = [
+            Rig::with_planner(cfg),
+            Rig::with_planner(cfg.with_fill_budget(64)),
+        ];
+        // 0.1 r/min at PA10 = 10 000 steps/rev: the board's step rate;
+        // ramps at its acceleration limit (0.1 r/s²)
+        let velocity = (u64::from(board.max_step_rate()) * 60 / 1000) as u16;
+        let accel = (board.max_accel() / 1000) as u16;
+        let mut seen = [Vec::new(), Vec::new()];
+        for (rig, seen) in rigs.iter_mut().zip(&mut seen) {
+            for cw in [0x0006, 0x0007, 0x000F] {
+                rig.bus.write_single(0x6040, cw).expect("controlword");
+                rig.run_us(rig.period_us);
+            }
+            rig.bus.write_single(0x6060, 1).expect("mode");
+            rig.bus.write(0x6081, &[0, velocity]).expect("velocity");
+            rig.bus.write(0x6083, &[accel; 3]).expect("ramps");
+            for (target, ms) in [(60_000i32, 150), (-20_000, 700)] {
+                rig.bus
+                    .write(0x607A, &[(target >> 16) as u16, target as u16])
+                    .expect("target");
+                rig.bus
+                    .write_single(0x6040, 0x003F)
+                    .expect("bit 4, at once");
+                rig.bus.write_single(0x6040, 0x000F).expect("bit 4 back");
+                for _ in 0..ms {
+                    rig.run_us(rig.period_us);
+                    seen.push((rig.statusword(), rig.position()));
+                }
+            }
+            assert!(rig.at_rest(), "{board:?}: at rest");
+            assert_eq!(rig.position(), -20_000, "{board:?}");
+        }
+        assert_eq!(seen[0], seen[1], "{board:?}: statusword and position");
+        let [whole, parts] = &rigs;
+        assert_eq!(whole.steps.len(), parts.steps.len(), "{board:?}: steps");
+        assert!(whole.steps == parts.steps, "{board:?}: the steps differ");
     }
 }

@@ -454,7 +454,9 @@ impl Device {
     /// The last control call stopped its fill at the planner's fill budget
     /// ([`crate::motion::PlannerConfig::with_fill_budget`]): call
     /// [`Self::top_up`] until this is false, letting other work (a
-    /// frame) run in between. Never without a budget.
+    /// frame) run in between. Never without a budget; with one, the
+    /// control call itself stops before its fill (the drive's update is
+    /// a part of its own).
     pub fn fill_paused(&self) -> bool {
         self.drive.fill_paused()
     }

@@ -73,6 +73,11 @@ impl<'a> SimHost<'a> {
         let seen = self.switches.map_or(seen, |view| view.seen(seen));
         self.device
             .control_with(now_us, seen, self.schedule, &mut *self.axis);
+        // with a fill budget, its parts back to back: nothing else runs
+        // on this host between them
+        while self.device.fill_paused() {
+            self.device.top_up_with(self.schedule, &mut *self.axis);
+        }
         self.axis.kick(self.schedule);
     }
 

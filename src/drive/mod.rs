@@ -426,12 +426,19 @@ impl Drive {
             self.replan = false;
             self.apply_goal(sched, cfg.od());
         }
-        self.fill(sched, sink);
+        if self.planner.config().fill_budget() == u32::MAX {
+            self.fill(sched, sink);
+        } else {
+            // with a fill budget the update above is a part of its own:
+            // the fill starts at the first top-up
+            self.fill_paused = true;
+        }
     }
 
     /// The last control call's fill paused at the planner's fill budget
     /// ([`crate::motion::PlannerConfig::with_fill_budget`]): call
     /// [`Drive::top_up`] until this is false (never without a budget).
+    /// With a budget, every control call pauses before its fill.
     pub fn fill_paused(&self) -> bool {
         self.fill_paused
     }

@@ -510,6 +510,11 @@ impl Rig {
         Self::with_config(Bus::new(), axis(SimAxis::new(tick_hz)), cfg)
     }
 
+    /// The planner configured as `cfg` says, on an axis at its tick.
+    pub fn with_planner(cfg: Cfg) -> Self {
+        Self::with_config(Bus::new(), SimAxis::new(cfg.tick_hz()), cfg)
+    }
+
     fn with_config(mut bus: Bus, axis: SimAxis, cfg: Cfg) -> Self {
         let tick_hz = cfg.tick_hz();
         bus.device.set_planner_config(cfg);
