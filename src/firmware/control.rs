@@ -32,6 +32,7 @@ use super::calc::StepShape;
 use super::dispatch::{with_device, EventLog};
 use super::encoder::EncoderInput;
 use super::fault::{self, Watchdog};
+use super::rx_slots;
 use super::steps;
 use super::switches;
 
@@ -148,11 +149,23 @@ pub async fn run(
 }
 
 /// Runs `f` in one poll of this task, then lets every task woken
-/// meanwhile run before this one goes on. The task queues itself again
-/// *before* `f`: embassy's executor runs each batch of woken tasks in the
-/// reverse order of their wake-ups, so the dispatcher, woken by a frame
-/// while `f` runs, comes first in the next batch.
+/// meanwhile run before this one goes on; and first, while a closed frame
+/// waits for the dispatcher, lets the dispatcher take it up. embassy's
+/// executor runs each batch of woken tasks in the reverse order of their
+/// wake-ups, so: the task queues itself again *before* `f`, and the
+/// dispatcher, woken by a frame while `f` runs, comes first in the next
+/// batch; a frame that closed before (while this task ran between two
+/// parts) has its dispatcher in the batch this task starts, behind it, so
+/// this task passes its turn once more and the dispatcher runs in that
+/// batch. A few passes at most: the dispatcher may be busy with the reply
+/// before (a master that does not wait for it).
 async fn after_others<R>(f: impl FnOnce() -> R) -> R {
+    for _ in 0..3 {
+        if !rx_slots::frame_waiting() {
+            break;
+        }
+        pass().await;
+    }
     let mut f = Some(f);
     let mut out = None;
     core::future::poll_fn(|cx| {
@@ -161,6 +174,21 @@ async fn after_others<R>(f: impl FnOnce() -> R) -> R {
         }
         cx.waker().wake_by_ref();
         out = f.take().map(|f| f());
+        Poll::Pending
+    })
+    .await
+}
+
+/// Returns `Pending` once, the task queued again: every other task in the
+/// executor's current batch runs first.
+async fn pass() {
+    let mut passed = false;
+    core::future::poll_fn(|cx| {
+        if passed {
+            return Poll::Ready(());
+        }
+        passed = true;
+        cx.waker().wake_by_ref();
         Poll::Pending
     })
     .await
