@@ -366,7 +366,9 @@ impl Drive {
     /// states (after PA13, e.g. from [`io::SwitchInputs::read`]) sampled now;
     /// `edges` where they began, if the glue latched that (homing origin,
     /// SPEC §8.6), else [`SwitchEdges::default`]. `sink` is told of every
-    /// push to `sched` ([`StepSink`]; the firmware passes `()`).
+    /// push to `sched` ([`StepSink`]; the firmware passes `()`). With a
+    /// fill budget ([`crate::motion::PlannerConfig::with_fill_budget`]) its
+    /// parts back to back: [`Drive::begin_control`] and [`Drive::top_up`].
     pub fn control<S: StepSink>(
         &mut self,
         now_us: u64,
@@ -374,6 +376,24 @@ impl Drive {
         edges: SwitchEdges,
         sched: &StepSchedule,
         sink: &mut S,
+        cfg: Config<'_>,
+    ) {
+        self.begin_control(now_us, switches, edges, sched, cfg);
+        while self.fill_paused {
+            self.top_up(sched, sink);
+        }
+    }
+
+    /// The first part of [`Drive::control`]: everything before the fill
+    /// (the schedule is not pushed to). Then call [`Drive::top_up`] while
+    /// [`Drive::fill_paused`]: glue that bounds how long one call holds
+    /// its thread lets other work run between the parts.
+    pub fn begin_control(
+        &mut self,
+        now_us: u64,
+        switches: Switches,
+        edges: SwitchEdges,
+        sched: &StepSchedule,
         cfg: Config<'_>,
     ) {
         self.s.update(cfg);
@@ -426,36 +446,25 @@ impl Drive {
             self.replan = false;
             self.apply_goal(sched, cfg.od());
         }
-        if self.planner.config().fill_budget() == u32::MAX {
-            self.fill(sched, sink);
-        } else {
-            // with a fill budget the update above is a part of its own:
-            // the fill starts at the first top-up
-            self.fill_paused = true;
-        }
+        self.fill_paused = true;
     }
 
-    /// The last control call's fill paused at the planner's fill budget
-    /// ([`crate::motion::PlannerConfig::with_fill_budget`]): call
-    /// [`Drive::top_up`] until this is false (never without a budget).
-    /// With a budget, every control call pauses before its fill.
+    /// The control call begun by [`Drive::begin_control`] has more to do:
+    /// call [`Drive::top_up`].
     pub fn fill_paused(&self) -> bool {
         self.fill_paused
     }
 
-    /// Goes on with a paused fill ([`Drive::fill_paused`]) at the last
-    /// control call's time, one more part; nothing when it has not
-    /// paused. The control call's last steps (what is shown of the motion,
-    /// state changes at rest) come with the part that completes it: the
-    /// parts together do what one control call without a budget does.
+    /// The next part of the control call begun by [`Drive::begin_control`],
+    /// at its time: its fill, as far as the planner's fill budget goes
+    /// (to the end without one), and once the fill is complete what
+    /// follows it (what is shown of the motion, state changes at rest).
+    /// Nothing when [`Drive::fill_paused`] is false. The parts together do
+    /// what [`Drive::control`] does.
     pub fn top_up<S: StepSink>(&mut self, sched: &StepSchedule, sink: &mut S) {
-        if self.fill_paused {
-            self.fill(sched, sink);
+        if !self.fill_paused {
+            return;
         }
-    }
-
-    /// The control call's fill and, once it has not paused, what follows it.
-    fn fill<S: StepSink>(&mut self, sched: &StepSchedule, sink: &mut S) {
         let underruns = self.planner.underruns();
         self.fill_paused = false;
         for _ in 0..8 {

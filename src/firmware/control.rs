@@ -81,27 +81,28 @@ pub async fn run(
         steps::publish_pin_lag();
         // The control call in parts (the planner's fill budget, main.rs):
         // a frame that closes meanwhile waits for one part, not the call.
-        let mut paused = after_others(|| {
-            with_device(|d| {
-                if let Some(c) = count {
-                    d.set_encoder_count(c);
-                }
-                encoder_wanted = d.params().encoder_counts_per_rev() > 0;
-                d.control_latched(now_us, switch_states, edges, schedule);
-                d.fill_paused()
-            })
-        })
-        .await
-        .unwrap_or(false);
-        while paused {
-            paused = after_others(|| {
+        let mut call = Some((count, switch_states, edges));
+        loop {
+            let paused = part(&mut || {
                 with_device(|d| {
-                    d.top_up(schedule);
+                    match call.take() {
+                        Some((count, switch_states, edges)) => {
+                            if let Some(c) = count {
+                                d.set_encoder_count(c);
+                            }
+                            encoder_wanted = d.params().encoder_counts_per_rev() > 0;
+                            d.begin_control_latched(now_us, switch_states, edges, schedule);
+                        }
+                        None => d.top_up(schedule),
+                    }
                     d.fill_paused()
                 })
+                .unwrap_or(false)
             })
-            .await
-            .unwrap_or(false);
+            .await;
+            if !paused {
+                break;
+            }
         }
         let Some((outputs, params, shape, engage_ms)) = with_device(|d| {
             (
@@ -148,47 +149,31 @@ pub async fn run(
     }
 }
 
-/// Runs `f` in one poll of this task, then lets every task woken
-/// meanwhile run before this one goes on; and first, while a closed frame
-/// waits for the dispatcher, lets the dispatcher take it up. embassy's
-/// executor runs each batch of woken tasks in the reverse order of their
-/// wake-ups, so: the task queues itself again *before* `f`, and the
-/// dispatcher, woken by a frame while `f` runs, comes first in the next
-/// batch; a frame that closed before (while this task ran between two
-/// parts) has its dispatcher in the batch this task starts, behind it, so
-/// this task passes its turn once more and the dispatcher runs in that
-/// batch. A few passes at most: the dispatcher may be busy with the reply
-/// before (a master that does not wait for it).
-async fn after_others<R>(f: impl FnOnce() -> R) -> R {
-    for _ in 0..3 {
-        if !rx_slots::frame_waiting() {
-            break;
-        }
-        pass().await;
-    }
-    let mut f = Some(f);
+/// One part of the control call: runs `f` in one poll of this task, then
+/// lets every task woken meanwhile run before this one goes on; and
+/// first, while a closed frame waits for the dispatcher, lets the
+/// dispatcher take it up. embassy's executor runs each batch of woken
+/// tasks in the reverse order of their wake-ups, so: the task queues
+/// itself again *before* `f`, and the dispatcher, woken by a frame while
+/// `f` runs, comes first in the next batch; a frame that closed before
+/// (while this task ran between two parts) has its dispatcher in the
+/// batch this task starts, behind it, so this task passes its turn once
+/// more and the dispatcher runs in that batch. A few passes at most: the
+/// dispatcher may be busy with the reply before (a master that does not
+/// wait for it). Not generic, one copy: `f` is called through a pointer.
+async fn part(f: &mut dyn FnMut() -> bool) -> bool {
+    let mut passes = 0;
     let mut out = None;
     core::future::poll_fn(|cx| {
-        if let Some(r) = out.take() {
-            return Poll::Ready(r);
+        if let Some(paused) = out {
+            return Poll::Ready(paused);
         }
         cx.waker().wake_by_ref();
-        out = f.take().map(|f| f());
-        Poll::Pending
-    })
-    .await
-}
-
-/// Returns `Pending` once, the task queued again: every other task in the
-/// executor's current batch runs first.
-async fn pass() {
-    let mut passed = false;
-    core::future::poll_fn(|cx| {
-        if passed {
-            return Poll::Ready(());
+        if passes < 3 && rx_slots::frame_waiting() {
+            passes += 1;
+        } else {
+            out = Some(f());
         }
-        passed = true;
-        cx.waker().wake_by_ref();
         Poll::Pending
     })
     .await

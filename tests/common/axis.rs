@@ -483,6 +483,9 @@ pub struct Rig {
     /// A simulated encoder on the motor, read before every control call
     /// (SPEC §8.8), scaled with the drive's PA17 / PA10 / PA18.
     pub encoder: Option<SimEncoder>,
+    /// Each control call in parts, as the firmware makes it
+    /// (`SimHost::in_parts`).
+    pub in_parts: bool,
 }
 
 impl Rig {
@@ -527,6 +530,7 @@ impl Rig {
             period_us: CONTROL_PERIOD_US,
             tick_hz,
             encoder: None,
+            in_parts: false,
         };
         rig.control();
         rig
@@ -536,6 +540,7 @@ impl Rig {
     /// encoder (the loop the virtual drive and the fuzz harness run too).
     fn host(&mut self) -> SimHost<'_> {
         let host = SimHost::new(&mut self.bus.device, &mut self.axis, &self.sched);
+        let host = if self.in_parts { host.in_parts() } else { host };
         match self.encoder.as_mut() {
             Some(e) => host.with_encoder(e, true),
             None => host,
