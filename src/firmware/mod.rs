@@ -160,11 +160,20 @@ async fn main(spawner: Spawner) {
     let _de_pin = parts.de;
     // From here on a hung thread resets the chip (fault.rs).
     let watchdog = fault::Watchdog::start();
-    control::run(
-        control::PowerPins::new(parts.enable, parts.brake),
-        schedule,
-        watchdog,
-        encoder::EncoderInput::new(parts.encoder),
-    )
-    .await
+    // A task of its own, not awaited here: this function's frame holds
+    // the whole start-up (the device is built on it), and the control
+    // loop's deepest calls (a move's profile, under the interrupts) would
+    // sit on top of it for good.
+    spawner.spawn(defmt::unwrap!(
+        control::run(
+            control::PowerPins::new(parts.enable, parts.brake),
+            schedule,
+            watchdog,
+            encoder::EncoderInput::new(parts.encoder),
+        )
+        .ok(),
+        "task spawned twice"
+    ));
+    // the pins above stay owned, this task pending for good
+    core::future::pending::<()>().await
 }
