@@ -83,28 +83,23 @@ pub async fn run(
         // The control call in parts (the planner's fill budget, main.rs):
         // a frame that closes meanwhile waits for one part, not the call.
         let mut call = Some((count, switch_states, edges));
-        loop {
-            let paused = part(&mut || {
-                with_device(|d| {
-                    match call.take() {
-                        Some((count, switch_states, edges)) => {
-                            if let Some(c) = count {
-                                d.set_encoder_count(c);
-                            }
-                            encoder_wanted = d.params().encoder_counts_per_rev() > 0;
-                            d.begin_control_latched(now_us, switch_states, edges, schedule);
+        in_parts(&mut || {
+            with_device(|d| {
+                match call.take() {
+                    Some((count, switch_states, edges)) => {
+                        if let Some(c) = count {
+                            d.set_encoder_count(c);
                         }
-                        None => d.top_up(schedule),
+                        encoder_wanted = d.params().encoder_counts_per_rev() > 0;
+                        d.begin_control_latched(now_us, switch_states, edges, schedule);
                     }
-                    d.fill_paused()
-                })
-                .unwrap_or(false)
+                    None => d.top_up(schedule),
+                }
+                d.fill_paused()
             })
-            .await;
-            if !paused {
-                break;
-            }
-        }
+            .unwrap_or(false)
+        })
+        .await;
         let Some((outputs, params, shape, engage_ms)) = with_device(|d| {
             (
                 d.drive().outputs(),
@@ -150,32 +145,30 @@ pub async fn run(
     }
 }
 
-/// One part of the control call: runs `f` in one poll of this task, then
-/// lets every task woken meanwhile run before this one goes on; and
-/// first, while a closed frame waits for the dispatcher, lets the
-/// dispatcher take it up. embassy's executor runs each batch of woken
-/// tasks in the reverse order of their wake-ups, so: the task queues
-/// itself again *before* `f`, and the dispatcher, woken by a frame while
-/// `f` runs, comes first in the next batch; a frame that closed before
-/// (while this task ran between two parts) has its dispatcher in the
-/// batch this task starts, behind it, so this task passes its turn once
-/// more and the dispatcher runs in that batch. A few passes at most: the
-/// dispatcher may be busy with the reply before (a master that does not
-/// wait for it). Not generic, one copy: `f` is called through a pointer.
-async fn part(f: &mut dyn FnMut() -> bool) -> bool {
+/// Makes the control call's parts (`f` makes one and says whether another
+/// is due), back to back within one poll of this task while no closed
+/// frame waits for the dispatcher (`rx_slots::frame_waiting`). With one
+/// waiting, at the start or at the end of a part, this task passes its
+/// turn until the dispatcher has taken the frame up: embassy's executor
+/// runs each batch of woken tasks in the reverse order of their wake-ups,
+/// so this task, queued after the dispatcher, comes first in the next
+/// batch and passes once more, and the dispatcher runs in that batch. Two
+/// passes a part at most: the dispatcher may still be busy with the reply
+/// before (a master that does not wait for it). A frame thus waits for one
+/// part at most, and an idle bus costs no executor round. Not generic,
+/// one copy: `f` is called through a pointer.
+async fn in_parts(f: &mut dyn FnMut() -> bool) {
     let mut passes = 0;
-    let mut out = None;
-    core::future::poll_fn(|cx| {
-        if let Some(paused) = out {
-            return Poll::Ready(paused);
-        }
-        cx.waker().wake_by_ref();
-        if passes < 3 && rx_slots::frame_waiting() {
+    core::future::poll_fn(|cx| loop {
+        if passes < 2 && rx_slots::frame_waiting() {
             passes += 1;
-        } else {
-            out = Some(f());
+            cx.waker().wake_by_ref();
+            return Poll::Pending;
         }
-        Poll::Pending
+        passes = 0;
+        if !f() {
+            return Poll::Ready(());
+        }
     })
     .await
 }

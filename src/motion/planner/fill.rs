@@ -147,22 +147,18 @@ impl Planner {
         let fresh = self.step_budget;
         loop {
             if self.pending.rest.count() > 0 {
-                let limit = if self.lead_covered(now) {
-                    if self.step_budget == 0 {
+                if self.step_budget == 0 {
+                    if self.lead_covered(now) {
                         return Fill::Paused;
                     }
-                    self.step_budget
-                } else {
-                    u32::MAX
-                };
-                if !self.push_pending(sched, sink, limit) {
-                    // the ring (or the segment bookkeeping) is full, or
-                    // the budget stopped the push
-                    return if self.step_budget == 0 {
-                        Fill::Paused
-                    } else {
-                        Fill::Full
-                    };
+                    // the queue is short: on, a budget at a time, so
+                    // that the fill pauses soon after it is not
+                    self.step_budget = self.cfg.fill_budget;
+                }
+                if !self.push_pending(sched, sink, self.step_budget) && self.step_budget != 0 {
+                    // the ring (or the segment bookkeeping) is full; a
+                    // push the budget stopped is looked at above
+                    return Fill::Full;
                 }
                 continue;
             }
