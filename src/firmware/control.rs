@@ -50,7 +50,6 @@ pub const FILL_BUDGET: u32 = 64;
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;
 
-#[embassy_executor::task]
 pub async fn run(
     mut pins: PowerPins,
     schedule: &'static StepSchedule,
