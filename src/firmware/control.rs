@@ -45,7 +45,7 @@ pub const CONTROL_PERIOD: Duration = Duration::from_micros(modbus_drive::device:
 /// during the control call waits for the thread is one part, not the call
 /// (docs/firmware.md, "Reply latency while stepping"). Smaller parts cost
 /// more executor rounds a period.
-pub const FILL_BUDGET: u32 = 64;
+pub const FILL_BUDGET: u32 = 96;
 
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;

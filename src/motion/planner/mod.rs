@@ -74,7 +74,7 @@ const _: () = {
 /// budget ([`PlannerConfig::with_fill_budget`]): about what expanding
 /// that many steps into the ring costs, as the firmware's profile under
 /// emulation shows (docs/firmware.md, "Reply latency while stepping").
-pub const FIT_COST: u32 = 64;
+pub const FIT_COST: u32 = 96;
 
 /// Segments the planner keeps track of between the interrupt's step and
 /// the end of the queue (a power of two): while they are all queued, the
