@@ -43,9 +43,11 @@ pub const CONTROL_PERIOD: Duration = Duration::from_micros(modbus_drive::device:
 /// Steps one part of the control call may push into the schedule
 /// (`PlannerConfig::with_fill_budget`): the longest a frame that closes
 /// during the control call waits for the thread is one part, not the call
-/// (docs/firmware.md, "Reply latency while stepping"). Smaller parts cost
-/// more executor rounds a period.
-pub const FILL_BUDGET: u32 = 96;
+/// (docs/firmware.md, "Reply latency while stepping"). As much as a fit
+/// counts (`motion::FIT_COST`): a part of steps then takes about as long
+/// as a part that fits a segment, and smaller parts would not shorten the
+/// longest one, only repeat the fill's set-up more often.
+pub const FILL_BUDGET: u32 = modbus_drive::motion::FIT_COST;
 
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;
