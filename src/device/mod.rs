@@ -448,6 +448,52 @@ impl Device {
         self.drive
             .control(now_us, switches, edges, schedule, sink, cfg);
         self.last_control_us = Some(now_us);
+        self.drive_events();
+    }
+
+    /// [`Self::control_latched`] in parts, for glue that bounds how long
+    /// one call holds its thread: this call is everything before the fill
+    /// (the schedule is not pushed to); then call [`Self::top_up`] while
+    /// [`Self::fill_paused`], letting other work (a frame) run in between.
+    /// With the planner's fill budget
+    /// ([`crate::motion::PlannerConfig::with_fill_budget`]) each part
+    /// pushes a bounded number of steps; the parts together do what one
+    /// [`Self::control_latched`] does.
+    pub fn begin_control_latched(
+        &mut self,
+        now_us: u64,
+        switches: Switches,
+        edges: SwitchEdges,
+        schedule: &StepSchedule,
+    ) {
+        let cfg = Config::new(&self.od, &self.pa);
+        self.drive
+            .begin_control(now_us, switches, edges, schedule, cfg);
+        self.last_control_us = Some(now_us);
+        self.drive_events();
+    }
+
+    /// The control call begun by [`Self::begin_control_latched`] has parts
+    /// left: call [`Self::top_up`].
+    pub fn fill_paused(&self) -> bool {
+        self.drive.fill_paused()
+    }
+
+    /// The next part of the control call begun by
+    /// [`Self::begin_control_latched`] (at its time); nothing when
+    /// [`Self::fill_paused`] is false.
+    pub fn top_up(&mut self, schedule: &StepSchedule) {
+        self.top_up_with(schedule, &mut ());
+    }
+
+    /// [`Self::top_up`], telling `sink` of every step it pushes
+    /// ([`Self::control_with`]).
+    pub fn top_up_with<S: StepSink>(&mut self, schedule: &StepSchedule, sink: &mut S) {
+        self.drive.top_up(schedule, sink);
+        self.drive_events();
+    }
+
+    fn drive_events(&mut self) {
         while let Some(e) = self.drive.take_event() {
             self.push_event(Event::Drive(e));
         }

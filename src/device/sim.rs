@@ -9,7 +9,7 @@
 use super::{Device, CONTROL_PERIOD_US};
 use crate::closed_loop::sim::SimEncoder;
 use crate::motion::sim::{RunStop, SimAxis, StepRecord};
-use crate::motion::{StepSchedule, Switches};
+use crate::motion::{StepSchedule, SwitchEdges, Switches};
 
 /// One simulated axis under a device, borrowed for a run. The parts stay
 /// the caller's, so tests may look at (or play) them between runs.
@@ -19,6 +19,7 @@ pub struct SimHost<'a> {
     schedule: &'a StepSchedule,
     encoder: Option<(&'a mut SimEncoder, bool)>,
     switches: Option<&'a dyn SwitchView>,
+    in_parts: bool,
 }
 
 /// What the drive sees of the axis's switches, where a host changes it
@@ -35,7 +36,17 @@ impl<'a> SimHost<'a> {
             schedule,
             encoder: None,
             switches: None,
+            in_parts: false,
         }
+    }
+
+    /// Each control call made as the firmware makes it, in parts
+    /// ([`Device::begin_control_latched`], then [`Device::top_up_with`]
+    /// while [`Device::fill_paused`]), back to back: nothing else runs on
+    /// this host between them.
+    pub fn in_parts(mut self) -> Self {
+        self.in_parts = true;
+        self
     }
 
     /// An encoder on the motor, read before every control call when it is
@@ -71,8 +82,17 @@ impl<'a> SimHost<'a> {
         }
         let seen = self.axis.switches();
         let seen = self.switches.map_or(seen, |view| view.seen(seen));
-        self.device
-            .control_with(now_us, seen, self.schedule, &mut *self.axis);
+        if self.in_parts {
+            let edges = SwitchEdges::default();
+            self.device
+                .begin_control_latched(now_us, seen, edges, self.schedule);
+            while self.device.fill_paused() {
+                self.device.top_up_with(self.schedule, &mut *self.axis);
+            }
+        } else {
+            self.device
+                .control_with(now_us, seen, self.schedule, &mut *self.axis);
+        }
         self.axis.kick(self.schedule);
     }
 

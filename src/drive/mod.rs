@@ -220,6 +220,9 @@ pub struct Drive {
     at_rest: bool,
     switches: Switches,
     now_us: u64,
+    /// The last control call's fill paused at its budget
+    /// ([`Drive::top_up`]).
+    fill_paused: bool,
     frame_seen: bool,
     last_frame_us: u64,
     /// Encoder, measured position and following-error check (SPEC §8.8).
@@ -273,6 +276,7 @@ impl Drive {
             at_rest: true,
             switches: Switches::default(),
             now_us: 0,
+            fill_paused: false,
             frame_seen: true,
             last_frame_us: 0,
             feedback: Feedback::default(),
@@ -362,7 +366,9 @@ impl Drive {
     /// states (after PA13, e.g. from [`io::SwitchInputs::read`]) sampled now;
     /// `edges` where they began, if the glue latched that (homing origin,
     /// SPEC §8.6), else [`SwitchEdges::default`]. `sink` is told of every
-    /// push to `sched` ([`StepSink`]; the firmware passes `()`).
+    /// push to `sched` ([`StepSink`]; the firmware passes `()`). With a
+    /// fill budget ([`crate::motion::PlannerConfig::with_fill_budget`]) its
+    /// parts back to back: [`Drive::begin_control`] and [`Drive::top_up`].
     pub fn control<S: StepSink>(
         &mut self,
         now_us: u64,
@@ -370,6 +376,24 @@ impl Drive {
         edges: SwitchEdges,
         sched: &StepSchedule,
         sink: &mut S,
+        cfg: Config<'_>,
+    ) {
+        self.begin_control(now_us, switches, edges, sched, cfg);
+        while self.fill_paused {
+            self.top_up(sched, sink);
+        }
+    }
+
+    /// The first part of [`Drive::control`]: everything before the fill
+    /// (the schedule is not pushed to). Then call [`Drive::top_up`] while
+    /// [`Drive::fill_paused`]: glue that bounds how long one call holds
+    /// its thread lets other work run between the parts.
+    pub fn begin_control(
+        &mut self,
+        now_us: u64,
+        switches: Switches,
+        edges: SwitchEdges,
+        sched: &StepSchedule,
         cfg: Config<'_>,
     ) {
         self.s.update(cfg);
@@ -422,15 +446,42 @@ impl Drive {
             self.replan = false;
             self.apply_goal(sched, cfg.od());
         }
+        self.fill_paused = true;
+    }
+
+    /// The control call begun by [`Drive::begin_control`] has more to do:
+    /// call [`Drive::top_up`].
+    pub fn fill_paused(&self) -> bool {
+        self.fill_paused
+    }
+
+    /// The next part of the control call begun by [`Drive::begin_control`],
+    /// at its time: its fill, as far as the planner's fill budget goes
+    /// (to the end without one), and once the fill is complete what
+    /// follows it (what is shown of the motion, state changes at rest).
+    /// Nothing when [`Drive::fill_paused`] is false. The parts together do
+    /// what [`Drive::control`] does.
+    pub fn top_up<S: StepSink>(&mut self, sched: &StepSchedule, sink: &mut S) {
+        if !self.fill_paused {
+            return;
+        }
         let underruns = self.planner.underruns();
+        self.fill_paused = false;
         for _ in 0..8 {
-            match self.planner.fill_with(now_us, sched, sink) {
+            match self.planner.fill_with(self.now_us, sched, sink) {
                 Fill::Ended => self.motion_ended(),
+                Fill::Paused => {
+                    self.fill_paused = true;
+                    break;
+                }
                 _ => break,
             }
         }
         if self.planner.underruns() != underruns {
             self.event(DriveEvent::ScheduleUnderrun);
+        }
+        if self.fill_paused {
+            return;
         }
 
         self.raw_position = self.pin_position(sched);

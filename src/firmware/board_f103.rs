@@ -75,6 +75,9 @@ pub const STEP_DMA_CH: usize = 4;
 pub type UartIrq = interrupt::typelevel::USART1;
 pub type StepIrq = interrupt::typelevel::DMA1_CHANNEL5;
 pub type SwitchIrq = interrupt::typelevel::EXTI15_10;
+/// The frame-gap task's executor (rs485.rs): SPI2's vector, a peripheral
+/// this board leaves unused, pended by software only.
+pub type FrameGapIrq = interrupt::typelevel::SPI2;
 
 bind_interrupts!(pub struct Irqs {
     USART1 => super::rs485::UartHandler;

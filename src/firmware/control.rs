@@ -20,6 +20,8 @@
 //! (fault.rs). It passes PA23 to the fault path, which holds ENABLE that
 //! long while the brake engages.
 
+use core::task::Poll;
+
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};
 use modbus_drive::drive::io::PowerOutputs;
@@ -30,12 +32,22 @@ use super::calc::StepShape;
 use super::dispatch::{with_device, EventLog};
 use super::encoder::EncoderInput;
 use super::fault::{self, Watchdog};
+use super::rx_slots;
 use super::steps;
 use super::switches;
 
 /// Control loop period: the core's (`Device::poll_at` comes one period
 /// after each call, so a ticker at this period is never late).
 pub const CONTROL_PERIOD: Duration = Duration::from_micros(modbus_drive::device::CONTROL_PERIOD_US);
+
+/// Steps one part of the control call may push into the schedule
+/// (`PlannerConfig::with_fill_budget`): the longest a frame that closes
+/// during the control call waits for the thread is one part, not the call
+/// (docs/firmware.md, "Reply latency while stepping"). As much as a fit
+/// counts (`motion::FIT_COST`): a part of steps then takes about as long
+/// as a part that fits a segment, and smaller parts would not shorten the
+/// longest one, only repeat the fill's set-up more often.
+pub const FILL_BUDGET: u32 = modbus_drive::motion::FIT_COST;
 
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;
@@ -69,12 +81,27 @@ pub async fn run(
         }
         let count = encoder.read(encoder_wanted);
         steps::publish_pin_lag();
+        // The control call in parts (the planner's fill budget, main.rs):
+        // a frame that closes meanwhile waits for one part, not the call.
+        let mut call = Some((count, switch_states, edges));
+        in_parts(&mut || {
+            with_device(|d| {
+                match call.take() {
+                    Some((count, switch_states, edges)) => {
+                        if let Some(c) = count {
+                            d.set_encoder_count(c);
+                        }
+                        encoder_wanted = d.params().encoder_counts_per_rev() > 0;
+                        d.begin_control_latched(now_us, switch_states, edges, schedule);
+                    }
+                    None => d.top_up(schedule),
+                }
+                d.fill_paused()
+            })
+            .unwrap_or(false)
+        })
+        .await;
         let Some((outputs, params, shape, engage_ms)) = with_device(|d| {
-            if let Some(c) = count {
-                d.set_encoder_count(c);
-            }
-            encoder_wanted = d.params().encoder_counts_per_rev() > 0;
-            d.control_latched(now_us, switch_states, edges, schedule);
             (
                 d.drive().outputs(),
                 (
@@ -117,4 +144,32 @@ pub async fn run(
             );
         }
     }
+}
+
+/// Makes the control call's parts (`f` makes one and says whether another
+/// is due), back to back within one poll of this task while no closed
+/// frame waits for the dispatcher (`rx_slots::frame_waiting`). With one
+/// waiting, at the start or at the end of a part, this task passes its
+/// turn until the dispatcher has taken the frame up: embassy's executor
+/// runs each batch of woken tasks in the reverse order of their wake-ups,
+/// so this task, queued after the dispatcher, comes first in the next
+/// batch and passes once more, and the dispatcher runs in that batch. Two
+/// passes a part at most: the dispatcher may still be busy with the reply
+/// before (a master that does not wait for it). A frame thus waits for one
+/// part at most, and an idle bus costs no executor round. Not generic,
+/// one copy: `f` is called through a pointer.
+async fn in_parts(f: &mut dyn FnMut() -> bool) {
+    let mut passes = 0;
+    core::future::poll_fn(|cx| loop {
+        if passes < 2 && rx_slots::frame_waiting() {
+            passes += 1;
+            cx.waker().wake_by_ref();
+            return Poll::Pending;
+        }
+        passes = 0;
+        if !f() {
+            return Poll::Ready(());
+        }
+    })
+    .await
 }

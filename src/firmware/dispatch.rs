@@ -103,21 +103,23 @@ struct Rs485Line<'a> {
     /// (the link stamps bytes with its wrapping 32-bit µs).
     now_us: u64,
     last_byte_us: u64,
-    reply: [u8; MAX_FRAME],
+    /// The task's own buffer, kept across frames: not cleared for each
+    /// (only `queued`'s first bytes are ever sent).
+    reply: &'a mut [u8; MAX_FRAME],
     /// Bytes of `reply` to send, and when.
     queued: Option<(usize, u64)>,
     line: Option<LineConfig>,
 }
 
 impl<'a> Rs485Line<'a> {
-    fn new(received: &'a RxFrame) -> Self {
+    fn new(received: &'a RxFrame, reply: &'a mut [u8; MAX_FRAME]) -> Self {
         let now_us = embassy_time::Instant::now().as_micros();
         let ago = (now_us as u32).wrapping_sub(received.last_byte_at_us());
         Self {
             received: Some(received),
             now_us,
             last_byte_us: now_us.saturating_sub(u64::from(ago)),
-            reply: [0; MAX_FRAME],
+            reply,
             queued: None,
             line: None,
         }
@@ -186,6 +188,7 @@ impl Storage for FlashStorage<'_> {
 #[embassy_executor::task]
 pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
     let mut log = EventLog::new();
+    let mut reply = [0; MAX_FRAME];
     loop {
         fault::DISPATCHER.idle();
         let rx = rx_slots::receive().await;
@@ -194,7 +197,7 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
         if fault::test_trigger(rx.event()) {
             core::future::pending::<()>().await; // stuck on purpose
         }
-        let mut line = Rs485Line::new(&rx);
+        let mut line = Rs485Line::new(&rx, &mut reply);
         let mut storage = FlashStorage(&mut store);
         // PA57 / PA58 as the request left them, for a reconfigured line
         let Some(de) = with_device(|d| {
@@ -203,7 +206,7 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
         }) else {
             continue;
         };
-        log.drain();
+        // the reply first: what the core reported is logged after it
         line.carry_out(&mut uart, de).await;
         log.drain();
     }

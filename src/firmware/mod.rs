@@ -82,45 +82,7 @@ async fn main(spawner: Spawner) {
     let region = defmt::unwrap!(parts.param_flash.ok_or("parameter flash region"));
     let (range, capacity) = (region.range(), region.capacity() as u32);
     let mut store = defmt::unwrap!(ParamStore::new(region, 0..capacity));
-    // In a block: a `Device` local of `main` would stay in main's future
-    // (a static) after it has been moved to the dispatcher: its RAM twice.
-    let (line, address, de, dir_inverted) = {
-        // The planner times steps in the step timer's ticks
-        // (calc::step_prescaler) and keeps to the board's limits.
-        let mut device = Device::with_planner_config(
-            Identity::new(board::NAME),
-            PlannerConfig::for_board(board::BOARD),
-        );
-        device.set_reset_cause(reset_cause);
-        #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
-        let mut boot = store.boot();
-        // A page the G431 cannot read (flash ECC after a power cut, fault.rs)
-        // is erased and the store read again, before the step timer runs —
-        // when the store could not read around it: an unreadable entry is
-        // one the journal skips, keeping the sets before it.
-        #[cfg(feature = "board-g431")]
-        if matches!(
-            boot.outcome(),
-            modbus_drive::params::BootOutcome::Unreadable(_)
-        ) {
-            if let Ok(Some(page)) = store.flash().erase_faulted_page() {
-                defmt::warn!(
-                    "parameter page at offset {:#x} unreadable (flash ECC): erased",
-                    page
-                );
-                boot = store.boot();
-            }
-        }
-        device.apply_boot(&boot);
-        let at = (
-            device.line(),
-            device.address(),
-            device.driver_enable(),
-            device.params().direction_inverted(),
-        );
-        dispatch::install(device);
-        at
-    };
+    let (line, address, de, dir_inverted) = install_device(&mut store, reset_cause);
 
     let mut uart = parts.uart;
     defmt::unwrap!(rs485::apply_line(&mut uart, line, de).map_err(rs485::config_error));
@@ -154,10 +116,7 @@ async fn main(spawner: Spawner) {
         "task spawned twice"
     ));
     #[cfg(feature = "board-f103")]
-    spawner.spawn(defmt::unwrap!(
-        rs485::frame_gap_task().ok(),
-        "task spawned twice"
-    ));
+    rs485::start_frame_gap();
 
     // The step engine's pins and pulse counter stay owned here for good,
     // and so does the F103's DE pin (an output that rs485 drives through
@@ -174,4 +133,54 @@ async fn main(spawner: Spawner) {
         encoder::EncoderInput::new(parts.encoder),
     )
     .await
+}
+
+/// Builds the core from the saved parameters and installs it for the
+/// tasks; returns the line, address, DE lead / tail and PA11 in force. A
+/// function of its own, not inlined: the `Device` is built on its frame,
+/// which is gone once it is installed (in `main`'s frame it would stay
+/// under every call of the control loop, `main` awaiting it), and a
+/// `Device` local of `main` would stay in main's future (a static) after
+/// it has been moved to the dispatcher: its RAM twice.
+#[inline(never)]
+fn install_device(
+    store: &mut dispatch::Store,
+    reset_cause: u16,
+) -> (LineConfig, u8, modbus_drive::rtu::DriverEnable, bool) {
+    // The planner times steps in the step timer's ticks
+    // (calc::step_prescaler) and keeps to the board's limits; it fills
+    // the schedule in parts that the control loop spaces out.
+    let mut device = Device::with_planner_config(
+        Identity::new(board::NAME),
+        PlannerConfig::for_board(board::BOARD).with_fill_budget(control::FILL_BUDGET),
+    );
+    device.set_reset_cause(reset_cause);
+    #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
+    let mut boot = store.boot();
+    // A page the G431 cannot read (flash ECC after a power cut, fault.rs)
+    // is erased and the store read again, before the step timer runs —
+    // when the store could not read around it: an unreadable entry is
+    // one the journal skips, keeping the sets before it.
+    #[cfg(feature = "board-g431")]
+    if matches!(
+        boot.outcome(),
+        modbus_drive::params::BootOutcome::Unreadable(_)
+    ) {
+        if let Ok(Some(page)) = store.flash().erase_faulted_page() {
+            defmt::warn!(
+                "parameter page at offset {:#x} unreadable (flash ECC): erased",
+                page
+            );
+            boot = store.boot();
+        }
+    }
+    device.apply_boot(&boot);
+    let at = (
+        device.line(),
+        device.address(),
+        device.driver_enable(),
+        device.params().direction_inverted(),
+    );
+    dispatch::install(device);
+    at
 }

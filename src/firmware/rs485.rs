@@ -582,6 +582,35 @@ fn set_de(high: bool) {
     });
 }
 
+/// F103: the executor of [`frame_gap_task`] alone, on an interrupt
+/// (`priority::PRIO_FRAME_GAP`): in thread mode the task would wait for
+/// the control loop's part to end before closing the frame, and the
+/// dispatcher it wakes would then wait for the next part.
+#[cfg(feature = "board-f103")]
+static FRAME_GAP_EXECUTOR: embassy_executor::InterruptExecutor =
+    embassy_executor::InterruptExecutor::new();
+
+#[cfg(feature = "board-f103")]
+mod frame_gap_vector {
+    use embassy_stm32::interrupt;
+
+    #[interrupt]
+    unsafe fn SPI2() {
+        // SAFETY: this vector is the executor's alone (board::FrameGapIrq),
+        // started by `start_frame_gap` before it is ever pended.
+        unsafe { super::FRAME_GAP_EXECUTOR.on_interrupt() }
+    }
+}
+
+/// F103: starts [`frame_gap_task`] on its interrupt executor (`main`,
+/// once, after `priority::init` has set the executor's priority).
+#[cfg(feature = "board-f103")]
+pub fn start_frame_gap() {
+    use embassy_stm32::interrupt::typelevel::Interrupt as _;
+    let spawner = FRAME_GAP_EXECUTOR.start(board::FrameGapIrq::IRQ);
+    spawner.spawn(defmt::unwrap!(frame_gap_task().ok(), "task spawned twice"));
+}
+
 /// STM32F103: closes a frame t3.5 after its last byte (no receiver timeout
 /// in this USART). The assembler itself rejects early polls, so a byte that
 /// arrives while this task sleeps just makes it sleep again.

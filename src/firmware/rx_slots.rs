@@ -112,6 +112,11 @@ impl Drop for RxFrame {
     }
 }
 
+/// A closed frame waits for the dispatcher to take it up ([`receive`]).
+pub fn frame_waiting() -> bool {
+    SLOT_STATE[READ_SLOT.load(Ordering::Relaxed)].load(Ordering::Acquire) == SLOT_FULL
+}
+
 /// The next closed frame, in arrival order.
 pub async fn receive() -> RxFrame {
     let index = READ_SLOT.load(Ordering::Relaxed);

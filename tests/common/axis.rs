@@ -483,6 +483,9 @@ pub struct Rig {
     /// A simulated encoder on the motor, read before every control call
     /// (SPEC §8.8), scaled with the drive's PA17 / PA10 / PA18.
     pub encoder: Option<SimEncoder>,
+    /// Each control call in parts, as the firmware makes it
+    /// (`SimHost::in_parts`).
+    pub in_parts: bool,
 }
 
 impl Rig {
@@ -510,6 +513,11 @@ impl Rig {
         Self::with_config(Bus::new(), axis(SimAxis::new(tick_hz)), cfg)
     }
 
+    /// The planner configured as `cfg` says, on an axis at its tick.
+    pub fn with_planner(cfg: Cfg) -> Self {
+        Self::with_config(Bus::new(), SimAxis::new(cfg.tick_hz()), cfg)
+    }
+
     fn with_config(mut bus: Bus, axis: SimAxis, cfg: Cfg) -> Self {
         let tick_hz = cfg.tick_hz();
         bus.device.set_planner_config(cfg);
@@ -522,6 +530,7 @@ impl Rig {
             period_us: CONTROL_PERIOD_US,
             tick_hz,
             encoder: None,
+            in_parts: false,
         };
         rig.control();
         rig
@@ -531,6 +540,7 @@ impl Rig {
     /// encoder (the loop the virtual drive and the fuzz harness run too).
     fn host(&mut self) -> SimHost<'_> {
         let host = SimHost::new(&mut self.bus.device, &mut self.axis, &self.sched);
+        let host = if self.in_parts { host.in_parts() } else { host };
         match self.encoder.as_mut() {
             Some(e) => host.with_encoder(e, true),
             None => host,

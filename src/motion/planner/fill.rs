@@ -1,7 +1,7 @@
 //! The control call's fill: plans and pushes segments until the horizon
-//! is covered or the ring is full.
+//! is covered or the ring is full (or, with a fill budget, in parts).
 
-use super::{Fill, Goal, Planner};
+use super::{Fill, Goal, Planner, FIT_COST};
 use crate::motion::{StepSchedule, StepSink};
 
 impl Planner {
@@ -38,6 +38,7 @@ impl Planner {
         if self.covered && self.horizon_covered(now) && (sched.is_running() || !sched.is_empty()) {
             return Fill::Full;
         }
+        self.step_budget = self.cfg.fill_budget;
         let fill = self.fill_from(sched, now, sink);
         self.covered = fill == Fill::Full && self.cut.is_none() && self.more_to_plan();
         fill
@@ -47,6 +48,13 @@ impl Planner {
     #[inline(always)]
     pub(super) fn horizon_covered(&self, now: u64) -> bool {
         self.t_isr.wrapping_sub(now) as i64 >= self.horizon_q as i64
+    }
+
+    /// What is queued reaches a third of the horizon past `now`: from here
+    /// on a fill may pause at its budget ([`PlannerConfig::with_fill_budget`](super::PlannerConfig::with_fill_budget)).
+    #[inline(always)]
+    fn lead_covered(&self, now: u64) -> bool {
+        self.t_isr.wrapping_sub(now) as i64 >= self.lead_q as i64
     }
 
     /// Not waiting for a stop at once, and steps left to push or to plan.
@@ -136,9 +144,20 @@ impl Planner {
             self.s_join = 0;
         }
         self.oldest = self.first_unfinished(sched.step_index());
+        let fresh = self.step_budget;
         loop {
             if self.pending.rest.count() > 0 {
-                if !self.push_pending(sched, sink) {
+                if self.step_budget == 0 {
+                    if self.lead_covered(now) {
+                        return Fill::Paused;
+                    }
+                    // the queue is short: on, a budget at a time, so
+                    // that the fill pauses soon after it is not
+                    self.step_budget = self.cfg.fill_budget;
+                }
+                if !self.push_pending(sched, sink, self.step_budget) && self.step_budget != 0 {
+                    // the ring (or the segment bookkeeping) is full; a
+                    // push the budget stopped is looked at above
                     return Fill::Full;
                 }
                 continue;
@@ -167,6 +186,12 @@ impl Planner {
             if self.horizon_covered(now) {
                 return Fill::Full;
             }
+            // a fit is the first thing a fill may always do: each part
+            // makes progress, whatever the budget
+            if self.step_budget < FIT_COST && self.step_budget != fresh && self.lead_covered(now) {
+                return Fill::Paused;
+            }
+            self.step_budget = self.step_budget.saturating_sub(FIT_COST);
             self.emit();
         }
     }

@@ -75,6 +75,13 @@ const _: () = {
     }
 };
 
+/// What fitting a segment ([`Planner::fill`]'s per-segment work: a
+/// profile evaluation, the quintic fit) counts against a fill's step
+/// budget ([`PlannerConfig::with_fill_budget`]): about what expanding
+/// that many steps into the ring costs, as the firmware's profile under
+/// emulation shows (docs/firmware.md, "Reply latency while stepping").
+pub const FIT_COST: u32 = 96;
+
 /// Segments the planner keeps track of between the interrupt's step and
 /// the end of the queue (a power of two): while they are all queued, the
 /// schedule counts as full. At the maximum step rate and the shortest
@@ -167,6 +174,10 @@ pub enum Fill {
     Idle,
     /// A stop-at-once is being carried out by the interrupt.
     Waiting,
+    /// The fill's step budget ran out before the horizon was covered
+    /// ([`PlannerConfig::with_fill_budget`]; never without one): fill
+    /// again, with the same or a later `now`, to go on where it paused.
+    Paused,
 }
 
 /// Timing of the planner; the glue chooses the tick frequency.
@@ -193,6 +204,10 @@ pub struct PlannerConfig {
     /// every ramp is clamped to them ([`Ramp::clamped`]).
     max_step_rate: u32,
     max_accel: u64,
+    /// Steps one fill may push, a fitted segment counting as
+    /// [`FIT_COST`] of them, once the queue reaches a third of the horizon
+    /// past `now` (before that a fill never pauses); `u32::MAX`: no limit.
+    fill_budget: u32,
 }
 
 impl PlannerConfig {
@@ -236,6 +251,12 @@ impl PlannerConfig {
     pub const fn max_accel(&self) -> u64 {
         self.max_accel
     }
+
+    /// Steps one fill may push ([`PlannerConfig::with_fill_budget`]).
+    #[inline]
+    pub const fn fill_budget(&self) -> u32 {
+        self.fill_budget
+    }
 }
 
 impl PlannerConfig {
@@ -249,6 +270,7 @@ impl PlannerConfig {
             max_segment_us: 100_000,
             max_step_rate: board.max_step_rate(),
             max_accel: board.max_accel(),
+            fill_budget: u32::MAX,
         }
     }
 
@@ -275,6 +297,25 @@ impl PlannerConfig {
     #[inline]
     pub const fn with_horizon_us(self, horizon_us: u32) -> Self {
         Self { horizon_us, ..self }
+    }
+
+    /// This configuration with each fill bounded to `steps` pushed steps
+    /// (at least 1), a fitted segment counting as [`FIT_COST`] of them,
+    /// so that one fill holds the caller for a bounded time: a fill that
+    /// reaches it returns [`Fill::Paused`] and the caller fills again
+    /// (after it has let other work run) until it does not. The parts
+    /// push exactly the steps one unbounded fill would have pushed
+    /// (unless the interrupt frees ring room or a goal comes in
+    /// between). A fill pauses only once the queue reaches a third of the
+    /// horizon past `now`: from rest, and after the queue ran short, the
+    /// schedule is first made safe; what runs between the parts must take
+    /// less than that. Without it (the default) a fill never pauses.
+    #[inline]
+    pub const fn with_fill_budget(self, steps: u32) -> Self {
+        Self {
+            fill_budget: if steps == 0 { 1 } else { steps },
+            ..self
+        }
     }
 
     /// This configuration with another longest segment (see
@@ -345,6 +386,12 @@ pub struct Planner {
     pending: Pending,
     /// `horizon_us` in Q32.32 ticks.
     horizon_q: u64,
+    /// A third of `horizon_q`: a fill pauses at its budget only once what
+    /// is queued reaches this far past `now`.
+    lead_q: u64,
+    /// Steps the current fill may still push (`PlannerConfig::fill_budget`
+    /// at its start).
+    step_budget: u32,
     /// A cut of the pending segment that [`Planner::fill`] has yet to
     /// make in the ring (`drop_pending`): the ring index of the first step
     /// taken back, the fraction carried there, and the goal planned from
@@ -389,6 +436,8 @@ impl Planner {
             budget: SegmentBudget::new(cfg.tick_hz, cfg.max_segment_us),
             pending: Pending::default(),
             horizon_q: 0,
+            lead_q: 0,
+            step_budget: u32::MAX,
             cut: None,
             s_end: 0,
             s_end_w: 0,
@@ -396,6 +445,7 @@ impl Planner {
             s_join: 0,
         };
         p.horizon_q = p.ticks_q(u64::from(cfg.horizon_us));
+        p.lead_q = p.ticks_q(u64::from(cfg.horizon_us / 3));
         p
     }
 

@@ -119,17 +119,23 @@ impl Planner {
     }
 
     /// Pushes the pending segment whole, or as much of it as the ring
-    /// takes (a new goal cuts it at the horizon, `drop_pending`). True when
-    /// none is left; false when the ring or the segment bookkeeping
-    /// stopped it.
-    pub(super) fn push_pending<S: StepSink>(&mut self, sched: &StepSchedule, sink: &mut S) -> bool {
+    /// takes and `limit` allows (a new goal cuts it at the horizon,
+    /// `drop_pending`); the steps pushed come off the fill's budget. True
+    /// when none is left; false when the ring, the segment bookkeeping or
+    /// `limit` stopped it.
+    pub(super) fn push_pending<S: StepSink>(
+        &mut self,
+        sched: &StepSchedule,
+        sink: &mut S,
+        limit: u32,
+    ) -> bool {
         let tracked = self.segments.wrapping_sub(self.oldest) as usize;
         if tracked >= SCHEDULE_SLOTS {
             return false;
         }
         let pending = &mut self.pending;
         let seg = &mut pending.rest;
-        let k = seg.count().min(sched.free() as u32);
+        let k = seg.count().min(sched.free() as u32).min(limit);
         if (self
             .t_isr
             .wrapping_add(seg.interval())
@@ -147,6 +153,7 @@ impl Planner {
             return false;
         };
         pending.pushed += k;
+        self.step_budget = self.step_budget.saturating_sub(k);
         self.t_isr = self.t_isr.wrapping_add(made);
         let last = sched.last_pushed_index();
         // one slot per segment, its end moved on with each part
