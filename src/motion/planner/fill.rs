@@ -50,7 +50,7 @@ impl Planner {
         self.t_isr.wrapping_sub(now) as i64 >= self.horizon_q as i64
     }
 
-    /// What is queued reaches a third of the horizon past `now`: from here
+    /// What is queued reaches half the horizon past `now`: from here
     /// on a fill may pause at its budget ([`PlannerConfig::with_fill_budget`](super::PlannerConfig::with_fill_budget)).
     #[inline(always)]
     fn lead_covered(&self, now: u64) -> bool {

@@ -205,7 +205,7 @@ pub struct PlannerConfig {
     max_step_rate: u32,
     max_accel: u64,
     /// Steps one fill may push, a fitted segment counting as
-    /// [`FIT_COST`] of them, once the queue reaches a third of the horizon
+    /// [`FIT_COST`] of them, once the queue reaches half the horizon
     /// past `now` (before that a fill never pauses); `u32::MAX`: no limit.
     fill_budget: u32,
 }
@@ -306,7 +306,7 @@ impl PlannerConfig {
     /// (after it has let other work run) until it does not. The parts
     /// push exactly the steps one unbounded fill would have pushed
     /// (unless the interrupt frees ring room or a goal comes in
-    /// between). A fill pauses only once the queue reaches a third of the
+    /// between). A fill pauses only once the queue reaches half the
     /// horizon past `now`: from rest, and after the queue ran short, the
     /// schedule is first made safe; what runs between the parts must take
     /// less than that. Without it (the default) a fill never pauses.
@@ -386,7 +386,7 @@ pub struct Planner {
     pending: Pending,
     /// `horizon_us` in Q32.32 ticks.
     horizon_q: u64,
-    /// A third of `horizon_q`: a fill pauses at its budget only once what
+    /// Half of `horizon_q`: a fill pauses at its budget only once what
     /// is queued reaches this far past `now`.
     lead_q: u64,
     /// Steps the current fill may still push (`PlannerConfig::fill_budget`
@@ -445,7 +445,10 @@ impl Planner {
             s_join: 0,
         };
         p.horizon_q = p.ticks_q(u64::from(cfg.horizon_us));
-        p.lead_q = p.ticks_q(u64::from(cfg.horizon_us / 3));
+        // half the horizon: the parts after the pause may be spread over
+        // more than a control period by the frames passed their turn
+        // between them, and the queue must outlast that
+        p.lead_q = p.ticks_q(u64::from(cfg.horizon_us / 2));
         p
     }
 
