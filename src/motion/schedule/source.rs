@@ -111,12 +111,6 @@ impl StepSource {
         Some(delay)
     }
 
-    /// The direction of the pending step (or, idle, of the next one
-    /// after no marker).
-    pub fn forward(&self) -> bool {
-        self.forward
-    }
-
     /// Everything but the next plain delay: starts from rest, the end of
     /// the queue, markers, long delays, flush, limits, the brake. Constant
     /// time too (at most one marker before a step, module docs).
