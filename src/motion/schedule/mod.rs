@@ -90,10 +90,10 @@
 //!
 //! # Worst-case interrupt cost
 //!
-//! [`StepSource::advance`] per step (the fast path): load `next`, store
-//! `next + 1`, load the entry there and `quiet`, two compares. No
-//! multiplication, no division, no loop, no `dmb` (the step-interrupt
-//! benchmark counts its instructions, docs/benchmarks.md). The slow path
+//! [`StepSource::advance`] per step (the fast path, `advance_plain`):
+//! load `next`, the entry there and `quiet`, two compares, store
+//! `next + 1`. No multiplication, no division, no loop, no `dmb` (the
+//! step-interrupt benchmark counts its instructions, docs/benchmarks.md). The slow path
 //! (a start from rest, the end of the queue, a marker, a delay from 2^31
 //! ticks, a flag raised) rewrites the position base under the sequence
 //! count; it takes at most one marker and one step, so it is constant

@@ -78,28 +78,21 @@ impl StepSource {
     pub fn advance(&mut self, sched: &StepSchedule) -> Option<NextStep> {
         // The pending step has been made; the next entry is a plain delay
         // unless it is the sentinel, a marker or a long delay (≤ 0 as
-        // i32), and nothing needs a look unless `quiet` is clear. `next`
-        // moves on before its entry is looked at (one instruction fewer:
-        // the old value need not be kept), the slow path puts it back;
-        // nobody sees the value in between (module docs: one core, nothing
-        // preempts this interrupt).
-        let next = sched.next.load(Ordering::Relaxed);
-        sched.next.store(next.wrapping_add(1), Ordering::Relaxed);
-        let delay = sched.entry(next).load(Ordering::Relaxed);
-        if delay as i32 <= 0 || !sched.quiet.load(Ordering::Relaxed) {
-            return self.advance_slow(sched);
+        // i32), and nothing needs a look unless `quiet` is clear.
+        match self.advance_plain(sched) {
+            Some(delay_ticks) => Some(NextStep {
+                delay_ticks,
+                forward: self.forward,
+            }),
+            None => self.advance_slow(sched),
         }
-        Some(NextStep {
-            delay_ticks: delay,
-            forward: self.forward,
-        })
     }
 
-    /// [`StepSource::advance`] when its next step is a plain delay in
-    /// the pending step's direction with nothing to look at (its fast
-    /// path): that delay, the step taken. `None`, nothing done, for
-    /// everything else, which `advance` then handles. For a caller that
-    /// knows the direction already (the step engine's cruise path).
+    /// [`StepSource::advance`]'s fast path on its own: when the next step
+    /// is a plain delay in the pending step's direction with nothing to
+    /// look at, that delay, the step taken; `None`, nothing done, for
+    /// everything else (what `advance` hands its slow path). For a caller
+    /// that knows the direction already (the step engine's cruise path).
     #[inline(always)]
     pub fn advance_plain(&mut self, sched: &StepSchedule) -> Option<u32> {
         let next = sched.next.load(Ordering::Relaxed);
@@ -114,11 +107,11 @@ impl StepSource {
     /// Everything but the next plain delay: starts from rest, the end of
     /// the queue, markers, long delays, flush, limits, the brake. Constant
     /// time too (at most one marker before a step, module docs).
-    /// The fast path has moved `next` on by one; every way out of here
+    /// `next` is the entry the fast path looked at; every way out of here
     /// stores it again ([`StepSchedule::set_base`]).
     #[inline(never)]
     fn advance_slow(&mut self, sched: &StepSchedule) -> Option<NextStep> {
-        let next = sched.next.load(Ordering::Relaxed).wrapping_sub(1);
+        let next = sched.next.load(Ordering::Relaxed);
         let mut made = sched.base_position(next);
         if self.pending {
             made = made.wrapping_add(dir(self.forward));
