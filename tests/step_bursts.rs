@@ -19,11 +19,13 @@ fn play(entries: &[Burst]) -> Vec<(u64, bool)> {
     let mut t = 0u64;
     let mut out = Vec::new();
     for b in entries {
-        assert!(b.ticks() >= MIN_ENTRY_TICKS, "{b:?}");
-        if b.pulse_ticks() != 0 {
-            out.push((t, b.dir_high()));
+        assert!(b.period_ticks() >= MIN_ENTRY_TICKS, "{b:?}");
+        for _ in 0..b.periods() {
+            if b.pulse_ticks() != 0 {
+                out.push((t, b.dir_high()));
+            }
+            t += u64::from(b.period_ticks());
         }
-        t += u64::from(b.ticks());
     }
     out
 }

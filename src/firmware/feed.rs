@@ -68,6 +68,13 @@ impl StepFeed for EngineFeed<'_> {
         self.plain_steps = self.plain_steps.wrapping_add(1);
         Some(delay)
     }
+
+    #[inline(always)]
+    fn run(&mut self, delay: u32, max: u32) -> u32 {
+        let taken = self.source.advance_run(self.sched, delay, max);
+        self.plain_steps = self.plain_steps.wrapping_add(taken as u16);
+        taken
+    }
 }
 
 impl Drop for EngineFeed<'_> {

@@ -7,8 +7,9 @@
 //! The CPU works per refill, not per step: the DMA channel's half-transfer
 //! and transfer-complete interrupts hand back the half of the buffer just
 //! read, and the refill writes it again from the core's step schedule
-//! through `motion::burst::BurstWriter` (one `StepSource::advance` per
-//! step, in the same core code the host tests run). A DMA burst reaches
+//! through `motion::burst::BurstWriter`, in the same core code the host
+//! tests run. At constant speed an entry is a run of alike periods that
+//! the repetition counter plays, so a refill comes once per several steps. A DMA burst reaches
 //! the preload registers, which take effect at the update event after the
 //! one that requested it, so an entry is written a buffer half and two
 //! periods before it acts.

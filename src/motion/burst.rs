@@ -3,10 +3,13 @@
 //! "Step engine by timer and DMA"), made from the schedule's per-step
 //! delays by [`BurstWriter`].
 //!
-//! An entry ([`Burst`]) is one timer period: ARR, RCR (always 0: one
-//! period; it is in the burst because it lies between ARR and CCR1), CCR1
-//! (the STEP pulse at the start of the period, PWM mode 1:
-//! 0 = no pulse) and CCR2 (DIR for the whole entry: 0 low, `0xFFFF` high).
+//! An entry ([`Burst`]) is one timer period, or several alike: ARR, RCR
+//! (the periods less one: the timer's repetition counter makes the next
+//! update event, and so the next burst, only after them), CCR1 (the STEP
+//! pulse at the start of each period, PWM mode 1: 0 = no pulse) and CCR2
+//! (DIR for the whole entry: 0 low, `0xFFFF` high). At constant speed the
+//! steps' periods are alike, so one entry (one DMA burst) makes many
+//! pulses, and the refill that writes the entries runs that much less often.
 //! The writer turns "a pulse `delay` ticks after the previous one, with DIR
 //! at `level`" into entries so that
 //!
@@ -21,6 +24,11 @@
 //!   so the writer never needs a step the planner has not queued yet (a
 //!   longer entry, repeated by the timer's repetition counter, would reach
 //!   past it on a slow move and make the steps after it late);
+//! - only steps already given are repeated: an entry equal to the one
+//!   before it (period, pulse, DIR) in the same fill adds a period to that
+//!   one, up to [`MAX_PERIODS`] and half the idle entry's length, so a
+//!   limit's brake still waits for no more than half the time it waits
+//!   for at rest;
 //! - no entry is shorter than [`MIN_ENTRY_TICKS`], so the next burst always
 //!   lands before the update event that needs it;
 //! - DIR changes only at an update event with no pulse high, at least the
@@ -38,6 +46,9 @@
 /// Shortest entry, ticks: the DMA burst (four half-words) for the entry
 /// after it must complete within it, at any bus load.
 pub const MIN_ENTRY_TICKS: u32 = 64;
+/// Most periods in one entry: the F1's 8-bit repetition counter (the G4's
+/// has 16 bits).
+pub const MAX_PERIODS: u32 = 256;
 /// Longest single period: a 16-bit ARR below its maximum (with ARR at
 /// 0xFFFF, CCR2 = 0xFFFF would drop DIR for the period's last tick).
 const MAX_PERIOD_TICKS: u32 = u16::MAX as u32;
@@ -77,9 +88,48 @@ impl Burst {
         [self.arr, self.rcr, self.ccr1, self.ccr2]
     }
 
-    /// Length of the entry, ticks: `(ARR + 1) · (RCR + 1)` (RCR is 0).
+    /// Length of the entry, ticks: `(ARR + 1) · (RCR + 1)`.
     pub fn ticks(&self) -> u32 {
-        (u32::from(self.arr) + 1) * (u32::from(self.rcr) + 1)
+        self.period_ticks() * self.periods()
+    }
+
+    /// Length of one of its periods, ticks: `ARR + 1`.
+    pub fn period_ticks(&self) -> u32 {
+        u32::from(self.arr) + 1
+    }
+
+    /// Its periods, each alike (with its pulse, if any): `RCR + 1`.
+    pub fn periods(&self) -> u32 {
+        u32::from(self.rcr) + 1
+    }
+
+    /// The same period, pulse and DIR as `other`, however often each repeats.
+    fn same_period(&self, other: &Burst) -> bool {
+        (self.arr, self.ccr1, self.ccr2) == (other.arr, other.ccr1, other.ccr2)
+    }
+
+    /// How many more periods [`Burst::repeat`] would add.
+    fn room(&self, longest: u32) -> u32 {
+        (longest / self.period_ticks())
+            .min(MAX_PERIODS)
+            .saturating_sub(self.periods())
+    }
+
+    /// `more` periods added (within [`Burst::room`]).
+    fn repeated(mut self, more: u32) -> Self {
+        self.rcr += more as u16;
+        self
+    }
+
+    /// One period more, if the entry then lasts no more than `longest`
+    /// ticks and has no more than [`MAX_PERIODS`].
+    fn repeat(&mut self, longest: u32) -> bool {
+        let periods = self.periods() + 1;
+        if periods > MAX_PERIODS || periods * self.period_ticks() > longest {
+            return false;
+        }
+        self.rcr += 1;
+        true
     }
 
     /// STEP pulse width at the start of the entry, ticks (0: no pulse).
@@ -121,6 +171,14 @@ impl PulseShape {
         self.idle
     }
 
+    /// Longest entry of repeated periods, ticks: half the idle entry. The
+    /// entries written ahead of the timer, which a limit's brake or a new
+    /// move waits for, then last no longer than while idle, and at top
+    /// speed half as long.
+    fn run_ticks(&self) -> u32 {
+        self.idle / 2
+    }
+
     /// Ticks after a pulse's rise until DIR may change.
     fn hold_ticks(&self) -> u32 {
         (self.width + self.dir_setup).max(MIN_ENTRY_TICKS)
@@ -152,6 +210,16 @@ pub trait StepFeed {
     /// here, at no cost per step beyond the delay's range check.
     fn plain_step(&mut self) -> Option<u32> {
         None
+    }
+
+    /// Up to `max` more plain steps whose delay is `delay` (one
+    /// [`StepFeed::plain_step`] has just given), taken at once: how many.
+    /// The writer repeats them in the entry of the step before them, at
+    /// no cost per step but the feed's. A feed without runs takes none,
+    /// and the writer repeats entries as they come, one step at a time.
+    fn run(&mut self, delay: u32, max: u32) -> u32 {
+        let _ = (delay, max);
+        0
     }
 }
 
@@ -222,32 +290,54 @@ impl BurstWriter {
 
     /// Writes `out` whole: the entries of the steps `feed` gives, asked
     /// for only when the writer needs one, and idle entries when it gives
-    /// none. Returns the pulses written.
+    /// none; an entry equal to the one before it in `out` repeats that one
+    /// instead ([`Burst::repeat`]). Returns the pulses written.
     pub fn fill(&mut self, out: &mut [Burst], feed: &mut impl StepFeed) -> u32 {
         let before = self.pulses;
-        let mut slots = out.iter_mut();
-        while let Some(mut slot) = slots.next() {
+        let run = self.shape.run_ticks();
+        let mut n = 0;
+        while n < out.len() {
             if self.open && self.next.is_none() {
                 // Cruise and ramps: a pulse is open and the feed's steps
-                // are plain, so each is one entry, its delay whole, at
+                // are plain, so each is one period, its delay whole, at
                 // the open pulse's level (what the general path below
-                // writes for them, without its cases).
+                // writes for them, without its cases); a period equal to
+                // the entry's before it repeats that entry.
                 let (width, idle, level) = (self.shape.width, self.shape.idle, self.level);
                 let (mut written, mut last, mut full) = (0, self.last_interval, false);
+                // periods the entry before may still take (unknown at first:
+                // `repeat` checks)
+                let mut room = u32::MAX;
                 while let Some(delay) = feed.plain_step() {
-                    last = delay;
                     if !(MIN_ENTRY_TICKS..=idle).contains(&delay) {
+                        last = delay;
                         self.accept(delay, level);
                         break;
                     }
                     written += 1;
-                    *slot = Burst::new(delay, width.min(delay / 2), level);
-                    match slots.next() {
-                        Some(s) => slot = s,
-                        None => {
-                            full = true;
-                            break;
-                        }
+                    let b = Burst::new(delay, width.min(delay / 2), level);
+                    if delay == last
+                        && room != 0
+                        && n > 0
+                        && out[n - 1].same_period(&b)
+                        && out[n - 1].repeat(run)
+                    {
+                        room -= 1;
+                        continue;
+                    }
+                    last = delay;
+                    // the general path repeats an entry as it writes the
+                    // next one, so never the fill's last: nor does this
+                    // (both paths write the same entries)
+                    room = if n + 1 < out.len() { b.room(run) } else { 0 };
+                    let alike = feed.run(delay, room);
+                    room -= alike;
+                    out[n] = b.repeated(alike);
+                    written += alike;
+                    n += 1;
+                    if n == out.len() {
+                        full = true;
+                        break;
                     }
                 }
                 self.pulses += written;
@@ -267,7 +357,12 @@ impl BurstWriter {
                 asked += 1;
                 self.accept(delay, level);
             }
-            *slot = self.entry();
+            let b = self.entry();
+            if n > 0 && out[n - 1].same_period(&b) && out[n - 1].repeat(run) {
+                continue;
+            }
+            out[n] = b;
+            n += 1;
         }
         self.pulses - before
     }

@@ -13,15 +13,18 @@ fn play(entries: &[Burst], shape: PulseShape) -> Vec<(u64, bool)> {
     let mut level: Option<bool> = None;
     let mut changed_at: Option<u64> = None;
     for (i, b) in entries.iter().enumerate() {
-        let [arr, rcr, ccr1, _] = b.registers();
-        assert!(b.ticks() >= MIN_ENTRY_TICKS, "entry {i}: {b:?}");
-        assert_eq!(rcr, 0, "entry {i}: {b:?}");
+        let [arr, _, ccr1, _] = b.registers();
+        assert!(b.period_ticks() >= MIN_ENTRY_TICKS, "entry {i}: {b:?}");
+        assert!(b.periods() <= MAX_PERIODS, "entry {i}: {b:?}");
         assert!(
             b.ticks() <= shape.idle_ticks(),
             "entry {i}: longer than the idle entry"
         );
+        assert!(
+            b.periods() == 1 || b.ticks() <= shape.idle_ticks() / 2,
+            "entry {i}: a run longer than half the idle entry"
+        );
         if b.pulse_ticks() != 0 {
-            assert_eq!(rcr, 0, "entry {i}: a pulse entry repeats its pulse");
             assert!(u32::from(ccr1) <= u32::from(arr), "entry {i}: {b:?}");
         }
         if level.is_some_and(|l| l != b.dir_high()) {
@@ -35,16 +38,18 @@ fn play(entries: &[Burst], shape: PulseShape) -> Vec<(u64, bool)> {
             changed_at = Some(t);
         }
         level = Some(b.dir_high());
-        if b.pulse_ticks() != 0 {
-            if let Some(c) = changed_at.take() {
-                assert!(
-                    t >= c + u64::from(shape.dir_setup),
-                    "entry {i}: DIR set-up too short"
-                );
+        for _ in 0..b.periods() {
+            if b.pulse_ticks() != 0 {
+                if let Some(c) = changed_at.take() {
+                    assert!(
+                        t >= c + u64::from(shape.dir_setup),
+                        "entry {i}: DIR set-up too short"
+                    );
+                }
+                pulses.push((t, b.dir_high()));
             }
-            pulses.push((t, b.dir_high()));
+            t += u64::from(b.period_ticks());
         }
-        t += u64::from(b.ticks());
     }
     pulses
 }
@@ -90,7 +95,7 @@ fn shape() -> PulseShape {
 }
 
 #[test]
-fn a_cruise_is_one_entry_a_step() {
+fn a_cruise_repeats_its_entries() {
     let steps = vec![(144u32, true); 1000]; // 500 000 steps/s at 72 MHz
     let (out, w) = write(shape(), &steps, 16, |_| false);
     let pulses = play(&out, shape());
@@ -99,10 +104,56 @@ fn a_cruise_is_one_entry_a_step() {
     for p in pulses.windows(2) {
         assert_eq!(p[1].0 - p[0].0, 144);
     }
-    // between the first and the last pulse: one entry per step
+    // between the first and the last pulse: runs of as many periods as
+    // half the idle entry holds (25), one entry each
     let first = out.iter().position(|b| b.pulse_ticks() != 0).unwrap();
     let last = out.iter().rposition(|b| b.pulse_ticks() != 0).unwrap();
-    assert_eq!(last - first, 999);
+    let full = out[first..last]
+        .iter()
+        .filter(|b| b.periods() == 25)
+        .count();
+    assert!(
+        last - first <= 1000 / 25 + 1000 / 16 / 25 * 2 + 4,
+        "{}",
+        last - first
+    );
+    assert!(full >= 1000 / 25 - 2 * (1000 / (16 * 25) + 2), "{full}");
+}
+
+#[test]
+fn a_cruise_in_plain_steps_repeats_its_entries_as_the_general_path_does() {
+    // the writer's plain path (a feed with plain steps) against the
+    // general one (a closure): the same entries, refill by refill
+    struct Plain(Vec<(u32, bool)>, usize);
+    impl StepFeed for Plain {
+        fn next_step(&mut self) -> Option<(u32, bool)> {
+            let s = self.0.get(self.1).copied();
+            self.1 += usize::from(s.is_some());
+            s
+        }
+        fn plain_step(&mut self) -> Option<u32> {
+            let (&(d, l), &(_, before)) =
+                (self.0.get(self.1)?, self.0.get(self.1.checked_sub(1)?)?);
+            (l == before).then(|| {
+                self.1 += 1;
+                d
+            })
+        }
+    }
+    let mut steps = vec![(144u32, true); 300];
+    steps.extend((0..40).map(|k| (144 + 7 * k, true)));
+    steps.extend(vec![(500u32, true); 100]);
+    let (general, _) = write(shape(), &steps, 16, |_| false);
+    let mut w = BurstWriter::new(shape(), true);
+    let mut feed = Plain(steps.clone(), 0);
+    let mut plain = Vec::new();
+    let mut buf = [Burst::default(); 16];
+    while plain.len() < general.len() {
+        w.fill(&mut buf, &mut feed);
+        plain.extend_from_slice(&buf);
+    }
+    assert_eq!(plain, general);
+    assert!(general.iter().any(|b| b.periods() > 1));
 }
 
 #[test]

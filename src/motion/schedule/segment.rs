@@ -266,6 +266,24 @@ impl Expansion {
 
     #[inline(always)]
     fn run_chunk(&mut self, entries: &[AtomicU32]) {
+        let whole = (self.interval >> TICK_FRAC_BITS) as u32;
+        if self.add | self.add2 | self.add3 | self.add4 == 0
+            && (1..MAX_DELAY_TICKS).contains(&whole)
+        {
+            // a constant speed: only the fraction moves, and no delay
+            // (the interval's whole ticks, or one more) needs a clamp
+            let part = self.interval as u32;
+            let (mut frac, mut sum) = (self.frac, self.sum);
+            for entry in entries {
+                let (f, carry) = frac.overflowing_add(part);
+                frac = f;
+                let delay = whole + u32::from(carry);
+                entry.store(delay, Ordering::Relaxed);
+                sum = sum.wrapping_add(delay);
+            }
+            (self.frac, self.sum) = (frac, sum);
+            return;
+        }
         if !self.narrow(entries.len()) {
             for entry in entries {
                 entry.store(self.step(), Ordering::Relaxed);

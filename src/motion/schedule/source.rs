@@ -104,6 +104,28 @@ impl StepSource {
         Some(delay)
     }
 
+    /// Up to `max` more steps of [`StepSource::advance_plain`] whose delay
+    /// is `delay`, taken at once: the steps taken. `delay` is one
+    /// `advance_plain` has just given (a plain delay). A constant speed is
+    /// a run of equal delays, which the step engine repeats in one timer
+    /// entry; this takes them at a compare per step, with one store of
+    /// `next` and one look at `quiet` for the run (nothing that could
+    /// raise attention runs while the consumer does).
+    #[inline(always)]
+    pub fn advance_run(&mut self, sched: &StepSchedule, delay: u32, max: u32) -> u32 {
+        if max == 0 || !sched.quiet.load(Ordering::Relaxed) {
+            return 0;
+        }
+        let start = sched.next.load(Ordering::Relaxed);
+        let end = start.wrapping_add(max);
+        let mut next = start;
+        while next != end && sched.entry(next).load(Ordering::Relaxed) == delay {
+            next = next.wrapping_add(1);
+        }
+        sched.next.store(next, Ordering::Relaxed);
+        next.wrapping_sub(start)
+    }
+
     /// Everything but the next plain delay: starts from rest, the end of
     /// the queue, markers, long delays, flush, limits, the brake. Constant
     /// time too (at most one marker before a step, module docs).
