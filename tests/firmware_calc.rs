@@ -11,6 +11,8 @@ mod feed;
 #[path = "../src/firmware/flash.rs"]
 #[allow(dead_code)]
 mod flash;
+#[path = "../src/firmware/trim.rs"]
+mod trim;
 
 use calc::*;
 use embedded_storage::nor_flash::{
@@ -23,6 +25,7 @@ use modbus_drive::motion::schedule::brake_rate;
 use modbus_drive::motion::{Segment, StepSchedule, StepSource};
 use modbus_drive::rtu::{CharFormat, LineConfig};
 use std::sync::atomic::{AtomicU32, Ordering};
+use trim::cut_runs;
 
 const G431_TICK_HZ: u32 = 170_000_000;
 const F103_TICK_HZ: u32 = 72_000_000;
@@ -325,20 +328,25 @@ fn a_limit_brakes_at_the_next_refill_within_the_quick_stop_distance_spec_8_7() {
 
 /// One engine per feed over its own schedule, driven alike: segments
 /// pushed as room allows, PA11 as `inverted` gives it per refill, a limit
-/// from refill `limit_at` on.
+/// from refill `limit_at` on. Each engine's ledger is checked after every
+/// refill (while PA11 stays 0): with every pulse written made, it gives
+/// the pin's position.
+/// Returns the pulses (gap, DIR) and the final position.
 fn run_both_feeds(
     segs: &[(u64, u32, bool)],
     inverted: &[bool],
     limit_at: Option<usize>,
-) -> [(Vec<Burst>, Vec<u32>, i32); 2] {
+) -> [(Vec<(u64, bool)>, i32); 2] {
     [false, true].map(|reference| {
         let sched = StepSchedule::new();
         sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
         let mut e = Engine::new(F103_TICK_HZ);
         e.reference = reference;
-        let mut ledgers = Vec::new();
         let mut next = 0;
-        for i in 0..400 {
+        for i in 0..4000 {
+            if next == segs.len() && !sched.is_running() && sched.is_empty() && !e.writer.busy() {
+                break;
+            }
             while next < segs.len() {
                 let (interval, count, forward) = segs[next];
                 if sched.push(segment(interval, count, forward)).is_err() {
@@ -351,27 +359,245 @@ fn run_both_feeds(
                 sched.set_limits(true, true);
             }
             e.refill(&sched);
-            ledgers.push(e.ledger.head_word());
+            // (the pulses' DIR is the direction while PA11 stays 0)
+            if !inverted.contains(&true) {
+                let made = e.pulses.len();
+                assert_eq!(
+                    e.ledger.pin_position(sched.position(), made as u16),
+                    e.pin_after(made),
+                    "refill {i}, reference {reference}"
+                );
+            }
         }
-        (e.entries, ledgers, sched.position())
+        (e.pulses, sched.position())
     })
 }
 
 proptest::proptest! {
     #![proptest_config(proptest::prelude::ProptestConfig { cases: 64, ..Default::default() })]
 
-    /// The refill's plain path (`EngineFeed`, `StepSource::advance_plain`)
-    /// writes every entry, ledger and position the general path writes:
-    /// short, long and late steps, reversals, PA11 changing between
-    /// refills, the limit brake.
+    /// The refill's plain path (`EngineFeed`: `StepSource::advance_plain`,
+    /// its runs and the brake's steps) makes every pulse, at every gap and
+    /// DIR, and the position the general path makes: short, long and late
+    /// steps, reversals; with PA11 changing between refills, as many
+    /// pulses and the same position; with the limit brake, a ledger that
+    /// gives the pin's position after every refill.
     #[test]
-    fn the_plain_path_writes_what_the_general_path_writes(
+    fn the_plain_path_makes_the_pulses_the_general_path_makes(
         segs in proptest::collection::vec((1u64..20_000, 1u32..300, proptest::bool::ANY), 1..8),
         inverted in proptest::collection::vec(proptest::bool::weighted(0.1), 1..50),
         limit_at in proptest::option::of(0usize..300),
     ) {
         let [plain, general] = run_both_feeds(&segs, &inverted, limit_at);
-        proptest::prop_assert_eq!(plain, general);
+        match (limit_at.is_some(), inverted.contains(&true)) {
+            (false, false) => proptest::prop_assert_eq!(plain, general),
+            // PA11 applies from the next step, and a refill with runs has
+            // written more of them: the levels flip at other steps
+            (false, true) => {
+                proptest::prop_assert_eq!(plain.0.len(), general.0.len());
+                proptest::prop_assert_eq!(plain.1, general.1);
+            }
+            // the brake starts from the step the refill has reached, which
+            // runs move on: each engine's ledger is what is checked
+            (true, _) => {}
+        }
+    }
+}
+
+// ------------------------------------------------- a limit's brake from the pin
+
+/// The step engine with its DMA (steps.rs): a circular buffer of two
+/// halves, each written again by the refill once the DMA has read it, and
+/// the DMA reading one entry per update event, the timer making its
+/// periods' pulses.
+struct DmaEngine {
+    e: Engine,
+    buffer: [Burst; 2 * HALF],
+    /// The first entry the DMA has not started.
+    unread: usize,
+    newest: usize,
+    /// Pulses made (direction of each).
+    made: Vec<bool>,
+}
+
+impl DmaEngine {
+    fn new(sched: &StepSchedule) -> Self {
+        let mut d = Self {
+            e: Engine::new(F103_TICK_HZ),
+            buffer: [Burst::ZERO; 2 * HALF],
+            unread: 0,
+            newest: 2 * HALF - 1,
+            made: Vec::new(),
+        };
+        d.refill(sched, 0);
+        d.refill(sched, HALF);
+        d
+    }
+
+    fn refill(&mut self, sched: &StepSchedule, at: usize) {
+        let Engine {
+            writer,
+            source,
+            ledger,
+            ..
+        } = &mut self.e;
+        let mut feed = EngineFeed::new(source, sched, ledger, false, false);
+        writer.fill(&mut self.buffer[at..at + HALF], &mut feed);
+        drop(feed);
+        self.newest = at + HALF - 1;
+    }
+
+    /// The DMA starts the next entry and the timer plays it; a half read
+    /// is written again.
+    fn step(&mut self, sched: &StepSchedule) {
+        let b = self.buffer[self.unread];
+        for _ in 0..b.periods() {
+            if b.pulse_ticks() != 0 {
+                self.made.push(b.dir_high());
+            }
+        }
+        self.unread = (self.unread + 1) % (2 * HALF);
+        if self.unread.is_multiple_of(HALF) {
+            let read = (self.unread + HALF) % (2 * HALF);
+            self.refill(sched, read);
+        }
+    }
+
+    fn pin(&self) -> i32 {
+        self.made.iter().map(|&f| if f { 1 } else { -1 }).sum()
+    }
+
+    /// What steps.rs does at a limit's edge.
+    fn brake_from_the_pin(
+        &mut self,
+        sched: &StepSchedule,
+        mut unread: impl FnMut() -> usize,
+    ) -> u32 {
+        if !self.e.source.limit_ahead(sched) {
+            return 0;
+        }
+        let cut = cut_runs(
+            &mut self.buffer,
+            self.newest,
+            self.e.writer.level(),
+            &mut unread,
+        );
+        self.e.source.take_back(sched, cut);
+        self.e.ledger.taken_back(cut as u16);
+        cut
+    }
+}
+
+#[test]
+fn a_limit_cuts_the_runs_ahead_of_the_timer_and_brakes_from_the_pin_spec_8_7() {
+    // 100 000 steps/s at 72 MHz, quick stop 2e6 steps/s² (2500 steps)
+    for edge_at in [40usize, 41, 47, 53] {
+        let sched = StepSchedule::new();
+        sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
+        sched.push(segment(720, sched.free() as u32, true)).unwrap();
+        let mut d = DmaEngine::new(&sched);
+        for _ in 0..edge_at {
+            d.step(&sched);
+        }
+        assert!(d.buffer.iter().any(|b| b.periods() > 1), "a cruise in runs");
+        let before = d.made.len();
+        assert!(sched.set_limits(false, true));
+        let unread = d.unread;
+        let cut = d.brake_from_the_pin(&sched, || unread);
+        assert!(cut > 0);
+        // the two entries next to the DMA keep their runs, the rest one
+        // period each
+        let kept: u32 = (0..2)
+            .map(|i| d.buffer[(unread + i) % (2 * HALF)].periods())
+            .sum();
+        let span = (d.newest + 2 * HALF - unread) % (2 * HALF);
+        let rest = (2..=span).filter(|i| d.buffer[(unread + i) % (2 * HALF)].periods() > 1);
+        assert_eq!(rest.count(), 0, "{:?}", d.buffer);
+        // the pin and the schedule agree at every pulse from here on
+        let mut steps = 0;
+        while sched.is_running()
+            || !sched.is_empty()
+            || d.e.writer.busy()
+            || !d.unread.is_multiple_of(HALF)
+        {
+            d.step(&sched);
+            let made = d.made.len() as u16;
+            assert_eq!(d.e.ledger.pin_position(sched.position(), made), d.pin());
+            steps += 1;
+            assert!(steps < 100_000);
+        }
+        // and the entries still in the buffer
+        for _ in 0..2 * HALF {
+            d.step(&sched);
+        }
+        assert_eq!(sched.position(), d.pin());
+        // the brake starts within the entries left ahead: the kept runs
+        // and one step an entry, not a run an entry
+        let after = d.made.len() - before;
+        let ahead = kept as usize + 2 * HALF - 2;
+        assert!(
+            (2490..=2500 + ahead).contains(&after),
+            "{after} steps, {ahead} ahead"
+        );
+        assert!(sched.limit_brake().is_some_and(|b| b.done() && b.forward()));
+    }
+}
+
+#[test]
+fn no_run_is_cut_while_the_motion_leaves_the_limit() {
+    let sched = StepSchedule::new();
+    sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
+    sched.push(segment(720, sched.free() as u32, true)).unwrap();
+    let mut d = DmaEngine::new(&sched);
+    for _ in 0..40 {
+        d.step(&sched);
+    }
+    let buffer = d.buffer;
+    assert!(sched.set_limits(true, false)); // CW: blocks backward only
+    let unread = d.unread;
+    assert_eq!(d.brake_from_the_pin(&sched, || unread), 0);
+    assert_eq!(d.buffer, buffer);
+}
+
+#[test]
+fn a_run_is_cut_only_two_entries_or_more_ahead_of_the_dma() {
+    // the DMA moves on 0, 1 or 2 entries at each look while the runs are cut
+    for moves in [0usize, 1, 2] {
+        let sched2 = StepSchedule::new();
+        sched2.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
+        sched2
+            .push(segment(720, sched2.free() as u32, true))
+            .unwrap();
+        let mut d = DmaEngine::new(&sched2);
+        for _ in 0..40 {
+            d.step(&sched2);
+        }
+        let before = d.buffer;
+        let first = d.unread;
+        let span = (d.newest + 2 * HALF - first) % (2 * HALF);
+        sched2.set_limits(false, true);
+        let mut looks = Vec::new();
+        // (never a round of the buffer: at most to the newest entry)
+        let cut = d.brake_from_the_pin(&sched2, || {
+            let moved = (moves * looks.len()).min(span);
+            looks.push(moved);
+            (first + moved) % (2 * HALF)
+        });
+        // look k (after the first) decides the k-th run of the candidates
+        let mut expect = 0;
+        let mut k = 1;
+        for i in 2..=span {
+            let b = before[(first + i) % (2 * HALF)];
+            if b.periods() == 1 {
+                continue;
+            }
+            let was_cut = d.buffer[(first + i) % (2 * HALF)] != b;
+            assert_eq!(was_cut, i >= looks[k] + 2, "offset {i}, moves {moves}");
+            expect += u32::from(was_cut) * (b.periods() - 1);
+            k += 1;
+        }
+        assert_eq!(cut, expect);
+        assert!(moves > 0 || cut > 0);
     }
 }
 

@@ -253,6 +253,12 @@ impl StepLedger {
         self.given = self.given.wrapping_add(n);
     }
 
+    /// `n` steps of the newest run, given before the pending one, are
+    /// not made after all (`StepSource::take_back`).
+    pub fn taken_back(&mut self, n: u16) {
+        self.given = self.given.wrapping_sub(n);
+    }
+
     /// The STEP pin's position, from the schedule's position `pos` and the
     /// pulses the timer has made (`made`, mod 2^16): the steps the schedule
     /// counted and the timer has not made yet are taken back, run by run

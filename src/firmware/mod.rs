@@ -44,6 +44,7 @@ mod rs485;
 mod rx_slots;
 mod steps;
 mod switches;
+mod trim;
 
 use defmt_rtt as _;
 use embassy_executor::Spawner;

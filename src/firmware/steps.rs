@@ -33,7 +33,7 @@
 
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
-use embassy_stm32::interrupt::typelevel::Handler;
+use embassy_stm32::interrupt::typelevel::{Handler, Interrupt};
 use embassy_stm32::pac;
 use embassy_stm32::pac::timer::vals::{Mms, Ocm, Ossi, Sms, Ts};
 use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
@@ -43,6 +43,7 @@ use super::board;
 use super::calc::{StepLedger, StepShape, LEDGER_WORDS};
 use super::feed::EngineFeed;
 use super::owned::IrqOwned;
+use super::trim::cut_runs;
 
 /// The step schedule between the control loop and the refill. Its `const`
 /// initialiser is all zeros, so it lives in .bss and costs no flash image.
@@ -73,6 +74,9 @@ static SHAPE: AtomicU32 = AtomicU32::new(0);
 static LEDGER: [AtomicU32; LEDGER_WORDS] = [const { AtomicU32::new(0) }; LEDGER_WORDS];
 /// Odd while the refill writes the values above.
 static SEQ: AtomicU32 = AtomicU32::new(0);
+/// The limits changed: the refill interrupt, pended, cuts the runs ahead
+/// of the timer if the motion runs into one ([`limits_changed`]).
+static LIMITS_CHANGED: AtomicBool = AtomicBool::new(false);
 /// Refills in a row that wrote no pulse (the buffer holds none once two did).
 static QUIET_REFILLS: AtomicU32 = AtomicU32::new(0);
 /// Refills that found the DMA already in the half they were to write while
@@ -88,6 +92,8 @@ struct Engine {
     ledger: StepLedger,
     /// PA11 as the last refill applied it.
     inverted: bool,
+    /// Index of the last entry written in the buffer.
+    newest: usize,
 }
 
 /// Owned by the refill interrupt once it is enabled (`start` fills it before).
@@ -116,6 +122,7 @@ pub fn start(prescaler: u16, dir_inverted: bool) -> &'static StepSchedule {
         pulse: shape,
         ledger: StepLedger::new(),
         inverted: dir_inverted,
+        newest: 2 * HALF - 1,
     };
     // SAFETY: the DMA channel is off and raises no interrupt until it is
     // enabled below (embassy's init has enabled its NVIC line already;
@@ -320,12 +327,21 @@ impl Handler<board::StepIrq> for StepHandler {
         let Some(engine) = engine.as_mut() else {
             return;
         };
+        // nothing preempts this interrupt: a load and a store are one
+        if LIMITS_CHANGED.load(Ordering::Relaxed) {
+            LIMITS_CHANGED.store(false, Ordering::Relaxed);
+            brake_from_the_pin(engine, buffer);
+        }
         // half-transfer: the first half was read; transfer complete: the
         // second. The DMA must be in the other half than the one written.
         let dma_in_first = dma.ch(n).ndtr().read().ndt() as usize > HALF * BURST_HALF_WORDS;
         let (first, second) = buffer.split_at_mut(HALF);
-        for (done, half, late) in [(ht, first, dma_in_first), (tc, second, !dma_in_first)] {
+        for (done, half, late, last) in [
+            (ht, first, dma_in_first, HALF - 1),
+            (tc, second, !dma_in_first, 2 * HALF - 1),
+        ] {
             if done {
+                engine.newest = last;
                 // a buffer with no pulse in it (idle: two quiet refills)
                 // loses nothing when a half plays twice, as while a flash
                 // erase stalls the core
@@ -336,6 +352,44 @@ impl Handler<board::StepIrq> for StepHandler {
             }
         }
     }
+}
+
+/// The enabled limits changed (the switches' reading): if the motion
+/// runs into one, the refill interrupt cuts the runs the timer has not
+/// reached, so that the brake the next refill starts comes a step per
+/// entry later, not a run per entry.
+pub fn limits_changed() {
+    LIMITS_CHANGED.store(true, Ordering::Relaxed);
+    board::StepIrq::pend();
+}
+
+/// Entries of the buffer the DMA has not started: the first one's index.
+fn unread() -> usize {
+    let left = board::STEP_DMA.ch(board::STEP_DMA_CH).ndtr().read().ndt() as usize;
+    let started = (2 * HALF * BURST_HALF_WORDS - left).div_ceil(BURST_HALF_WORDS);
+    started % (2 * HALF)
+}
+
+/// Cuts the runs ahead of the timer (`trim::cut_runs`) when the pending
+/// step runs into an active limit, and takes their steps back from the
+/// schedule and the ledger, published as the refill publishes them.
+#[inline(never)]
+fn brake_from_the_pin(e: &mut Engine, buffer: &mut [Burst; 2 * HALF]) {
+    if !e.source.limit_ahead(&SCHEDULE) {
+        return;
+    }
+    let cut = cut_runs(buffer, e.newest, e.writer.level(), unread);
+    if cut == 0 {
+        return;
+    }
+    let seq = SEQ.load(Ordering::Relaxed);
+    SEQ.store(seq.wrapping_add(1), Ordering::Relaxed);
+    core::sync::atomic::compiler_fence(Ordering::SeqCst);
+    e.source.take_back(&SCHEDULE, cut);
+    e.ledger.taken_back(cut as u16);
+    LEDGER[0].store(e.ledger.head_word(), Ordering::Relaxed);
+    core::sync::atomic::compiler_fence(Ordering::SeqCst);
+    SEQ.store(seq.wrapping_add(2), Ordering::Relaxed);
 }
 
 /// Writes `half` from the schedule. One copy for both halves.

@@ -117,7 +117,9 @@ fn read(i: &mut Inputs) -> Switches {
         ccw &= again.ccw_limit();
     }
     let enabled = LIMIT_ENABLE.load(Ordering::Relaxed);
-    schedule.set_limits(cw && enabled & 1 != 0, ccw && enabled & 2 != 0);
+    if schedule.set_limits(cw && enabled & 1 != 0, ccw && enabled & 2 != 0) {
+        steps::limits_changed();
+    }
     i.cw.edge(s.cw_limit(), position);
     i.ccw.edge(s.ccw_limit(), position);
     i.home.edge(s.home(), position);

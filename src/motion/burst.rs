@@ -24,11 +24,10 @@
 //!   so the writer never needs a step the planner has not queued yet (a
 //!   longer entry, repeated by the timer's repetition counter, would reach
 //!   past it on a slow move and make the steps after it late);
-//! - only steps already given are repeated: an entry equal to the one
-//!   before it (period, pulse, DIR) in the same fill adds a period to that
-//!   one, up to [`MAX_PERIODS`] and half the idle entry's length, so a
-//!   limit's brake still waits for no more than half the time it waits
-//!   for at rest;
+//! - only steps the feed has and gives in a run ([`StepFeed::run`]: the
+//!   schedule's equal delays at constant speed) are repeated, up to
+//!   [`MAX_PERIODS`] and half the idle entry's length, so the entries
+//!   ahead of the timer reach no further than at rest;
 //! - no entry is shorter than [`MIN_ENTRY_TICKS`], so the next burst always
 //!   lands before the update event that needs it;
 //! - DIR changes only at an update event with no pulse high, at least the
@@ -103,12 +102,13 @@ impl Burst {
         u32::from(self.rcr) + 1
     }
 
-    /// The same period, pulse and DIR as `other`, however often each repeats.
-    fn same_period(&self, other: &Burst) -> bool {
-        (self.arr, self.ccr1, self.ccr2) == (other.arr, other.ccr1, other.ccr2)
+    /// Its first period alone (a run cut to one step).
+    pub fn first_period(&self) -> Burst {
+        Burst { rcr: 0, ..*self }
     }
 
-    /// How many more periods [`Burst::repeat`] would add.
+    /// How many more periods the entry may take: while it lasts no more
+    /// than `longest` ticks and has no more than [`MAX_PERIODS`].
     fn room(&self, longest: u32) -> u32 {
         (longest / self.period_ticks())
             .min(MAX_PERIODS)
@@ -119,17 +119,6 @@ impl Burst {
     fn repeated(mut self, more: u32) -> Self {
         self.rcr += more as u16;
         self
-    }
-
-    /// One period more, if the entry then lasts no more than `longest`
-    /// ticks and has no more than [`MAX_PERIODS`].
-    fn repeat(&mut self, longest: u32) -> bool {
-        let periods = self.periods() + 1;
-        if periods > MAX_PERIODS || periods * self.period_ticks() > longest {
-            return false;
-        }
-        self.rcr += 1;
-        true
     }
 
     /// STEP pulse width at the start of the entry, ticks (0: no pulse).
@@ -215,8 +204,11 @@ pub trait StepFeed {
     /// Up to `max` more plain steps whose delay is `delay` (one
     /// [`StepFeed::plain_step`] has just given), taken at once: how many.
     /// The writer repeats them in the entry of the step before them, at
-    /// no cost per step but the feed's. A feed without runs takes none,
-    /// and the writer repeats entries as they come, one step at a time.
+    /// no cost per step but the feed's. A feed without runs takes none:
+    /// each step is then an entry of its own. Only steps that cost the
+    /// feed next to nothing should come in runs: a run's steps all go into
+    /// one buffer half, whose refill must be done within the other half's
+    /// time, which may be a step per entry.
     fn run(&mut self, delay: u32, max: u32) -> u32 {
         let _ = (delay, max);
         0
@@ -277,7 +269,13 @@ impl BurstWriter {
         self.late
     }
 
-    /// Pulse entries written since the start.
+    /// DIR level of the last entry written, or of the pulse that opens
+    /// the next one.
+    pub fn level(&self) -> bool {
+        self.level
+    }
+
+    /// Pulses written since the start.
     pub fn pulses(&self) -> u32 {
         self.pulses
     }
@@ -290,8 +288,8 @@ impl BurstWriter {
 
     /// Writes `out` whole: the entries of the steps `feed` gives, asked
     /// for only when the writer needs one, and idle entries when it gives
-    /// none; an entry equal to the one before it in `out` repeats that one
-    /// instead ([`Burst::repeat`]). Returns the pulses written.
+    /// none; the feed's runs ([`StepFeed::run`]) repeat the entry of the
+    /// step before them. Returns the pulses written.
     pub fn fill(&mut self, out: &mut [Burst], feed: &mut impl StepFeed) -> u32 {
         let before = self.pulses;
         let run = self.shape.run_ticks();
@@ -301,39 +299,20 @@ impl BurstWriter {
                 // Cruise and ramps: a pulse is open and the feed's steps
                 // are plain, so each is one period, its delay whole, at
                 // the open pulse's level (what the general path below
-                // writes for them, without its cases); a period equal to
-                // the entry's before it repeats that entry.
+                // writes for them, without its cases); the feed's run of
+                // steps alike after it repeats its entry.
                 let (width, idle, level) = (self.shape.width, self.shape.idle, self.level);
                 let (mut written, mut last, mut full) = (0, self.last_interval, false);
-                // periods the entry before may still take (unknown at first:
-                // `repeat` checks)
-                let mut room = u32::MAX;
                 while let Some(delay) = feed.plain_step() {
+                    last = delay;
                     if !(MIN_ENTRY_TICKS..=idle).contains(&delay) {
-                        last = delay;
                         self.accept(delay, level);
                         break;
                     }
-                    written += 1;
                     let b = Burst::new(delay, width.min(delay / 2), level);
-                    if delay == last
-                        && room != 0
-                        && n > 0
-                        && out[n - 1].same_period(&b)
-                        && out[n - 1].repeat(run)
-                    {
-                        room -= 1;
-                        continue;
-                    }
-                    last = delay;
-                    // the general path repeats an entry as it writes the
-                    // next one, so never the fill's last: nor does this
-                    // (both paths write the same entries)
-                    room = if n + 1 < out.len() { b.room(run) } else { 0 };
-                    let alike = feed.run(delay, room);
-                    room -= alike;
+                    let alike = feed.run(delay, b.room(run));
                     out[n] = b.repeated(alike);
-                    written += alike;
+                    written += 1 + alike;
                     n += 1;
                     if n == out.len() {
                         full = true;
@@ -357,11 +336,7 @@ impl BurstWriter {
                 asked += 1;
                 self.accept(delay, level);
             }
-            let b = self.entry();
-            if n > 0 && out[n - 1].same_period(&b) && out[n - 1].repeat(run) {
-                continue;
-            }
-            out[n] = b;
+            out[n] = self.entry();
             n += 1;
         }
         self.pulses - before

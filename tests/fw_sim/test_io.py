@@ -7,11 +7,17 @@ import re
 import subprocess
 import time
 
-from conftest import ACCELERATION, PA_BASE, Master, e2e_module, hexb, with_crc
+from conftest import (ACCELERATION, ACTUAL_POSITION, ACTUAL_VELOCITY, CCW_LIMIT, DECELERATION,
+                      LIMITS, MODE, PA_BASE, PROFILE_VELOCITY, QUICK_STOP_DECELERATION, ROOT,
+                      TICK_NS, Master, e2e_module, hexb, pulse_for, with_crc)
 
 limits = e2e_module("test_limits")
 
 MAX_SPEED_PA12 = PA_BASE + 12
+# the step engine's idle entry (src/firmware/calc.rs); a run of alike
+# periods in one timer entry lasts at most half of it
+IDLE_NS = int(re.search(r"pub const IDLE_PERIOD_NS: u32 = ([0-9_]+);",
+                        (ROOT / "src" / "firmware" / "calc.rs").read_text())[1].replace("_", ""))
 EE_SET = with_crc(hexb("01 10 00 3A 00 01 02 00 01"))  # new format, k = 1
 
 
@@ -21,6 +27,46 @@ def test_a_ccw_limit_stops_the_axis_with_the_quick_stop_distance(start_fw, board
     within the step tick's rounding."""
     fw = start_fw(board, "--ccw-limit", "10000")
     limits.run_into_the_ccw_limit_at_10000(Master(fw.client()), f"{board}: ")
+
+
+def test_a_limit_at_the_top_rate_brakes_from_the_step_the_pin_is_at(start_fw, board):
+    """The board's step rate limit into a CCW limit, 0x6085 = 2000
+    (2 000 000 steps/s²): v²/2a past the edge, plus the steps the timer
+    had been handed. At constant speed the engine writes runs of alike
+    periods ahead of the timer; at the edge it cuts all but the two runs
+    next to the DMA (and the one playing and the one loaded) to one step
+    each, so at most four runs and a step for each other entry of the
+    buffer go out before the brake, not sixteen runs."""
+    rate = LIMITS[board]
+    brake = rate * rate // (2 * 2_000_000)
+    edge = 2 * brake + 20_000  # up to speed first (0x6083 alike), then a cruise
+    fw = start_fw(board, "--ccw-limit", str(edge))
+    m = Master(fw.client())
+    m.write(MAX_SPEED_PA12, 6000)
+    m.write(PA_BASE + 15, pulse_for(rate))
+    m.enable()
+    m.write(MODE, 3)
+    m.write(ACCELERATION, 2000)
+    m.write(DECELERATION, 2000)
+    m.write(QUICK_STOP_DECELERATION, 2000)
+    m.write32(PROFILE_VELOCITY, rate // 1000)
+    m.wait(lambda s: s & CCW_LIMIT, 20, f"{board}: the CCW limit")
+    deadline = time.monotonic() + 20
+    while m.read32(ACTUAL_VELOCITY) != 0:
+        assert time.monotonic() < deadline, f"{board}: still moving"
+        time.sleep(0.02)
+    fw.alive()
+    over = m.read32(ACTUAL_POSITION) - edge
+    period_ticks = 1e9 / rate / TICK_NS[board]
+    run = int(IDLE_NS / 2 / TICK_NS[board] // period_ticks)
+    ahead = 4 * run + 12
+    print(f"{board}: {over} steps past the edge at {rate} steps/s ({brake} to brake, "
+          f"runs of {run}, at most {ahead} ahead)")
+    assert brake - 4 <= over <= brake + ahead + 4, f"{board}: {over}"
+    assert m.statusword() & CCW_LIMIT
+    # the brake kept ahead of the timer, and the bus was served throughout
+    assert "came a buffer half late" not in fw.stderr(), fw.stderr()
+    assert "Overrun" not in fw.stderr(), fw.stderr()
 
 
 def test_a_saved_parameter_survives_a_restart(start_fw, board, tmp_path):

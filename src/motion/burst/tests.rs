@@ -94,66 +94,103 @@ fn shape() -> PulseShape {
     PulseShape::new(180, 360, 7200)
 }
 
-#[test]
-fn a_cruise_repeats_its_entries() {
-    let steps = vec![(144u32, true); 1000]; // 500 000 steps/s at 72 MHz
-    let (out, w) = write(shape(), &steps, 16, |_| false);
-    let pulses = play(&out, shape());
-    assert_eq!(pulses.len(), 1000);
-    assert_eq!(w.late(), 0);
-    for p in pulses.windows(2) {
-        assert_eq!(p[1].0 - p[0].0, 144);
+/// A feed of `steps` with plain steps (in the direction of the step
+/// before) and, with `runs`, the runs of equal delays after them.
+struct Plain {
+    steps: Vec<(u32, bool)>,
+    at: usize,
+    runs: bool,
+}
+
+impl StepFeed for Plain {
+    fn next_step(&mut self) -> Option<(u32, bool)> {
+        let s = self.steps.get(self.at).copied();
+        self.at += usize::from(s.is_some());
+        s
     }
-    // between the first and the last pulse: runs of as many periods as
-    // half the idle entry holds (25), one entry each
-    let first = out.iter().position(|b| b.pulse_ticks() != 0).unwrap();
-    let last = out.iter().rposition(|b| b.pulse_ticks() != 0).unwrap();
-    let full = out[first..last]
-        .iter()
-        .filter(|b| b.periods() == 25)
-        .count();
-    assert!(
-        last - first <= 1000 / 25 + 1000 / 16 / 25 * 2 + 4,
-        "{}",
-        last - first
-    );
-    assert!(full >= 1000 / 25 - 2 * (1000 / (16 * 25) + 2), "{full}");
+
+    fn plain_step(&mut self) -> Option<u32> {
+        let (&(d, l), &(_, before)) = (
+            self.steps.get(self.at)?,
+            self.steps.get(self.at.checked_sub(1)?)?,
+        );
+        (l == before).then(|| {
+            self.at += 1;
+            d
+        })
+    }
+
+    fn run(&mut self, delay: u32, max: u32) -> u32 {
+        if !self.runs {
+            return 0;
+        }
+        let level = self.steps[self.at - 1].1;
+        let alike = self.steps[self.at..]
+            .iter()
+            .take(max as usize)
+            .take_while(|&&s| s == (delay, level))
+            .count();
+        self.at += alike;
+        alike as u32
+    }
+}
+
+/// Writes `steps` through a [`Plain`] feed in fills of `chunk` entries.
+fn write_plain(steps: &[(u32, bool)], chunk: usize, runs: bool) -> Vec<Burst> {
+    let mut w = BurstWriter::new(shape(), steps.first().is_none_or(|s| s.1));
+    let mut feed = Plain {
+        steps: steps.to_vec(),
+        at: 0,
+        runs,
+    };
+    let mut out = Vec::new();
+    let mut buf = vec![Burst::default(); chunk];
+    while feed.at < steps.len() || w.busy() {
+        w.fill(&mut buf, &mut feed);
+        out.extend_from_slice(&buf);
+    }
+    w.fill(&mut buf, &mut feed);
+    out.extend_from_slice(&buf);
+    out
 }
 
 #[test]
-fn a_cruise_in_plain_steps_repeats_its_entries_as_the_general_path_does() {
-    // the writer's plain path (a feed with plain steps) against the
-    // general one (a closure): the same entries, refill by refill
-    struct Plain(Vec<(u32, bool)>, usize);
-    impl StepFeed for Plain {
-        fn next_step(&mut self) -> Option<(u32, bool)> {
-            let s = self.0.get(self.1).copied();
-            self.1 += usize::from(s.is_some());
-            s
-        }
-        fn plain_step(&mut self) -> Option<u32> {
-            let (&(d, l), &(_, before)) =
-                (self.0.get(self.1)?, self.0.get(self.1.checked_sub(1)?)?);
-            (l == before).then(|| {
-                self.1 += 1;
-                d
-            })
-        }
+fn a_cruise_in_runs_is_an_entry_a_run() {
+    let steps = vec![(144u32, true); 1000]; // 500 000 steps/s at 72 MHz
+    let out = write_plain(&steps, 16, true);
+    let pulses = play(&out, shape());
+    assert_eq!(pulses.len(), 1000);
+    for p in pulses.windows(2) {
+        assert_eq!(p[1].0 - p[0].0, 144);
     }
+    // runs of as many periods as half the idle entry holds (25)
+    let first = out.iter().position(|b| b.pulse_ticks() != 0).unwrap();
+    let last = out.iter().rposition(|b| b.pulse_ticks() != 0).unwrap();
+    assert!(last - first <= 1000 / 25 + 1, "{}", last - first);
+    assert!(out.iter().all(|b| b.periods() <= 25));
+}
+
+#[test]
+fn runs_make_the_pulses_single_entries_make() {
+    // a cruise, a ramp (no two delays alike), a cruise at another speed,
+    // a reversal: the same pulses with the feed's runs as without
     let mut steps = vec![(144u32, true); 300];
     steps.extend((0..40).map(|k| (144 + 7 * k, true)));
     steps.extend(vec![(500u32, true); 100]);
-    let (general, _) = write(shape(), &steps, 16, |_| false);
-    let mut w = BurstWriter::new(shape(), true);
-    let mut feed = Plain(steps.clone(), 0);
-    let mut plain = Vec::new();
-    let mut buf = [Burst::default(); 16];
-    while plain.len() < general.len() {
-        w.fill(&mut buf, &mut feed);
-        plain.extend_from_slice(&buf);
-    }
-    assert_eq!(plain, general);
-    assert!(general.iter().any(|b| b.periods() > 1));
+    steps.extend(vec![(700u32, false); 50]);
+    let single = write_plain(&steps, 8, false);
+    let runs = write_plain(&steps, 8, true);
+    assert!(single.iter().all(|b| b.periods() == 1));
+    assert!(runs.iter().any(|b| b.periods() > 1));
+    let (a, b) = (play(&single, shape()), play(&runs, shape()));
+    assert_eq!(a.len(), steps.len());
+    // the same gaps between pulses and the same DIR at each
+    let gaps = |p: &[(u64, bool)]| {
+        p.windows(2)
+            .map(|w| (w[1].0 - w[0].0, w[1].1))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(gaps(&a), gaps(&b));
 }
 
 #[test]

@@ -51,31 +51,53 @@ pub fn brake_rate(decel: u64, tick_hz: u32) -> u32 {
 
 /// The interval after `p` (Q32.32 ticks) when braking at `rate`
 /// ([`brake_rate`]), or `None` if the motor is less than two steps from
-/// rest (`q ≥ 1/4`) or slower than 2^24 ticks per step. Constant time: six
-/// 64×64 multiplies, no division (module docs).
+/// rest (`q ≥ 1/4`) or slower than 2^24 ticks per step. Constant time and
+/// 32-bit products only (the step engine's refill makes a braking step in
+/// the time of one at the top rate): `p` is taken as a 32-bit mantissa and
+/// a shift, which leaves `q` a relative error below 2^-29, far below what
+/// the series' truncation leaves (module docs).
 pub(super) fn brake_interval(p: u64, rate: u32) -> Option<u64> {
     if p >> (TICK_FRAC_BITS + 24) != 0 {
         return None;
     }
-    // Rounded, not truncated: near the end v² is a small difference of
-    // large numbers, so a bias per step would show there.
-    let p8 = p >> 8; // Q32.24, < 2^48
-    let p2 = u128::from(p8) * u128::from(p8); // p², Q.48, < 2^96
-    let shift = (rate >> RATE_MANTISSA_BITS) + 16;
-    let half = 1u128 << (shift - 1);
-    let q = (u128::from(rate & RATE_MANTISSA) * p2 + half) >> shift; // q, Q0.32
+    // 32 × 32 → 64-bit products (one `umull` each), rounded back to 32
+    let wide = |x: u32, y: u32| u64::from(x) * u64::from(y);
+    let mul = |x: u32, y: u32| ((wide(x, y) + (1 << 31)) >> 32) as u32;
+    // p ≈ pm · 2^k with pm's top bit set (k = 0 below 2^32: a step
+    // shorter than a tick, where q is far below 1/4 anyway); shifts of
+    // 32-bit words only (a 64-bit shift by a variable is a library call)
+    let (hi, lo) = ((p >> 32) as u32, p as u32);
+    let (pm, k) = match hi.leading_zeros() {
+        32 => (lo, 0),
+        z => ((hi << z) | (lo >> (32 - z)), 32 - z),
+    };
+    // p² ≈ t · 2^(2k + 32)
+    let t = (wide(pm, pm) >> 32) as u32;
+    // q = m · p² / 2^(s + 64) in Q0.32 = m · t · 2^(2k - s), from the top
+    // 32 of m · t's 56 bits; rounded, not truncated: near the end v² is a
+    // small difference of large numbers, so a bias per step would show
+    // there
+    let top = (wide(rate & RATE_MANTISSA, t) >> 24) as u32;
+    let s = (rate >> RATE_MANTISSA_BITS) as i32 - 2 * k as i32 - 24;
+    let q = match s {
+        1..=31 => (top >> s) + ((top >> (s - 1)) & 1),
+        0 => top,
+        s if s > 0 => 0,
+        // at least 2^30 unless `top` is small: q ≥ 1/4
+        s if top.leading_zeros() as i32 + s <= 1 => return None,
+        s => top << -s,
+    };
     if q >= 1 << 30 {
         return None;
     }
-    let q = q as u64;
-    let mul = |x: u64, y: u64| (x * y + (1 << 31)) >> 32;
     let (q2, q3) = (mul(q, q), mul(mul(q, q), q));
     let q4 = mul(q2, q2);
-    // (1-2q)^-1/2 - 1 = q + 3/2 q² + 5/2 q³ + 35/8 q⁴ + …, Q0.32; the rest
-    // is below 0.6 % at q = 1/4
+    // (1-2q)^-1/2 - 1 = q + 3/2 q² + 5/2 q³ + 35/8 q⁴ + …, Q0.32 (below
+    // 0.4 at q = 1/4); the rest is below 0.6 % at q = 1/4
     let f = q + q2 + (q2 >> 1) + 2 * q3 + (q3 >> 1) + 4 * q4 + (q4 >> 2) + (q4 >> 3);
-    let grow = (u128::from(p) * u128::from(f) + (1 << 31)) >> 32;
-    Some(p + grow as u64)
+    // p · f / 2^32 from p's two halves
+    let grow = u64::from(hi) * u64::from(f) + ((wide(lo, f) + (1 << 31)) >> 32);
+    Some(p + grow)
 }
 
 /// What the step interrupt's limit brake is doing (module docs).

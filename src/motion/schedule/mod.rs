@@ -66,8 +66,10 @@
 //!   brake rate), then raise attention (clear `quiet`, the one byte the
 //!   interrupt reads per step besides the ring); the interrupt sets `quiet`
 //!   before it reads the flags, so no change is lost. It clears `quiet`
-//!   itself while it is idle or braking, so that a start from rest and
-//!   every braking step go the slow way.
+//!   itself while it is idle or braking, so that a start from rest goes the
+//!   slow way, and a braking step the brake's own short way
+//!   (`brake_plain`: the interval, and the base's position moved on by one
+//!   store, since brake steps are no ring entries).
 //! - A drop of the queue (flush, the limit brake's end, [`StepSource::cancel`])
 //!   moves `next` to `head` and takes the direction of the last push
 //!   (`head_backward`, stored before `head`), so that the markers it
@@ -97,8 +99,13 @@
 //! (a start from rest, the end of the queue, a marker, a delay from 2^31
 //! ticks, a flag raised) rewrites the position base under the sequence
 //! count; it takes at most one marker and one step, so it is constant
-//! time too. A braking step (below) costs six 64×64 → 128-bit multiplies
-//! and a variable shift, still no division and no loop. The expansion is
+//! time too. A braking step (below) costs seven 32×32 → 64-bit multiplies
+//! and 32-bit shifts, still no division and no loop. At constant speed the
+//! step engine takes a run of equal delays at once
+//! ([`StepSource::advance_run`]: a compare per step, one store of `next`);
+//! at a limit's edge it gives back the steps it had been handed and not
+//! made ([`StepSource::take_back`]) so that the brake starts nearer the
+//! edge. The expansion is
 //! thread mode's, in [`StepSchedule::push`]: a short loop per step when
 //! the higher terms fit 32 bits (`Expansion::narrow`, the common segment;
 //! a longer one otherwise) plus a fixed cost per push.

@@ -316,14 +316,17 @@ impl StepSchedule {
     // ---- the limit-switch interrupt (or whoever reads the switches) ----
 
     /// The enabled limits active now (logical, after PA13/PA14). Call it
-    /// on every switch edge, from one context at a time.
-    pub fn set_limits(&self, cw_limit: bool, ccw_limit: bool) {
+    /// on every switch edge, from one context at a time. Returns whether
+    /// they changed.
+    pub fn set_limits(&self, cw_limit: bool, ccw_limit: bool) -> bool {
         let bits =
             if cw_limit { BLOCK_BACKWARD } else { 0 } | if ccw_limit { BLOCK_FORWARD } else { 0 };
-        if self.limits.load(Ordering::Relaxed) != bits {
+        let changed = self.limits.load(Ordering::Relaxed) != bits;
+        if changed {
             self.limits.store(bits, Ordering::Relaxed);
             self.raise_attention();
         }
+        changed
     }
 
     // ---- either side ----
@@ -384,6 +387,13 @@ impl StepSchedule {
         self.next.store(next, Ordering::Relaxed);
         compiler_fence(Ordering::SeqCst);
         self.seq.store(seq.wrapping_add(2), Ordering::Relaxed);
+    }
+
+    /// Consumer only: the base's position alone, `next` at the base's
+    /// index (the limit brake's steps, which are no ring entries): one
+    /// store, which [`StepSchedule::position`] sees whole, old or new.
+    pub(super) fn move_base(&self, pos: i32) {
+        self.base_pos.store(pos, Ordering::Relaxed);
     }
 
     /// Steps are being generated (a step is scheduled on the timer).

@@ -98,10 +98,33 @@ impl StepSource {
         let next = sched.next.load(Ordering::Relaxed);
         let delay = sched.entry(next).load(Ordering::Relaxed);
         if delay as i32 <= 0 || !sched.quiet.load(Ordering::Relaxed) {
-            return None;
+            // braking keeps `quiet` clear: its steps come from here too
+            return if self.braking != 0 {
+                self.brake_plain(sched)
+            } else {
+                None
+            };
         }
         sched.next.store(next.wrapping_add(1), Ordering::Relaxed);
         Some(delay)
+    }
+
+    /// The limit brake's next step while it goes on, made with nothing
+    /// else to look at (the brake does not look at the flags): the pending
+    /// step counted by one store of the base's position (brake steps are
+    /// no ring entries, and the base's index stays where the brake began).
+    /// `None`, nothing done, where the brake ends: the slow path ends it.
+    #[inline(never)]
+    fn brake_plain(&mut self, sched: &StepSchedule) -> Option<u32> {
+        let p = brake_interval(self.interval, self.braking)?;
+        sched.move_base(
+            sched
+                .base_position(sched.next.load(Ordering::Relaxed))
+                .wrapping_add(dir(self.forward)),
+        );
+        let delay = carried(&mut self.frac, p);
+        self.interval = p;
+        Some(delay.max(1))
     }
 
     /// Up to `max` more steps of [`StepSource::advance_plain`] whose delay
@@ -126,6 +149,36 @@ impl StepSource {
         next.wrapping_sub(start)
     }
 
+    /// The pending step runs into an active limit that brakes (0x6085 set)
+    /// and the brake has not started: the next `advance` starts it. The
+    /// step engine, which is handed steps ahead of its timer, then takes
+    /// back the ones it has not made yet ([`StepSource::take_back`]).
+    pub fn limit_ahead(&self, sched: &StepSchedule) -> bool {
+        let block = if self.forward {
+            BLOCK_FORWARD
+        } else {
+            BLOCK_BACKWARD
+        };
+        self.pending
+            && self.braking == 0
+            && sched.limits.load(Ordering::Relaxed) & block != 0
+            && sched.brake_rate.load(Ordering::Relaxed) != 0
+    }
+
+    /// `steps` steps given before the pending one, in its direction, are
+    /// not made after all: the position goes back by them. What they were
+    /// part of is dropped by the limit brake that follows
+    /// ([`StepSource::limit_ahead`]), so nothing gives them again.
+    pub fn take_back(&mut self, sched: &StepSchedule, steps: u32) {
+        let next = sched.next.load(Ordering::Relaxed);
+        let back = dir(self.forward).wrapping_mul(steps as i32);
+        sched.set_base(
+            sched.base_position(next).wrapping_sub(back),
+            next,
+            self.forward,
+        );
+    }
+
     /// Everything but the next plain delay: starts from rest, the end of
     /// the queue, markers, long delays, flush, limits, the brake. Constant
     /// time too (at most one marker before a step, module docs).
@@ -134,6 +187,18 @@ impl StepSource {
     #[inline(never)]
     fn advance_slow(&mut self, sched: &StepSchedule) -> Option<NextStep> {
         let next = sched.next.load(Ordering::Relaxed);
+        if !self.pending
+            && self.braking == 0
+            && sched.entry(next).load(Ordering::Relaxed) == END
+            && !sched.quiet.load(Ordering::Relaxed)
+            && !sched.flush.load(Ordering::Relaxed)
+            && sched.brake.load(Ordering::Relaxed) & BRAKE_DONE == 0
+        {
+            // idle, and nothing pushed or flagged since: the queue's end
+            // below would store what is stored already (the rest of the
+            // drive asks once per timer entry while idle)
+            return None;
+        }
         let mut made = sched.base_position(next);
         if self.pending {
             made = made.wrapping_add(dir(self.forward));
@@ -212,7 +277,8 @@ impl StepSource {
                 self.interval = p;
                 self.pending = true;
                 sched.running.store(true, Ordering::Relaxed);
-                // every braking step goes the slow way
+                // the braking steps after it go the brake's own way
+                // (`brake_plain`), not the ring's
                 sched.quiet.store(false, Ordering::Relaxed);
                 Some(NextStep {
                     delay_ticks: delay.max(1),

@@ -410,6 +410,72 @@ fn brake_rate_encodes_the_deceleration() {
     );
 }
 
+/// `brake_interval`'s series in full-width arithmetic (the reference its
+/// 32-bit products are checked against).
+fn brake_interval_wide(p: u64, rate: u32) -> Option<u64> {
+    let (m, s) = (
+        f64::from(rate & RATE_MANTISSA),
+        f64::from(rate >> RATE_MANTISSA_BITS),
+    );
+    let pt = p as f64 / 2f64.powi(32);
+    let q = m / 2f64.powf(s) * pt * pt;
+    if p >> 56 != 0 || q >= 0.25 {
+        return None;
+    }
+    let f = q + 1.5 * q * q + 2.5 * q.powi(3) + 4.375 * q.powi(4);
+    Some(p + (p as f64 * f) as u64)
+}
+
+#[test]
+fn the_brake_interval_keeps_the_series_to_its_last_bits() {
+    // intervals from 64 ticks to 2^24, rates from the slowest quick stop
+    // to the steepest, at the boards' ticks
+    let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+    let mut next = move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    };
+    let mut compared = 0;
+    for _ in 0..200_000 {
+        let ticks = 64.0 * 2f64.powf((next() % 18_000) as f64 / 1000.0);
+        let p = (ticks * 2f64.powi(32)) as u64;
+        let decel = 1 + next() % 200_000_000;
+        let hz = [8_000_000, 72_000_000, 170_000_000][(next() % 3) as usize];
+        let rate = brake_rate(decel, hz);
+        match (brake_interval(p, rate), brake_interval_wide(p, rate)) {
+            (Some(a), Some(b)) => {
+                // q and its powers are Q0.32 (as in the series' design),
+                // each rounded or shifted: a unit of the sum is p / 2^32 of
+                // the interval, and q's error (2.5 units, times the
+                // series' slope, 2.5 at q = 1/4) with the terms' roundings
+                // stays below 24 units
+                let err = (a as f64 - b as f64).abs();
+                assert!(
+                    err <= 24.0 * (p >> 32) as f64 + 16.0,
+                    "{p} {rate}: {a} vs {b}"
+                );
+                compared += 1;
+            }
+            (None, None) => {}
+            (a, b) => {
+                // only at q = 1/4 itself may the two disagree
+                let (m, s) = (
+                    f64::from(rate & RATE_MANTISSA),
+                    f64::from(rate >> RATE_MANTISSA_BITS),
+                );
+                let q = m / 2f64.powf(s) * ticks * ticks;
+                assert!(
+                    (q - 0.25).abs() < 1e-6,
+                    "{p} {rate}: {a:?} vs {b:?} at q = {q}"
+                );
+            }
+        }
+    }
+    assert!(compared > 50_000, "{compared}");
+}
+
 /// Steps of the limit brake from `v0` steps/s with `a` steps/s²: their
 /// intervals follow v² = v0² - 2an, and the motor stops within the
 /// quick stop distance v0²/2a (SPEC §8.7: stop with 0x6085).
