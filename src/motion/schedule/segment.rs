@@ -271,17 +271,29 @@ impl Expansion {
             && (1..MAX_DELAY_TICKS).contains(&whole)
         {
             // a constant speed: only the fraction moves, and no delay
-            // (the interval's whole ticks, or one more) needs a clamp
+            // (the interval's whole ticks, or one more) needs a clamp; the
+            // delays sum to the whole ticks and the fraction's carries
             let part = self.interval as u32;
-            let (mut frac, mut sum) = (self.frac, self.sum);
-            for entry in entries {
-                let (f, carry) = frac.overflowing_add(part);
-                frac = f;
-                let delay = whole + u32::from(carry);
-                entry.store(delay, Ordering::Relaxed);
-                sum = sum.wrapping_add(delay);
+            let n = entries.len() as u64;
+            let reach = u64::from(self.frac) + n * u64::from(part);
+            if part == 0 {
+                for entry in entries {
+                    entry.store(whole, Ordering::Relaxed);
+                }
+            } else {
+                let mut frac = self.frac;
+                for entry in entries {
+                    let (f, carry) = frac.overflowing_add(part);
+                    frac = f;
+                    entry.store(whole + u32::from(carry), Ordering::Relaxed);
+                }
             }
-            (self.frac, self.sum) = (frac, sum);
+            let carries = (reach >> 32) as u32;
+            self.sum = self
+                .sum
+                .wrapping_add((n as u32).wrapping_mul(whole))
+                .wrapping_add(carries);
+            self.frac = reach as u32;
             return;
         }
         if !self.narrow(entries.len()) {
