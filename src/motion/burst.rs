@@ -26,7 +26,7 @@
 //!   past it on a slow move and make the steps after it late);
 //! - only steps the feed has and gives in a run ([`StepFeed::run`]: the
 //!   schedule's equal delays at constant speed) are repeated, up to
-//!   [`MAX_PERIODS`] and half the idle entry's length, so the entries
+//!   [`MAX_PERIODS`] and the idle entry's length, so the entries
 //!   ahead of the timer reach no further than at rest;
 //! - no entry is shorter than [`MIN_ENTRY_TICKS`], so the next burst always
 //!   lands before the update event that needs it;
@@ -160,12 +160,12 @@ impl PulseShape {
         self.idle
     }
 
-    /// Longest entry of repeated periods, ticks: half the idle entry. The
-    /// entries written ahead of the timer, which a limit's brake or a new
-    /// move waits for, then last no longer than while idle, and at top
-    /// speed half as long.
+    /// Longest entry of repeated periods, ticks: the idle entry. The
+    /// entries written ahead of the timer, which a new move waits for,
+    /// then last no longer than while idle (a limit cuts the runs among
+    /// them, docs/firmware.md).
     fn run_ticks(&self) -> u32 {
-        self.idle / 2
+        self.idle
     }
 
     /// Ticks after a pulse's rise until DIR may change.

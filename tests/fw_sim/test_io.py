@@ -15,7 +15,7 @@ limits = e2e_module("test_limits")
 
 MAX_SPEED_PA12 = PA_BASE + 12
 # the step engine's idle entry (src/firmware/calc.rs); a run of alike
-# periods in one timer entry lasts at most half of it
+# periods in one timer entry lasts at most as long
 IDLE_NS = int(re.search(r"pub const IDLE_PERIOD_NS: u32 = ([0-9_]+);",
                         (ROOT / "src" / "firmware" / "calc.rs").read_text())[1].replace("_", ""))
 EE_SET = with_crc(hexb("01 10 00 3A 00 01 02 00 01"))  # new format, k = 1
@@ -58,7 +58,7 @@ def test_a_limit_at_the_top_rate_brakes_from_the_step_the_pin_is_at(start_fw, bo
     fw.alive()
     over = m.read32(ACTUAL_POSITION) - edge
     period_ticks = 1e9 / rate / TICK_NS[board]
-    run = int(IDLE_NS / 2 / TICK_NS[board] // period_ticks)
+    run = int(IDLE_NS / TICK_NS[board] // period_ticks)
     ahead = 4 * run + 12
     print(f"{board}: {over} steps past the edge at {rate} steps/s ({brake} to brake, "
           f"runs of {run}, at most {ahead} ahead)")

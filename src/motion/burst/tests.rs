@@ -20,10 +20,6 @@ fn play(entries: &[Burst], shape: PulseShape) -> Vec<(u64, bool)> {
             b.ticks() <= shape.idle_ticks(),
             "entry {i}: longer than the idle entry"
         );
-        assert!(
-            b.periods() == 1 || b.ticks() <= shape.idle_ticks() / 2,
-            "entry {i}: a run longer than half the idle entry"
-        );
         if b.pulse_ticks() != 0 {
             assert!(u32::from(ccr1) <= u32::from(arr), "entry {i}: {b:?}");
         }
@@ -163,11 +159,11 @@ fn a_cruise_in_runs_is_an_entry_a_run() {
     for p in pulses.windows(2) {
         assert_eq!(p[1].0 - p[0].0, 144);
     }
-    // runs of as many periods as half the idle entry holds (25)
+    // runs of as many periods as the idle entry holds (50)
     let first = out.iter().position(|b| b.pulse_ticks() != 0).unwrap();
     let last = out.iter().rposition(|b| b.pulse_ticks() != 0).unwrap();
-    assert!(last - first <= 1000 / 25 + 1, "{}", last - first);
-    assert!(out.iter().all(|b| b.periods() <= 25));
+    assert!(last - first <= 1000 / 50 + 1, "{}", last - first);
+    assert!(out.iter().all(|b| b.periods() <= 50));
 }
 
 #[test]
