@@ -189,7 +189,8 @@ struct Next {
 pub trait StepFeed {
     /// The next step, `(delay, dir_level)`: its pulse `delay` ticks after
     /// the previous one (or after the start of the last idle entry, from
-    /// rest), with DIR at `dir_level`; `None` while there is none.
+    /// rest), with DIR at `dir_level`; `None` while there is none. At rest
+    /// a `None` ends the asking for the fill: the rest of it is idle.
     fn next_step(&mut self) -> Option<(u32, bool)>;
 
     /// The next step's delay if it is *plain*: in the direction and at the
@@ -338,6 +339,17 @@ impl BurstWriter {
             }
             out[n] = self.entry();
             n += 1;
+            if self.resting && self.next.is_none() {
+                // at rest and the feed had nothing: the rest of the fill
+                // waits idle too. A feed gets no new step while a fill
+                // runs (the refill preempts whoever pushes), so asking
+                // again per entry would only cost the idle drive's time.
+                let idle = out[n - 1];
+                for slot in &mut out[n..] {
+                    *slot = idle;
+                }
+                break;
+            }
         }
         self.pulses - before
     }

@@ -283,11 +283,27 @@ fn reversals_keep_dir_set_up_and_hold() {
 fn idle_entries_while_nothing_is_scheduled() {
     let mut w = BurstWriter::new(shape(), true);
     let mut buf = [Burst::default(); 8];
-    assert_eq!(w.fill(&mut buf, &mut || None), 0);
-    for b in buf {
-        assert_eq!((b.ticks(), b.pulse_ticks(), b.dir_high()), (7200, 0, true));
+    // at rest the feed is asked once a fill: nothing can be pushed while
+    // a fill runs
+    let mut asked = 0;
+    for _ in 0..3 {
+        assert_eq!(
+            w.fill(&mut buf, &mut || {
+                asked += 1;
+                None
+            }),
+            0
+        );
+        for b in buf {
+            assert_eq!((b.ticks(), b.pulse_ticks(), b.dir_high()), (7200, 0, true));
+        }
     }
+    assert_eq!(asked, 3);
     assert!(!w.busy());
+    // and a step pushed meanwhile starts the next fill
+    let mut steps = [(500u32, true)].into_iter();
+    assert_eq!(w.fill(&mut buf, &mut || steps.next()), 1);
+    assert_ne!(buf[0].pulse_ticks(), 0);
 }
 
 /// Random step streams (delays from the shortest entry to beyond the
