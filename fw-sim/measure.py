@@ -8,8 +8,9 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
 - reply latency: from the end of a request's last stop bit to the start bit
   of the reply's first character (`--trace-line`), at 115200 and 19200 baud,
   and at 115200 while the motor runs at the board's step rate limit;
-- CPU load while stepping in velocity mode at 50k, 200k steps/s and the
-  board's step rate limit (Board::max_step_rate in src/boards.rs):
+- CPU load at rest and while stepping in velocity mode at 50k, 200k
+  steps/s and the board's step rate limit (Board::max_step_rate in
+  src/boards.rs):
   the share of core cycles not spent asleep in WFI/WFE (`--stats`), under the
   runner's one-cycle-per-instruction assumption (docs/fw-sim.md, "Time");
 - the highest step rate at which every pulse is on time: position moves at
@@ -75,7 +76,7 @@ MAX_STEP_RATE = _ceilings()
 # each board's step rate limit (Board::max_step_rate in src/boards.rs): the
 # firmware clamps faster set-points to it, so nothing faster can be measured
 LIMITS = c.LIMITS
-RATES = {b: sorted({50_000, 200_000, LIMITS[b]}) for b in c.BOARDS}
+RATES = {b: sorted({0, 50_000, 200_000, LIMITS[b]}) for b in c.BOARDS}
 # the planner's steepest ramp (MAX_ACCEL, steps/s²): the shortest moves
 # that reach each rate
 MAX_ACCEL = int(re.search(r"pub const MAX_ACCEL: u64 = ([0-9_]+);",
@@ -101,7 +102,8 @@ def unlimited_to(m: c.Master, rate: int):
     `rate` allows (conftest.pulse_for): nothing but the board's own limit
     clamps a speed up to `rate` (SPEC §8.4, docs/drive.md)."""
     m.write(c.PA_BASE + 12, 6000)
-    m.write(c.PA_BASE + 15, c.pulse_for(rate))
+    if rate:
+        m.write(c.PA_BASE + 15, c.pulse_for(rate))
 
 
 def latencies(fw: c.Firmware, trace: Path, n: int) -> list[float]:
@@ -142,7 +144,7 @@ def wait_stats(path: Path, after_ns: int) -> dict[str, int]:
 
 def load_at(board: str, rate: int, work: Path) -> tuple[float, float, float]:
     """(CPU load %, measured step rate, emulated seconds per wall second)
-    at a constant velocity of `rate`."""
+    at a constant velocity of `rate` (0: at rest, operation enabled)."""
     st = work / f"{board}-{rate}.stats"
     fw = c.Firmware(work, board, ["--stats", str(st), "--quiet"])
     try:
@@ -158,6 +160,8 @@ def load_at(board: str, rate: int, work: Path) -> tuple[float, float, float]:
         while m.read32(c.ACTUAL_VELOCITY) * STEPS_PER_REV // 60 < rate:
             assert time.monotonic() < deadline, "never reached the speed"
             time.sleep(0.02)
+        if rate == 0:
+            time.sleep(0.1)  # the enable's last frame answered
         a = stats(st)
         w0 = time.monotonic()
         b = wait_stats(st, a["time_ns"] + 200_000_000)  # 0.2 s of emulated time
@@ -461,7 +465,8 @@ def main() -> int:
     lines += stepping_latency_section(work)
     lines += ["", "## CPU load while stepping (velocity mode, constant speed)", "",
               "Share of core cycles not asleep over 0.2 s of emulated time, once",
-              "0x606C shows the set speed. Each board's step rate is clamped to",
+              "0x606C shows the set speed (0: at rest, operation enabled, no",
+              "frame meanwhile). Each board's step rate is clamped to",
               "its limit (Board::max_step_rate in src/boards.rs: "
               + ", ".join(f"{b} {LIMITS[b]}" for b in c.BOARDS) + " steps/s).", "",
               "The last column is how fast the emulator ran meanwhile: emulated",
