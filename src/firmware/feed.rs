@@ -70,7 +70,7 @@ impl StepFeed for EngineFeed<'_> {
     }
 
     #[inline(always)]
-    fn run(&mut self, delay: u32, max: u32) -> u32 {
+    fn run(&mut self, delay: u32, max: impl FnOnce() -> u32) -> u32 {
         let taken = self.source.advance_run(self.sched, delay, max);
         self.plain_steps = self.plain_steps.wrapping_add(taken as u16);
         taken

@@ -210,7 +210,9 @@ pub trait StepFeed {
     /// feed next to nothing should come in runs: a run's steps all go into
     /// one buffer half, whose refill must be done within the other half's
     /// time, which may be a step per entry.
-    fn run(&mut self, delay: u32, max: u32) -> u32 {
+    /// `max` is asked only once the feed has one such step (it costs a
+    /// division).
+    fn run(&mut self, delay: u32, max: impl FnOnce() -> u32) -> u32 {
         let _ = (delay, max);
         0
     }
@@ -311,7 +313,7 @@ impl BurstWriter {
                         break;
                     }
                     let b = Burst::new(delay, width.min(delay / 2), level);
-                    let alike = feed.run(delay, b.room(run));
+                    let alike = feed.run(delay, || b.room(run));
                     out[n] = b.repeated(alike);
                     written += 1 + alike;
                     n += 1;
@@ -332,6 +334,16 @@ impl BurstWriter {
             let mut asked = 0;
             while self.next.is_none() && asked < 2 {
                 let Some((delay, level)) = feed.next_step() else {
+                    if self.resting && !self.open {
+                        // at rest and the feed has nothing: the rest of the
+                        // fill waits idle too. A feed gets no new step while
+                        // a fill runs (the refill preempts whoever pushes),
+                        // so asking again per entry would only cost the
+                        // idle drive's time.
+                        let idle = self.entry();
+                        out[n..].fill(idle);
+                        return self.pulses - before;
+                    }
                     break;
                 };
                 asked += 1;
@@ -339,17 +351,6 @@ impl BurstWriter {
             }
             out[n] = self.entry();
             n += 1;
-            if self.resting && self.next.is_none() {
-                // at rest and the feed had nothing: the rest of the fill
-                // waits idle too. A feed gets no new step while a fill
-                // runs (the refill preempts whoever pushes), so asking
-                // again per entry would only cost the idle drive's time.
-                let idle = out[n - 1];
-                for slot in &mut out[n..] {
-                    *slot = idle;
-                }
-                break;
-            }
         }
         self.pulses - before
     }

@@ -116,10 +116,11 @@ impl StepFeed for Plain {
         })
     }
 
-    fn run(&mut self, delay: u32, max: u32) -> u32 {
+    fn run(&mut self, delay: u32, max: impl FnOnce() -> u32) -> u32 {
         if !self.runs {
             return 0;
         }
+        let max = max();
         let level = self.steps[self.at - 1].1;
         let alike = self.steps[self.at..]
             .iter()

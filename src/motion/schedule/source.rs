@@ -127,19 +127,28 @@ impl StepSource {
         Some(delay.max(1))
     }
 
-    /// Up to `max` more steps of [`StepSource::advance_plain`] whose delay
-    /// is `delay`, taken at once: the steps taken. `delay` is one
-    /// `advance_plain` has just given (a plain delay). A constant speed is
-    /// a run of equal delays, which the step engine repeats in one timer
-    /// entry; this takes them at a compare per step, with one store of
-    /// `next` and one look at `quiet` for the run (nothing that could
-    /// raise attention runs while the consumer does).
+    /// Up to `max()` more steps of [`StepSource::advance_plain`] whose
+    /// delay is `delay`, taken at once: the steps taken. `delay` is one
+    /// `advance_plain` has just given (a plain delay); `max` is asked only
+    /// if the next step is one. A constant speed is a run of equal delays,
+    /// which the step engine repeats in one timer entry; this takes them at
+    /// a compare per step, with one store of `next` and one look at `quiet`
+    /// for the run (nothing that could raise attention runs while the
+    /// consumer does).
     #[inline(always)]
-    pub fn advance_run(&mut self, sched: &StepSchedule, delay: u32, max: u32) -> u32 {
-        if max == 0 || !sched.quiet.load(Ordering::Relaxed) {
+    pub fn advance_run(
+        &mut self,
+        sched: &StepSchedule,
+        delay: u32,
+        max: impl FnOnce() -> u32,
+    ) -> u32 {
+        let start = sched.next.load(Ordering::Relaxed);
+        if sched.entry(start).load(Ordering::Relaxed) != delay
+            || !sched.quiet.load(Ordering::Relaxed)
+        {
             return 0;
         }
-        let start = sched.next.load(Ordering::Relaxed);
+        let max = max();
         let end = start.wrapping_add(max);
         let mut next = start;
         while next != end && sched.entry(next).load(Ordering::Relaxed) == delay {
