@@ -33,7 +33,8 @@ pub struct RefillCost {
 
 /// The refill's steps as the firmware's feed (src/firmware/feed.rs) gives
 /// them, less its pin-position ledger: plain steps straight from the ring
-/// (`StepSource::advance_plain`), the rest through `advance`.
+/// (`StepSource::advance_plain`) with their runs of equal delays
+/// (`StepSource::advance_run`), the rest through `advance`.
 struct Feed<'a> {
     src: &'a mut StepSource,
     sched: &'a StepSchedule,
@@ -48,6 +49,10 @@ impl StepFeed for Feed<'_> {
 
     fn plain_step(&mut self) -> Option<u32> {
         self.src.advance_plain(self.sched)
+    }
+
+    fn run(&mut self, delay: u32, max: impl FnOnce() -> u32) -> u32 {
+        self.src.advance_run(self.sched, delay, max)
     }
 }
 
