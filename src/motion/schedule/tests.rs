@@ -13,19 +13,24 @@ fn seg(interval: u64, add: i64, add2: i64, count: u32, forward: bool) -> Segment
     Segment::new(interval, add, add2, 0, 0, count, forward)
 }
 
+/// A xorshift64 stream from `seed`: the tests' reproducible randomness.
+fn xorshift(seed: u64) -> impl FnMut() -> u64 {
+    let mut x = seed;
+    move || {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x
+    }
+}
+
 /// The narrow loop of `Expansion::run` gives the same delays, terms,
 /// fraction and delay sum as `Expansion::step` one step at a time, on
 /// random segments from tiny to huge terms; it is taken for most
 /// (small higher terms) and refused at the edges of its bounds.
 #[test]
 fn the_narrow_loop_expands_like_step_by_step() {
-    let mut x: u64 = 0x2545_F491_4F6C_DD1D;
-    let mut next = move || {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        x
-    };
+    let mut next = xorshift(0x2545_F491_4F6C_DD1D);
     let narrow_ring = [const { AtomicU32::new(0) }; SCHEDULE_STEPS];
     let (mut narrow, mut wide) = (0, 0);
     let check = |x: Expansion, steps: usize| {
@@ -430,13 +435,7 @@ fn brake_interval_wide(p: u64, rate: u32) -> Option<u64> {
 fn the_brake_interval_keeps_the_series_to_its_last_bits() {
     // intervals from 64 ticks to 2^24, rates from the slowest quick stop
     // to the steepest, at the boards' ticks
-    let mut x: u64 = 0x2545_F491_4F6C_DD1D;
-    let mut next = move || {
-        x ^= x << 13;
-        x ^= x >> 7;
-        x ^= x << 17;
-        x
-    };
+    let mut next = xorshift(0x2545_F491_4F6C_DD1D);
     let mut compared = 0;
     for _ in 0..200_000 {
         let ticks = 64.0 * 2f64.powf((next() % 18_000) as f64 / 1000.0);
