@@ -9,10 +9,10 @@
 //! read, and the refill writes it again from the core's step schedule
 //! through `motion::burst::BurstWriter`, in the same core code the host
 //! tests run. At constant speed an entry is a run of alike periods that
-//! the repetition counter plays, so a refill comes once per several steps. A DMA burst reaches
-//! the preload registers, which take effect at the update event after the
-//! one that requested it, so an entry is written a buffer half and two
-//! periods before it acts.
+//! the repetition counter plays, so a refill comes once per several
+//! steps. A DMA burst reaches the preload registers, which take effect at
+//! the update event after the one that requested it, so an entry is
+//! written a buffer half and two periods before it acts.
 //!
 //! [`SCHEDULE`] is the core's lock-free `StepSchedule`
 //! (src/motion/schedule/mod.rs): the control loop fills it through

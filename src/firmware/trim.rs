@@ -17,13 +17,13 @@ use modbus_drive::motion::burst::Burst;
 /// `level` back from `newest` (the last entry written), to their first
 /// period. `unread()` is the index of the first entry the DMA has not
 /// started. Returns the steps cut (all in the direction of `level`).
-pub fn cut_runs(
-    buffer: &mut [Burst],
+pub fn cut_runs<const LEN: usize>(
+    buffer: &mut [Burst; LEN],
     newest: usize,
     level: bool,
     mut unread: impl FnMut() -> usize,
 ) -> u32 {
-    let len = buffer.len();
+    let len = LEN;
     let ahead = |from: usize, to: usize| (to + len - from) % len;
     let first = unread();
     let span = ahead(first, newest);
