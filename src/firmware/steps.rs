@@ -382,14 +382,24 @@ fn brake_from_the_pin(e: &mut Engine, buffer: &mut [Burst; 2 * HALF]) {
     if cut == 0 {
         return;
     }
+    under_seq(|| {
+        e.source.take_back(&SCHEDULE, cut);
+        e.ledger.taken_back(cut as u16);
+        LEDGER[0].store(e.ledger.head_word(), Ordering::Relaxed);
+    });
+}
+
+/// `f` with [`SEQ`] odd: what [`read_at_pin_position`] reads (the
+/// schedule's position, [`LEDGER`]) changes only inside it.
+#[inline(always)]
+fn under_seq<R>(f: impl FnOnce() -> R) -> R {
     let seq = SEQ.load(Ordering::Relaxed);
     SEQ.store(seq.wrapping_add(1), Ordering::Relaxed);
     core::sync::atomic::compiler_fence(Ordering::SeqCst);
-    e.source.take_back(&SCHEDULE, cut);
-    e.ledger.taken_back(cut as u16);
-    LEDGER[0].store(e.ledger.head_word(), Ordering::Relaxed);
+    let r = f();
     core::sync::atomic::compiler_fence(Ordering::SeqCst);
     SEQ.store(seq.wrapping_add(2), Ordering::Relaxed);
+    r
 }
 
 /// Writes `half` from the schedule. One copy for both halves.
@@ -401,9 +411,6 @@ fn refill(e: &mut Engine, half: &mut [Burst]) {
         e.pulse = e.pulse.with_packed(shape);
         e.writer.set_shape(pulse_shape(e.pulse));
     }
-    let seq = SEQ.load(Ordering::Relaxed);
-    SEQ.store(seq.wrapping_add(1), Ordering::Relaxed);
-    core::sync::atomic::compiler_fence(Ordering::SeqCst);
     let Engine {
         writer,
         source,
@@ -411,19 +418,20 @@ fn refill(e: &mut Engine, half: &mut [Burst]) {
         inverted: inverted_before,
         ..
     } = e;
-    let runs = ledger.newest_run();
-    let mut feed = EngineFeed::new(source, &SCHEDULE, ledger, inverted, *inverted_before);
-    let pulses = writer.fill(half, &mut feed);
-    drop(feed);
-    *inverted_before = inverted;
-    LEDGER[0].store(ledger.head_word(), Ordering::Relaxed);
-    if ledger.newest_run() != runs {
-        for (k, word) in LEDGER[1..].iter().enumerate() {
-            word.store(ledger.start_word(k), Ordering::Relaxed);
+    let pulses = under_seq(|| {
+        let runs = ledger.newest_run();
+        let mut feed = EngineFeed::new(source, &SCHEDULE, ledger, inverted, *inverted_before);
+        let pulses = writer.fill(half, &mut feed);
+        drop(feed);
+        *inverted_before = inverted;
+        LEDGER[0].store(ledger.head_word(), Ordering::Relaxed);
+        if ledger.newest_run() != runs {
+            for (k, word) in LEDGER[1..].iter().enumerate() {
+                word.store(ledger.start_word(k), Ordering::Relaxed);
+            }
         }
-    }
-    core::sync::atomic::compiler_fence(Ordering::SeqCst);
-    SEQ.store(seq.wrapping_add(2), Ordering::Relaxed);
+        pulses
+    });
     let quiet = if pulses == 0 && !writer.busy() {
         QUIET_REFILLS.load(Ordering::Relaxed).saturating_add(1)
     } else {

@@ -389,11 +389,12 @@ impl StepSchedule {
         self.seq.store(seq.wrapping_add(2), Ordering::Relaxed);
     }
 
-    /// Consumer only: the base's position alone, `next` at the base's
-    /// index (the limit brake's steps, which are no ring entries): one
-    /// store, which [`StepSchedule::position`] sees whole, old or new.
-    pub(super) fn move_base(&self, pos: i32) {
-        self.base_pos.store(pos, Ordering::Relaxed);
+    /// Consumer only: the base's position moved on by `by`, `next` at the
+    /// base's index (the limit brake's steps, which are no ring entries):
+    /// one store, which [`StepSchedule::position`] sees whole, old or new.
+    pub(super) fn move_base(&self, by: i32) {
+        let pos = self.base_pos.load(Ordering::Relaxed);
+        self.base_pos.store(pos.wrapping_add(by), Ordering::Relaxed);
     }
 
     /// Steps are being generated (a step is scheduled on the timer).

@@ -117,11 +117,7 @@ impl StepSource {
     #[inline(never)]
     fn brake_plain(&mut self, sched: &StepSchedule) -> Option<u32> {
         let p = brake_interval(self.interval, self.braking)?;
-        sched.move_base(
-            sched
-                .base_position(sched.next.load(Ordering::Relaxed))
-                .wrapping_add(dir(self.forward)),
-        );
+        sched.move_base(dir(self.forward));
         let delay = carried(&mut self.frac, p);
         self.interval = p;
         Some(delay.max(1))
@@ -196,18 +192,6 @@ impl StepSource {
     #[inline(never)]
     fn advance_slow(&mut self, sched: &StepSchedule) -> Option<NextStep> {
         let next = sched.next.load(Ordering::Relaxed);
-        if !self.pending
-            && self.braking == 0
-            && sched.entry(next).load(Ordering::Relaxed) == END
-            && !sched.quiet.load(Ordering::Relaxed)
-            && !sched.flush.load(Ordering::Relaxed)
-            && sched.brake.load(Ordering::Relaxed) & BRAKE_DONE == 0
-        {
-            // idle, and nothing pushed or flagged since: the queue's end
-            // below would store what is stored already (the rest of the
-            // drive asks once per timer entry while idle)
-            return None;
-        }
         let mut made = sched.base_position(next);
         if self.pending {
             made = made.wrapping_add(dir(self.forward));
