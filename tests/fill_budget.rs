@@ -9,7 +9,9 @@ mod common;
 use common::axis::Rig;
 use modbus_drive::boards::Board;
 use modbus_drive::motion::sim::{RunStop, SimAxis, StepRecord};
-use modbus_drive::motion::{Fill, Goal, Planner, PlannerConfig, Ramp, StepSchedule, FIT_COST};
+use modbus_drive::motion::{
+    Fill, Goal, Planner, PlannerConfig, Ramp, StepSchedule, CONSTANT_STEPS_PER_BUDGET, FIT_COST,
+};
 use proptest::prelude::*;
 
 const PERIOD_US: u64 = 1000;
@@ -123,9 +125,10 @@ fn same_schedule(board: Board, goals: &[(Goal, u64)], decel: u64, budget: u32) -
         assert_eq!(run.planner.late_segments(), 0, "late segment");
     }
     // a part that follows a pause pushes at most the budget (one entry
-    // more for a direction marker)
+    // more for a direction marker), in constant-speed steps at most
+    // CONSTANT_STEPS_PER_BUDGET a budget step
     assert!(
-        parts.widest_later_part <= budget as usize + 1,
+        parts.widest_later_part <= (budget * CONSTANT_STEPS_PER_BUDGET) as usize + 1,
         "a part took {} entries, budget {budget}",
         parts.widest_later_part
     );
@@ -147,9 +150,17 @@ fn a_cruise_at_the_top_rate_is_filled_in_parts_to_the_same_schedule() {
             },
             300,
         )];
-        let parts = same_schedule(board, &goals, board.max_accel() * 10, 64);
+        let budget = 16;
+        let parts = same_schedule(board, &goals, board.max_accel() * 10, budget);
         // at least two pauses a period while cruising
         assert!(parts.pauses > 400, "{board:?}: {} pauses", parts.pauses);
+        // the cruise's steps count a quarter: its parts take more entries
+        // than the budget
+        assert!(
+            parts.widest_later_part > budget as usize + 1,
+            "{board:?}: widest part {}",
+            parts.widest_later_part
+        );
     }
 }
 

@@ -19,7 +19,8 @@ pub mod sim;
 
 pub use homing::{Homing, HomingError, HomingMethod, HomingStep};
 pub use planner::{
-    Fill, Goal, Planner, PlannerConfig, Ramp, FIT_COST, MAX_ACCEL, MAX_STEP_RATE, SCHEDULE_SLOTS,
+    Fill, Goal, Planner, PlannerConfig, Ramp, CONSTANT_STEPS_PER_BUDGET, FIT_COST, MAX_ACCEL,
+    MAX_STEP_RATE, SCHEDULE_SLOTS,
 };
 pub use schedule::{
     LimitBrake, NextStep, PushedSteps, Segment, StepSchedule, StepSink, StepSource, SCHEDULE_STEPS,

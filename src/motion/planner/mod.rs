@@ -28,7 +28,7 @@
 //! a multiplication, elsewhere a division, on 128-bit numbers but through
 //! 64-bit routines: `profile::isqrt`, `profile::div`), the end slope (a
 //! division), two curvatures (a few multiplications) and the length bounds
-//! (logarithms); segments hold up to 2^7 steps on a ramp and 2^8 on a
+//! (logarithms); segments hold up to 2^7 steps on a ramp and 2^10 on a
 //! cruise (single steps near rest only).
 
 mod fill;
@@ -81,6 +81,15 @@ const _: () = {
 /// that many steps into the ring costs, as the firmware's profile under
 /// emulation shows (docs/firmware.md, "Reply latency while stepping").
 pub const FIT_COST: u32 = 96;
+
+/// Steps of a constant speed ([`crate::motion::Segment::is_constant`]) one
+/// step of a fill's budget buys: the expansion writes each with one store
+/// (four a loop round), where a ramp's step takes the forward differences.
+/// A part of constant-speed steps then takes about as long as a part of
+/// ramp steps, and a cruise needs fewer parts, each with the control
+/// call's set-up. A power of two (a shift, no division).
+pub const CONSTANT_STEPS_PER_BUDGET: u32 = 4;
+const _: () = assert!(CONSTANT_STEPS_PER_BUDGET.is_power_of_two());
 
 /// Segments the planner keeps track of between the interrupt's step and
 /// the end of the queue (a power of two): while they are all queued, the
@@ -205,7 +214,8 @@ pub struct PlannerConfig {
     max_step_rate: u32,
     max_accel: u64,
     /// Steps one fill may push, a fitted segment counting as
-    /// [`FIT_COST`] of them, once the queue reaches half the horizon
+    /// [`FIT_COST`] of them and [`CONSTANT_STEPS_PER_BUDGET`]
+    /// constant-speed steps as one, once the queue reaches half the horizon
     /// past `now` (before that a fill never pauses); `u32::MAX`: no limit.
     fill_budget: u32,
 }
@@ -300,8 +310,9 @@ impl PlannerConfig {
     }
 
     /// This configuration with each fill bounded to `steps` pushed steps
-    /// (at least 1), a fitted segment counting as [`FIT_COST`] of them,
-    /// so that one fill holds the caller for a bounded time: a fill that
+    /// (at least 1), a fitted segment counting as [`FIT_COST`] of them
+    /// and [`CONSTANT_STEPS_PER_BUDGET`] constant-speed steps as one, so
+    /// that one fill holds the caller for a bounded time: a fill that
     /// reaches it returns [`Fill::Paused`] and the caller fills again
     /// (after it has let other work run) until it does not. The parts
     /// push exactly the steps one unbounded fill would have pushed

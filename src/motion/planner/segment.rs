@@ -2,7 +2,7 @@
 //! and its cut when a new goal comes (module docs of the planner).
 
 use super::slots::SlotInfo;
-use super::{Planner, SCHEDULE_SLOTS};
+use super::{Planner, CONSTANT_STEPS_PER_BUDGET, SCHEDULE_SLOTS};
 use crate::arith::div_i64;
 use crate::motion::profile::w_along;
 use crate::motion::schedule::{Segment, StepSchedule, StepSink};
@@ -135,7 +135,16 @@ impl Planner {
         }
         let pending = &mut self.pending;
         let seg = &mut pending.rest;
-        let k = seg.count().min(sched.free() as u32).min(limit);
+        // `limit` in budget steps (a constant speed's are cheaper)
+        let shift = if seg.is_constant() {
+            CONSTANT_STEPS_PER_BUDGET.trailing_zeros()
+        } else {
+            0
+        };
+        let k = seg
+            .count()
+            .min(sched.free() as u32)
+            .min(limit.checked_shl(shift).unwrap_or(u32::MAX));
         if (self
             .t_isr
             .wrapping_add(seg.interval())
@@ -153,7 +162,9 @@ impl Planner {
             return false;
         };
         pending.pushed += k;
-        self.step_budget = self.step_budget.saturating_sub(k);
+        self.step_budget = self
+            .step_budget
+            .saturating_sub((k + (1 << shift) - 1) >> shift);
         self.t_isr = self.t_isr.wrapping_add(made);
         let last = sched.last_pushed_index();
         // one slot per segment, its end moved on with each part

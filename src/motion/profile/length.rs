@@ -4,9 +4,12 @@
 use super::fixed::{log2_q8, log2_q8_64, log2_q8_up, LOG2_Q8_SLACK};
 use super::{Profile, X_FRAC};
 
-/// Largest segment, as a power of two (steps): the schedule's ring must
-/// take a whole segment ([`crate::motion::schedule`]).
-pub const MAX_SEGMENT_LOG2: u32 = 8;
+/// Largest segment, as a power of two (steps), reached on a cruise (a
+/// ramp's are shorter, [`MAX_RAMP_SEGMENT_LOG2`]): a segment is pushed in
+/// parts as the ring has room, so it may be longer than the ring, and at
+/// a constant speed its fit is the per-step cost of the planner, which a
+/// long segment spreads over many steps.
+pub const MAX_SEGMENT_LOG2: u32 = 10;
 
 /// What bounds a segment's length besides the fit (set once from the
 /// planner's configuration).

@@ -88,6 +88,11 @@ impl StepSchedule {
         }
     }
 
+    /// The whole ring, in index order from 0.
+    pub(super) fn ring(&self) -> &[AtomicU32; SCHEDULE_STEPS] {
+        &self.ring
+    }
+
     pub(super) fn entry(&self, index: u32) -> &AtomicU32 {
         &self.ring[index as usize % SCHEDULE_STEPS]
     }

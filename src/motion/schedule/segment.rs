@@ -96,6 +96,13 @@ impl Segment {
     pub const fn forward(&self) -> bool {
         self.forward
     }
+
+    /// A constant speed: the interval does not change from step to step
+    /// (the expansion then writes each step with one store).
+    #[inline]
+    pub const fn is_constant(&self) -> bool {
+        self.add | self.add2 | self.add3 | self.add4 == 0
+    }
 }
 
 impl Segment {
@@ -277,7 +284,18 @@ impl Expansion {
             let n = entries.len() as u64;
             let reach = u64::from(self.frac) + n * u64::from(part);
             if part == 0 {
-                for entry in entries {
+                // four stores a loop round (written out: the images'
+                // size-optimised builds do not unroll), the cruise's whole
+                // cost here
+                let mut rest = entries;
+                while let [a, b, c, d, tail @ ..] = rest {
+                    a.store(whole, Ordering::Relaxed);
+                    b.store(whole, Ordering::Relaxed);
+                    c.store(whole, Ordering::Relaxed);
+                    d.store(whole, Ordering::Relaxed);
+                    rest = tail;
+                }
+                for entry in rest {
                     entry.store(whole, Ordering::Relaxed);
                 }
             } else {

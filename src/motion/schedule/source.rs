@@ -1,14 +1,14 @@
 //! The step interrupt's side of the schedule: one delay per step, the
 //! slow path and the limit brake's steps (module docs of the schedule).
 
-use core::sync::atomic::{compiler_fence, Ordering};
+use core::sync::atomic::{compiler_fence, AtomicU32, Ordering};
 
 use super::brake::{
     brake_interval, BLOCK_BACKWARD, BLOCK_FORWARD, BRAKE_ACTIVE, BRAKE_DONE, BRAKE_FORWARD,
 };
 use super::ring::StepSchedule;
 use super::segment::carried;
-use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, TICK_FRAC_BITS};
+use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, SCHEDULE_STEPS, TICK_FRAC_BITS};
 
 /// What the timer must do next: wait `delay_ticks` (≥ 1) after the step
 /// just made (or after the start), then pulse STEP with DIR = `forward`.
@@ -144,14 +144,15 @@ impl StepSource {
         {
             return 0;
         }
-        let max = max();
-        let end = start.wrapping_add(max);
-        let mut next = start;
-        while next != end && sched.entry(next).load(Ordering::Relaxed) == delay {
-            next = next.wrapping_add(1);
-        }
-        sched.next.store(next, Ordering::Relaxed);
-        next.wrapping_sub(start)
+        // up to the ring's end at most: a run there ends one entry early,
+        // once a ring, and the scan stays one contiguous loop
+        let i = start as usize % SCHEDULE_STEPS;
+        let max = (max() as usize).min(SCHEDULE_STEPS - i);
+        let taken = alike(&sched.ring()[i..i + max], delay);
+        sched
+            .next
+            .store(start.wrapping_add(taken as u32), Ordering::Relaxed);
+        taken as u32
     }
 
     /// The pending step runs into an active limit that brakes (0x6085 set)
@@ -335,4 +336,37 @@ impl StepSource {
         sched.flush.store(false, Ordering::Relaxed);
         sched.quiet.store(false, Ordering::Relaxed);
     }
+}
+
+/// How many of `entries`, from the first, hold `delay`: four compares to
+/// a loop round (written out: the images' size-optimised builds do not
+/// unroll), the constant-speed step's whole cost in a run.
+#[inline(always)]
+fn alike(entries: &[AtomicU32], delay: u32) -> usize {
+    let mut rest = entries;
+    while let [a, b, c, d, tail @ ..] = rest {
+        if a.load(Ordering::Relaxed) != delay {
+            break;
+        }
+        if b.load(Ordering::Relaxed) != delay {
+            rest = &rest[1..];
+            break;
+        }
+        if c.load(Ordering::Relaxed) != delay {
+            rest = &rest[2..];
+            break;
+        }
+        if d.load(Ordering::Relaxed) != delay {
+            rest = &rest[3..];
+            break;
+        }
+        rest = tail;
+    }
+    while let [a, tail @ ..] = rest {
+        if a.load(Ordering::Relaxed) != delay {
+            break;
+        }
+        rest = tail;
+    }
+    entries.len() - rest.len()
 }

@@ -240,6 +240,56 @@ fn ring_full_refuses_and_wraps() {
     }
 }
 
+/// A run ([`StepSource::advance_run`]) takes the equal delays after a
+/// plain step, up to what `max` allows and never past the ring's end
+/// (the next plain step goes on from the ring's start): round and round
+/// the ring, with the ring topped up meanwhile, every step is taken once
+/// and the position counts them; a run stops at the first other delay.
+#[test]
+fn runs_take_each_equal_step_once_and_stop_at_the_ring_end() {
+    const TOTAL: u32 = 6 * SCHEDULE_STEPS as u32;
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    let mut rng = xorshift(0x9E37_79B9_7F4A_7C15);
+    sched.push(seg(7 * ONE, 0, 0, 100, true)).unwrap();
+    let mut pushed = 100;
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(7));
+    let (mut made, mut wraps) = (1, 0);
+    while made < TOTAL {
+        while pushed < TOTAL && sched.free() >= 64 {
+            let n = (TOTAL - pushed).min(64);
+            sched.push(seg(7 * ONE, 0, 0, n, true)).unwrap();
+            pushed += n;
+        }
+        assert_eq!(src.advance_plain(&sched), Some(7), "step {made}");
+        made += 1;
+        let start = sched.next.load(Ordering::Relaxed);
+        let ask = (rng() % 300) as u32;
+        let taken = src.advance_run(&sched, 7, || ask);
+        let at = start as usize % SCHEDULE_STEPS;
+        assert!(taken <= ask && at + taken as usize <= SCHEDULE_STEPS);
+        if taken < ask && at + (taken as usize) < SCHEDULE_STEPS {
+            // stopped early, not at the ring's end: the queue's end
+            assert_eq!(made + taken, pushed, "a run stopped at {made}");
+        }
+        wraps += usize::from(at + taken as usize == SCHEDULE_STEPS);
+        made += taken;
+        assert_eq!(sched.position(), made as i32 - 1, "the pending step not yet made");
+    }
+    assert_eq!(made, TOTAL);
+    assert!(wraps > 0, "no run reached the ring's end");
+    assert!(src.advance(&sched).is_none());
+    assert_eq!(sched.position(), TOTAL as i32);
+    // an other delay ends a run at once
+    sched.push(seg(7 * ONE, 0, 0, 2, true)).unwrap();
+    sched.push(seg(9 * ONE, 0, 0, 3, true)).unwrap();
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(7));
+    assert_eq!(src.advance_plain(&sched), Some(7));
+    assert_eq!(src.advance_run(&sched, 7, || 100), 0);
+    assert_eq!(src.advance_plain(&sched), Some(9));
+    assert_eq!(src.advance_run(&sched, 9, || 100), 2);
+}
+
 /// A flush that drops a queued direction marker leaves the interrupt
 /// in the last push's direction: the next push (which needs no marker)
 /// goes the right way.
