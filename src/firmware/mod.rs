@@ -52,7 +52,7 @@ use embassy_stm32::interrupt::typelevel::Interrupt;
 use embedded_storage::nor_flash::ReadNorFlash;
 use modbus_drive::device::Identity;
 use modbus_drive::motion::PlannerConfig;
-use modbus_drive::params::ParamStore;
+use modbus_drive::params::{Boot, ParamStore};
 use modbus_drive::rtu::LineConfig;
 use modbus_drive::Device;
 
@@ -83,7 +83,7 @@ async fn main(spawner: Spawner) {
     let region = defmt::unwrap!(parts.param_flash.ok_or("parameter flash region"));
     let (range, capacity) = (region.range(), region.capacity() as u32);
     let mut store = defmt::unwrap!(ParamStore::new(region, 0..capacity));
-    let (line, address, de, dir_inverted) = install_device(&mut store, reset_cause);
+    let (line, address, de, dir_inverted) = boot_and_install(&mut store, reset_cause);
 
     let mut uart = parts.uart;
     defmt::unwrap!(rs485::apply_line(&mut uart, line, de).map_err(rs485::config_error));
@@ -136,26 +136,26 @@ async fn main(spawner: Spawner) {
     .await
 }
 
-/// Builds the core from the saved parameters and installs it for the
-/// tasks; returns the line, address, DE lead / tail and PA11 in force. A
-/// function of its own, not inlined: the `Device` is built on its frame,
-/// which is gone once it is installed (in `main`'s frame it would stay
-/// under every call of the control loop, `main` awaiting it), and a
-/// `Device` local of `main` would stay in main's future (a static) after
-/// it has been moved to the dispatcher: its RAM twice.
+/// The core built from the saved parameters and installed
+/// ([`install_device`]), the store read first ([`read_boot`]). Not async
+/// and not inlined: what it holds between the two stays on the stack, not
+/// in `main`'s future (a static).
 #[inline(never)]
-fn install_device(
+fn boot_and_install(
     store: &mut dispatch::Store,
     reset_cause: u16,
 ) -> (LineConfig, u8, modbus_drive::rtu::DriverEnable, bool) {
-    // The planner times steps in the step timer's ticks
-    // (calc::step_prescaler) and keeps to the board's limits; it fills
-    // the schedule in parts that the control loop spaces out.
-    let mut device = Device::with_planner_config(
-        Identity::new(board::NAME),
-        PlannerConfig::for_board(board::BOARD).with_fill_budget(control::FILL_BUDGET),
-    );
-    device.set_reset_cause(reset_cause);
+    let boot = read_boot(store);
+    install_device(&boot, reset_cause)
+}
+
+/// The saved parameters (the store's boot: an old layout taken over, the
+/// journal read). A function of its own, called before
+/// [`install_device`], not from it: reading the store goes deep, and
+/// below `install_device`'s frame, which holds the whole `Device`, it
+/// overran the F103's stack once the step ring was long.
+#[inline(never)]
+fn read_boot(store: &mut dispatch::Store) -> Boot {
     #[cfg_attr(not(feature = "board-g431"), allow(unused_mut))]
     let mut boot = store.boot();
     // A page the G431 cannot read (flash ECC after a power cut, fault.rs)
@@ -175,7 +175,30 @@ fn install_device(
             boot = store.boot();
         }
     }
-    device.apply_boot(&boot);
+    boot
+}
+
+/// Builds the core from the saved parameters `boot` and installs it for
+/// the tasks; returns the line, address, DE lead / tail and PA11 in
+/// force. A function of its own, not inlined: the `Device` is built on
+/// its frame, which is gone once it is installed (in `main`'s frame it
+/// would stay under every call of the control loop, `main` awaiting it),
+/// and a `Device` local of `main` would stay in main's future (a static)
+/// after it has been moved to the dispatcher: its RAM twice.
+#[inline(never)]
+fn install_device(
+    boot: &Boot,
+    reset_cause: u16,
+) -> (LineConfig, u8, modbus_drive::rtu::DriverEnable, bool) {
+    // The planner times steps in the step timer's ticks
+    // (calc::step_prescaler) and keeps to the board's limits; it fills
+    // the schedule in parts that the control loop spaces out.
+    let mut device = Device::with_planner_config(
+        Identity::new(board::NAME),
+        PlannerConfig::for_board(board::BOARD).with_fill_budget(control::FILL_BUDGET),
+    );
+    device.set_reset_cause(reset_cause);
+    device.apply_boot(boot);
     let at = (
         device.line(),
         device.address(),

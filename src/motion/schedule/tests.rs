@@ -274,7 +274,11 @@ fn runs_take_each_equal_step_once_and_stop_at_the_ring_end() {
         }
         wraps += usize::from(at + taken as usize == SCHEDULE_STEPS);
         made += taken;
-        assert_eq!(sched.position(), made as i32 - 1, "the pending step not yet made");
+        assert_eq!(
+            sched.position(),
+            made as i32 - 1,
+            "the pending step not yet made"
+        );
     }
     assert_eq!(made, TOTAL);
     assert!(wraps > 0, "no run reached the ring's end");
