@@ -13,6 +13,9 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
   src/boards.rs):
   the share of core cycles not spent asleep in WFI/WFE (`--stats`), under the
   runner's one-cycle-per-instruction assumption (docs/fw-sim.md, "Time");
+- core cycles a step on ramps: a position move at the board's limit that
+  is all ramp, under `--profile`, the instructions a step of the planner,
+  the expansion, the integer helpers and the refill side;
 - the highest step rate at which every pulse is on time: position moves at
   0x6081 rising to the board's limit, each traced pulse (`--trace-steps`)
   compared with the core planner's schedule for the same move at the board's
@@ -32,7 +35,8 @@ it without writing the file; `--only reset` runs the reset-window section
 alone and prints it.
 
 `--only stepping-latency` prints the reply latency while stepping at each
-board's limit, likewise without writing the file.
+board's limit, likewise without writing the file; `--only ramp-cost` the
+core cycles a step on ramps.
 """
 
 from __future__ import annotations
@@ -177,6 +181,96 @@ def load_at(board: str, rate: int, work: Path) -> tuple[float, float, float]:
         return 100 * busy / (busy + asleep), steps, speed
     finally:
         fw.stop()
+
+
+def profile(path: Path) -> dict[str, int]:
+    """`--profile`: instructions per firmware function since reset."""
+    for _ in range(100):
+        try:
+            return {name: int(n) for n, name in
+                    (line.split(" ", 1) for line in path.read_text().splitlines())}
+        except (OSError, ValueError):
+            time.sleep(0.01)
+    raise RuntimeError(f"no profile in {path}")
+
+
+# What makes the delays in the core, by the functions `--profile` names:
+# the planner (goals, profile, segments and their fits) and the schedule's
+# expansion of segments into delays; the refill side (the step source, the
+# burst writer, the firmware's refill and its interrupt) apart; the integer
+# helpers both call (wide shifts and divisions) apart, as the glue calls a
+# few of them too.
+RAMP_COST_PARTS = [
+    ("planner", ("modbus_drive::motion::planner", "modbus_drive::motion::profile")),
+    ("expansion", ("modbus_drive::motion::schedule::segment",
+                   "modbus_drive::motion::schedule::ring::StepSchedule::push")),
+    ("arithmetic helpers", ("modbus_drive::arith", "__aeabi_", "compiler_builtins::int")),
+    ("refill", ("modbus_drive::firmware::steps", "modbus_drive::motion::burst",
+                "modbus_drive::motion::schedule::source", "DMA1_CHANNEL")),
+]
+
+
+def ramp_cost(board: str, work: Path) -> tuple[int, int, list[float], float]:
+    """A position move from rest to rest at the board's limit that is all
+    ramp (distance v²/a: the deceleration starts where the acceleration
+    ends), the bus quiet: (steps/s at the top, steps, instructions a step
+    per RAMP_COST_PARTS entry, all the core's busy cycles a step)."""
+    rate = LIMITS[board]
+    distance = rate * rate // MAX_ACCEL
+    st, pf = work / f"{board}-ramp.stats", work / f"{board}-ramp.profile"
+    fw = c.Firmware(work, board, ["--stats", str(st), "--profile", str(pf), "--quiet"])
+    try:
+        m = c.Master(fw.client())
+        m.enable()
+        m.write(c.MODE, 1)
+        m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+        unlimited_to(m, rate)
+        m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
+        m.write32(c.TARGET_POSITION, distance)
+        # a snapshot from after the last frame, before the start
+        a = wait_stats(st, stats(st)["time_ns"] + 20_000_000)
+        pa = profile(pf)
+        m.write(c.CONTROLWORD, 0x001F)
+        m.c.close()
+        deadline = time.monotonic() + 120
+        while stats(st)["steps"] - a["steps"] < distance:
+            assert time.monotonic() < deadline, f"{board}: ramp move unfinished"
+            time.sleep(0.02)
+        b = wait_stats(st, stats(st)["time_ns"] + 20_000_000)
+        pb = profile(pf)
+        fw.alive()
+    finally:
+        fw.stop()
+    steps = b["steps"] - a["steps"]
+    assert steps == distance, (board, steps, distance)
+    parts = [sum(n - pa.get(name, 0) for name, n in pb.items() if name.startswith(prefixes))
+             / steps for _, prefixes in RAMP_COST_PARTS]
+    return rate, steps, parts, (b["busy_cycles"] - a["busy_cycles"]) / steps
+
+
+def ramp_cost_section(work: Path) -> list[str]:
+    lines = ["", "## Core cycles a step making the delays on ramps", "",
+             "A position move from rest to rest at the board's step rate limit and",
+             f"the planner's steepest acceleration ({MAX_ACCEL} steps/s²), all ramp",
+             "(distance v²/a), no frame meanwhile, under `fw-sim --profile`:",
+             "instructions a step (one cycle each, docs/fw-sim.md) in the functions",
+             "that make the delays — the planner (`motion::planner`, `motion::profile`)",
+             "and the expansion (`motion::schedule::segment`, the push) — then in the",
+             "integer helpers they call (the glue calls a few of them too) and, for",
+             "comparison, on the refill side (`firmware::steps`, `motion::burst`, the",
+             "step source, the DMA interrupt); the last column is every busy cycle",
+             "of the move a step. Machine-outlined fragments (`OUTLINED_FUNCTION_*`)",
+             "are in no column but the last.", "",
+             "| board | steps/s at the top | steps | "
+             + " | ".join(name for name, _ in RAMP_COST_PARTS) + " | all busy cycles |",
+             "|---|---|---|" + "---|" * (len(RAMP_COST_PARTS) + 1)]
+    for board in c.BOARDS:
+        rate, steps, parts, busy = ramp_cost(board, work)
+        lines.append(f"| {board} | {rate} | {steps} | "
+                     + " | ".join(f"{x:.1f}" for x in parts) + f" | {busy:.1f} |")
+        print(lines[-1], flush=True)
+    return lines
 
 
 def host_schedule(board: str, distance: int, rate: int, accel: int) -> list[int]:
@@ -428,7 +522,7 @@ def rates_from_file() -> dict[str, int]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--only", choices=["flood", "stepping-latency", "reset"],
+    ap.add_argument("--only", choices=["flood", "stepping-latency", "reset", "ramp-cost"],
                     help="run one section and print it; the file is not written")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp(prefix="fw-sim-measure-"))
@@ -440,6 +534,9 @@ def main() -> int:
         return 0
     if args.only == "reset":
         print("\n".join(reset_window_section(work)))
+        return 0
+    if args.only == "ramp-cost":
+        print("\n".join(ramp_cost_section(work)))
         return 0
     lines = ["# fw-sim measurements (generated)", "",
              "Written by `fw-sim/measure.py` from emulated time; do not edit. Method and",
@@ -484,6 +581,7 @@ def main() -> int:
             load, measured, speed = load_at(board, rate, work)
             lines.append(f"| {board} | {rate} | {measured:.0f} | {load:.1f} | {speed:.2f} |")
             print(lines[-1], flush=True)
+    lines += ramp_cost_section(work)
     lines += ["", "## Highest step rate with every pulse on time", "",
               f"Position moves from rest at 0x6081 rising in {STEP_GRID} steps/s increments",
               "up to the board's step rate limit (the firmware clamps above it), ramps",
