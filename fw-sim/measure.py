@@ -110,6 +110,19 @@ def unlimited_to(m: c.Master, rate: int):
         m.write(c.PA_BASE + 15, c.pulse_for(rate))
 
 
+def ready_at(m: c.Master, mode: int, rate: int):
+    """Operation enabled in `mode` (0x6060: 1 position, 3 velocity), both
+    ramps at MAX_ACCEL and 0x6081 at `rate`, nothing but the board's limit
+    clamping it."""
+    m.enable()
+    m.write(c.MODE, mode)
+    # 0x6083/0x6084 in 0.1 r/s², 0x6081 in 0.1 r/s (SPEC §5)
+    m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+    m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
+    unlimited_to(m, rate)
+    m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
+
+
 def latencies(fw: c.Firmware, trace: Path, n: int) -> list[float]:
     """µs from each request's end to its reply's first start bit."""
     with fw.raw() as bus:
@@ -221,12 +234,7 @@ def ramp_cost(board: str, work: Path) -> tuple[int, int, list[float], float]:
     fw = c.Firmware(work, board, ["--stats", str(st), "--profile", str(pf), "--quiet"])
     try:
         m = c.Master(fw.client())
-        m.enable()
-        m.write(c.MODE, 1)
-        m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
-        m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
-        unlimited_to(m, rate)
-        m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
+        ready_at(m, 1, rate)
         m.write32(c.TARGET_POSITION, distance)
         # a snapshot from after the last frame, before the start
         a = wait_stats(st, stats(st)["time_ns"] + 20_000_000)
@@ -378,12 +386,7 @@ def flooded_move(board: str, rate: int, work: Path) -> tuple[int, int, int]:
     answered = [0]
     try:
         m = c.Master(fw.client())
-        m.enable()
-        m.write(c.MODE, 1)
-        m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
-        m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
-        unlimited_to(m, rate)
-        m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
+        ready_at(m, 1, rate)
         steps0 = stats(st)["steps"]
         for k, target in enumerate((distance, 0)):
             m.write32(c.TARGET_POSITION, target)
@@ -449,12 +452,7 @@ def stepping_latency(board: str, rate: int, work: Path) -> list[float]:
     fw = c.Firmware(work, board, ["--trace-line", str(trace), "--quiet"])
     try:
         m = c.Master(fw.client())
-        m.enable()
-        m.write(c.MODE, 3)
-        m.write(c.ACCELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
-        m.write(c.DECELERATION, MAX_ACCEL * 10 // STEPS_PER_REV)
-        unlimited_to(m, rate)
-        m.write32(c.PROFILE_VELOCITY, rate * 10 // STEPS_PER_REV)
+        ready_at(m, 3, rate)
         deadline = time.monotonic() + 30
         # 0x606C is in r/min (SPEC §5)
         while m.read32(c.ACTUAL_VELOCITY) * STEPS_PER_REV // 60 < rate:

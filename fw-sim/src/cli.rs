@@ -12,7 +12,7 @@ use crate::motor::MotorOptions;
 pub const USAGE: &str = "\
 usage: fw-sim [--board g431|f103] [--elf FILE] [--tcp HOST:PORT]... [--modbus-tcp HOST:PORT]...
               [--pty-link PATH]
-              [--trace-steps FILE] [--trace-line FILE] [--trace-pins FILE] [--stats FILE] [--profile FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
+              [--trace-steps FILE] [--trace-line FILE] [--trace-pins FILE] [--trace-calls FILE] [--stats FILE] [--profile FILE] [--noise KIND@N,...] [--state FILE] [--power-cut N] [--cw-limit STEPS] [--ccw-limit STEPS]
               [--home-switch FROM:TO] [--write-protect] [--run-for SECONDS] [--quiet]
               [--encoder] [--encoder-counts N] [--steps-per-rev N] [--stall-at STEPS]
               [--slip STEPS@POS] [--encoder-noise COUNTS]
@@ -27,6 +27,8 @@ Runs the unmodified firmware image of a board on an emulated STM32.
   --trace-steps CSV of every step pulse: time_ns,dir,width_ns
   --trace-line  CSV of the line: time_ns,event (rx, tx, de),value
   --trace-pins  CSV of ENABLE, BRAKE, STEP, DE: time_ns,cycles since reset,pin,state (0, 1, af, z)
+  --trace-calls CSV of which firmware function runs when: time_ns,function, a
+                line each time another one starts (large: for short runs)
   --noise       line faults on received characters, KIND@N[,KIND@N...]: KIND
                 parity, framing, noise or break on the N-th character from
                 the master (counted from 1 since the start)
@@ -73,6 +75,7 @@ pub struct Args {
     pub trace_steps: Option<PathBuf>,
     pub trace_line: Option<PathBuf>,
     pub trace_pins: Option<PathBuf>,
+    pub trace_calls: Option<PathBuf>,
     pub stats: Option<PathBuf>,
     pub profile: Option<PathBuf>,
     /// Line faults: (1-based index of the received character, kind).
@@ -102,6 +105,7 @@ impl Args {
             trace_steps: None,
             trace_line: None,
             trace_pins: None,
+            trace_calls: None,
             stats: None,
             profile: None,
             noise: Vec::new(),
@@ -157,6 +161,7 @@ impl Args {
                 "--trace-steps" => a.trace_steps = Some(v.into()),
                 "--trace-line" => a.trace_line = Some(v.into()),
                 "--trace-pins" => a.trace_pins = Some(v.into()),
+                "--trace-calls" => a.trace_calls = Some(v.into()),
                 "--stats" => a.stats = Some(v.into()),
                 "--profile" => a.profile = Some(v.into()),
                 "--power-cut" => a.power_cut = Some(num(&flag, &v)?),

@@ -192,6 +192,12 @@ fn install_hooks(uc: &mut Uc, image: &Image) -> Result<(), String> {
             if let Some(p) = m.profile.as_mut() {
                 p.record(addr as u32, n);
             }
+            if m.call_trace.is_some() {
+                let t = m.now();
+                if let Some(ct) = m.call_trace.as_mut() {
+                    ct.block(t, addr as u32);
+                }
+            }
             if m.slice_insns >= m.budget || std::mem::take(&mut m.stop_soon) {
                 let _ = uc.emu_stop();
             } else if m.pending_hint {

@@ -65,6 +65,12 @@ impl Image {
         Some((*s, *size, name.as_str(), a - s))
     }
 
+    /// (address, size, name) of every symbol (`--trace-calls` names the
+    /// functions by them).
+    pub fn symbols(&self) -> Vec<(u32, u32, String)> {
+        self.symbols.clone()
+    }
+
     /// The name of the symbol holding `addr`, if one does.
     pub fn function(&self, addr: u32) -> Option<&str> {
         let (_, size, name, off) = self.nearest(addr)?;

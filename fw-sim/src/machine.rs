@@ -120,6 +120,8 @@ pub struct Machine {
     pub trace: Option<StepTrace>,
     /// `--trace-pins` (pin_trace.rs).
     pub pin_trace: Option<PinTrace>,
+    /// `--trace-calls` (call_trace.rs).
+    pub call_trace: Option<crate::call_trace::CallTrace>,
     /// Core cycles at the last reset.
     reset_cycles: u64,
     /// The motor and its encoder (`--encoder`), part of the world outside
@@ -189,6 +191,7 @@ impl Machine {
             steps_total: 0,
             trace,
             pin_trace: None,
+            call_trace: None,
             reset_cycles: 0,
             motor: None,
             missed_reported: 0,

@@ -2,6 +2,7 @@
 //! connects its USART1 to TCP or a pseudo-terminal, like the virtual drive.
 //! See docs/fw-sim.md.
 
+mod call_trace;
 mod chip;
 mod cli;
 mod clock;
@@ -127,6 +128,12 @@ fn run() -> Result<i32, String> {
     machine.motor = args.motor.map(motor::Motor::new);
     if args.profile.is_some() {
         machine.profile = Some(profile::Profile::default());
+    }
+    if let Some(p) = &args.trace_calls {
+        machine.call_trace = Some(
+            call_trace::CallTrace::create(p, image.symbols())
+                .map_err(|e| format!("{}: {e}", p.display()))?,
+        );
     }
     let mut uc = cpu::create(&image, machine)?;
     let rtt = if args.quiet {
@@ -342,6 +349,9 @@ impl Runner {
             return;
         }
         self.last_stats = Instant::now();
+        if let Some(ct) = self.uc.get_data_mut().call_trace.as_mut() {
+            ct.flush();
+        }
         if let (Some(path), Some(p)) = (&self.profile, &self.uc.get_data().profile) {
             p.write(&self.image, path);
         }

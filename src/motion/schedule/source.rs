@@ -144,8 +144,8 @@ impl StepSource {
         {
             return 0;
         }
-        // up to the ring's end at most: a run there ends one entry early,
-        // once a ring, and the scan stays one contiguous loop
+        // up to the ring's end at most (a run across it becomes two
+        // entries, once a ring round): the scan stays one contiguous loop
         let i = start as usize % SCHEDULE_STEPS;
         let max = (max() as usize).min(SCHEDULE_STEPS - i);
         let taken = alike(&sched.ring()[i..i + max], delay);
