@@ -12,41 +12,27 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::Path;
 
+use crate::elf::Symbols;
+
 pub struct CallTrace {
     out: BufWriter<File>,
-    /// (start, end, name) of every sized function, sorted by start.
-    functions: Vec<(u32, u32, String)>,
-    /// The function index of each block seen (`None`: in no function).
+    symbols: Symbols,
+    /// The symbol index of each block seen (`None`: in no symbol).
     of_block: HashMap<u32, Option<usize>>,
     /// The function of the block before.
     last: Option<Option<usize>>,
 }
 
 impl CallTrace {
-    /// `functions`: (start, size, name) of the image's symbols, any order.
-    pub fn create(path: &Path, functions: Vec<(u32, u32, String)>) -> std::io::Result<Self> {
+    pub fn create(path: &Path, symbols: Symbols) -> std::io::Result<Self> {
         let mut out = BufWriter::new(File::create(path)?);
         writeln!(out, "time_ns,function")?;
-        let mut functions: Vec<_> = functions
-            .into_iter()
-            .filter(|f| f.1 > 0)
-            .map(|(start, size, name)| (start, start.saturating_add(size), name))
-            .collect();
-        functions.sort();
         Ok(Self {
             out,
-            functions,
+            symbols,
             of_block: HashMap::new(),
             last: None,
         })
-    }
-
-    fn function_of(&self, addr: u32) -> Option<usize> {
-        let i = self
-            .functions
-            .partition_point(|f| f.0 <= addr)
-            .checked_sub(1)?;
-        (addr < self.functions[i].1).then_some(i)
     }
 
     /// A basic block at `addr` starts at `t_ps` (emulated ps).
@@ -54,7 +40,7 @@ impl CallTrace {
         let f = match self.of_block.get(&addr) {
             Some(&f) => f,
             None => {
-                let f = self.function_of(addr & !1);
+                let f = self.symbols.index(addr);
                 self.of_block.insert(addr, f);
                 f
             }
@@ -63,7 +49,7 @@ impl CallTrace {
             return;
         }
         self.last = Some(f);
-        let name = f.map_or("?", |i| self.functions[i].2.as_str());
+        let name = f.map_or("?", |i| self.symbols.name(i));
         let _ = writeln!(self.out, "{},{name}", (t_ps + 500) / 1000);
     }
 
@@ -79,17 +65,15 @@ mod tests {
     #[test]
     fn a_line_each_time_another_function_runs() {
         let path = std::env::temp_dir().join(format!("call-trace-{}.csv", std::process::id()));
-        let functions = vec![
+        let symbols = Symbols::new(vec![
             (0x200, 0x10, "g".to_string()),
             (0x100, 0x20, "f".to_string()),
-            (0x300, 0, "unsized".to_string()),
-        ];
-        let mut t = CallTrace::create(&path, functions).unwrap();
+        ]);
+        let mut t = CallTrace::create(&path, symbols).unwrap();
         t.block(1_000, 0x100); // f
         t.block(2_000, 0x108); // f again: no line
         t.block(3_400, 0x201); // g (Thumb bit)
         t.block(4_000, 0x120); // past f's end: none
-        t.block(5_000, 0x300); // unsized symbols name nothing
         t.block(6_600, 0x110); // f
         t.flush();
         let text = std::fs::read_to_string(&path).unwrap();

@@ -6,9 +6,40 @@ use object::{Object, ObjectSymbol, SymbolKind};
 
 pub struct Image {
     pub bytes: Vec<u8>,
-    /// (address, size, name), sorted by address.
-    symbols: Vec<(u32, u32, String)>,
+    symbols: Symbols,
     pub rtt: Option<u32>,
+}
+
+/// The ELF's text and data symbols: (address, size, name), sorted by
+/// address.
+#[derive(Clone)]
+pub struct Symbols(Vec<(u32, u32, String)>);
+
+impl Symbols {
+    /// From (address, size, name) in any order.
+    pub fn new(mut symbols: Vec<(u32, u32, String)>) -> Self {
+        symbols.sort();
+        Self(symbols)
+    }
+
+    /// The symbol at or below `addr` (Thumb bit cleared): its index and
+    /// `addr`'s offset in it.
+    fn nearest(&self, addr: u32) -> Option<(usize, u32)> {
+        let a = addr & !1;
+        let i = self.0.partition_point(|s| s.0 <= a).checked_sub(1)?;
+        Some((i, a - self.0[i].0))
+    }
+
+    /// The index of the symbol holding `addr`, if one does.
+    pub fn index(&self, addr: u32) -> Option<usize> {
+        let (i, off) = self.nearest(addr)?;
+        (off < self.0[i].1.max(1)).then_some(i)
+    }
+
+    /// The name of the symbol at `index`.
+    pub fn name(&self, index: usize) -> &str {
+        &self.0[index].2
+    }
 }
 
 impl Image {
@@ -29,10 +60,9 @@ impl Image {
                 symbols.push(((s.address() as u32) & !1, s.size() as u32, name));
             }
         }
-        symbols.sort();
         Ok(Self {
             bytes: bytes.clone(),
-            symbols,
+            symbols: Symbols::new(symbols),
             rtt,
         })
     }
@@ -56,33 +86,22 @@ impl Image {
         Ok(out)
     }
 
-    /// The symbol at or below `addr` (Thumb bit cleared): its start, size
-    /// and name, and `addr`'s offset in it.
-    fn nearest(&self, addr: u32) -> Option<(u32, u32, &str, u32)> {
-        let a = addr & !1;
-        let i = self.symbols.partition_point(|s| s.0 <= a);
-        let (s, size, name) = &self.symbols[i.checked_sub(1)?];
-        Some((*s, *size, name.as_str(), a - s))
-    }
-
-    /// (address, size, name) of every symbol (`--trace-calls` names the
-    /// functions by them).
-    pub fn symbols(&self) -> Vec<(u32, u32, String)> {
+    /// The symbols (`--trace-calls` names the functions by them).
+    pub fn symbols(&self) -> Symbols {
         self.symbols.clone()
     }
 
     /// The name of the symbol holding `addr`, if one does.
     pub fn function(&self, addr: u32) -> Option<&str> {
-        let (_, size, name, off) = self.nearest(addr)?;
-        (off < size.max(1)).then_some(name)
+        self.symbols.index(addr).map(|i| self.symbols.name(i))
     }
 
     /// `name+offset` of the symbol holding `addr`, or of the nearest
     /// unsized one below it; "?" if none.
     pub fn symbol(&self, addr: u32) -> String {
-        match self.nearest(addr) {
-            Some((_, size, name, off)) if off < size.max(1) || size == 0 => {
-                format!("{name}+{off:#x}")
+        match self.symbols.nearest(addr) {
+            Some((i, off)) if off < self.symbols.0[i].1.max(1) || self.symbols.0[i].1 == 0 => {
+                format!("{}+{off:#x}", self.symbols.name(i))
             }
             _ => "?".into(),
         }

@@ -144,7 +144,7 @@ impl Planner {
         let k = seg
             .count()
             .min(sched.free() as u32)
-            .min(limit.checked_shl(shift).unwrap_or(u32::MAX));
+            .min(limit.saturating_mul(1 << shift));
         if (self
             .t_isr
             .wrapping_add(seg.interval())
