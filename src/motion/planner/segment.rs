@@ -5,7 +5,7 @@ use super::slots::SlotInfo;
 use super::{Planner, CONSTANT_STEPS_PER_BUDGET, SCHEDULE_SLOTS};
 use crate::arith::div_i64;
 use crate::motion::profile::w_along;
-use crate::motion::schedule::{Segment, StepSchedule, StepSink};
+use crate::motion::schedule::{Segment, StepSchedule, StepSink, MAX_FINE_BITS};
 
 /// The segment being handed to the interrupt: fitted and pushed whole
 /// (in parts when the ring lacks room), and cut at the horizon by a new
@@ -70,14 +70,14 @@ impl Planner {
         let c1 = s1.map_or(0, |s1| profile.curvature(s1));
         // the span the interrupt must make, from where it will be
         let span = t_last.wrapping_sub(self.t_isr);
-        let [interval, add, add2, add3, add4] = match (n, s0, s1) {
+        let ([interval, add, add2, add3, add4], fine) = match (n, s0, s1) {
             (2.., Some(s0), Some(s1)) => {
                 let ends = [(s0, c0), (s1, c1)];
                 fit_segment(n, ends, span)
             }
             // single steps (or no slope at the end: evenly, the rest of
             // the span is carried to the next segment through t_isr)
-            _ => [span >> n.trailing_zeros(), 0, 0, 0, 0],
+            _ => ([span >> n.trailing_zeros(), 0, 0, 0, 0], 0),
         };
         self.t_ideal = t_last;
         self.planned_steps = self.planned_steps.wrapping_add(n);
@@ -94,7 +94,8 @@ impl Planner {
             add4 as i64,
             n as u32,
             profile.forward(),
-        );
+        )
+        .with_fine_bits(fine);
         self.pending = Pending {
             rest: seg,
             start: seg,
@@ -233,10 +234,10 @@ impl Planner {
         self.t_ideal = self.t_isr;
         // T'(j) from the forward differences at j (D = ln(1 + Δ)):
         // Δ − Δ²/2 + Δ³/3 − Δ⁴/4 + Δ⁵/5, exact for the quintic
-        let higher = (r.add().wrapping_mul(-30))
-            .wrapping_add(r.add2().wrapping_mul(20))
+        let fine = (r.add2().wrapping_mul(20))
             .wrapping_add(r.add3().wrapping_mul(-15))
             .wrapping_add(r.add4().wrapping_mul(12));
+        let higher = (r.add().wrapping_mul(-30)).wrapping_add(fine >> r.fine_bits());
         self.s_join = r.interval().wrapping_add(div_i64(higher, 60) as u64);
         self.s_end = 0;
         taken
@@ -253,8 +254,19 @@ pub(super) fn signed(forward: bool, n: u64) -> i64 {
     }
 }
 
-/// `[interval, add, add2, add3, add4]` (Q32.32, two's complement) of a
-/// segment of `n = 2^k ≥ 2` steps whose step times follow the quintic
+/// The forward differences at 0 of `j³`, `j⁴` and `j⁵` (`Δ^i j^m = i!·S(m, i)`),
+/// by difference order 1 to 5: the coefficients of `a3`, `a4`, `a5` in
+/// each of [`fit_segment`]'s terms.
+const FORWARD_DIFFS: [[i16; 3]; 5] = [
+    [1, 1, 1],
+    [6, 14, 30],
+    [6, 36, 150],
+    [0, 24, 240],
+    [0, 0, 120],
+];
+
+/// `[interval, add, add2, add3, add4]` (Q32.32, two's complement; `add2`
+/// on with the fraction bits returned beside them) of a segment of `n = 2^k ≥ 2` steps whose step times follow the quintic
 /// `T(j)` with `T(0) = 0`, `T(n) = span` and the slopes and curvatures
 /// `ends = [(T'(0), T''(0)), (T'(n), T''(n))]` (quintic Hermite: the
 /// profile's `dt/dx = 1/v` and `d²t/dx² = −a/v³` at both ends, so that
@@ -265,7 +277,12 @@ pub(super) fn signed(forward: bool, n: u64) -> i64 {
 /// of the highest term, summed over the segment, stays below 1/100 tick.
 /// The caller accounts the rest: it tracks the time the interrupt will
 /// really reach.
-pub(super) fn fit_segment(n: u64, ends: [(u64, i64); 2], span: u64) -> [u64; 5] {
+///
+/// `add2`, `add3` and `add4` get up to [`MAX_FINE_BITS`] more fraction
+/// bits (`3k − 1` at most: each numerator is still shifted right), as
+/// many as keep `|add2|`, `n·|add3|` and `n²/2·|add4|` below 2^29, so that the
+/// expansion's 32-bit loop still takes them (schedule's `Expansion::narrow`).
+pub(super) fn fit_segment(n: u64, ends: [(u64, i64); 2], span: u64) -> ([u64; 5], u32) {
     let [(s0, c0), (s1, c1)] = ends;
     let k = n.trailing_zeros();
     // R, R1 are small remainders of large numbers: wrapping arithmetic
@@ -281,18 +298,49 @@ pub(super) fn fit_segment(n: u64, ends: [(u64, i64); 2], span: u64) -> [u64; 5] 
     let n3 = 10 * r - 4 * r1h + r2h2;
     let n4 = -15 * r + 7 * r1h - 2 * r2h2;
     let n5 = 6 * r - 3 * r1h + r2h2;
-    // a3 = N3/n³, a4 = N4/n⁴, a5 = N5/n⁵; Δ^k of j^m at 0 is k!·S(m,k):
-    // (1,6,6), (1,14,36,24), (1,30,150,240,120). Each term rounded
-    // separately (≤ 1.5 units of 2^-32 tick), the highest once.
-    let rnd = |x: i64, sh: u32| ((x >> (sh - 1)) + 1) >> 1;
-    let t = |c3: i64, c4: i64, c5: i64| {
-        (rnd(c3 * n3, 3 * k) + rnd(c4 * n4, 4 * k) + rnd(c5 * n5, 5 * k)) as u64
+    // a3 = N3/n³, a4 = N4/n⁴, a5 = N5/n⁵ (FORWARD_DIFFS). Each term
+    // rounded separately (≤ 1.5 units of its last bit), the highest once.
+    let nums = [n3, n4, n5];
+    let mut fine = MAX_FINE_BITS.min(3 * k - 1);
+    let [t1, t2, add2, add3, add4] = loop {
+        let t = fit_terms(nums, k, fine);
+        // bits of |add2|, n·|add3| and n²/2·|add4|, at most
+        let bits = |x: u64, scale: u32| 64 - (x as i64).unsigned_abs().leading_zeros() + scale;
+        let size = bits(t[2], 0).max(bits(t[3], k)).max(bits(t[4], 2 * k - 1));
+        if size <= 29 || fine == 0 {
+            break t;
+        }
+        // fewer bits: the slow start of a ramp, where the terms are large
+        // and the segments short
+        fine = fine.saturating_sub(size - 29);
     };
-    [
-        s0.wrapping_add((c0 >> 1) as u64).wrapping_add(t(1, 1, 1)),
-        (c0 as u64).wrapping_add(t(6, 14, 30)),
-        t(6, 36, 150),
-        t(0, 24, 240),
-        t(0, 0, 120),
-    ]
+    (
+        [
+            s0.wrapping_add((c0 >> 1) as u64).wrapping_add(t1),
+            (c0 as u64).wrapping_add(t2),
+            add2,
+            add3,
+            add4,
+        ],
+        fine,
+    )
+}
+
+/// [`fit_segment`]'s five terms from its numerators `N3`, `N4`, `N5` over
+/// `n = 2^k`, `add2` on with `fine` more fraction bits. Out of line, and a
+/// loop: it runs once or twice a segment.
+#[inline(never)]
+fn fit_terms(nums: [i64; 3], k: u32, fine: u32) -> [u64; 5] {
+    let mut out = [0u64; 5];
+    for (i, (term, diffs)) in out.iter_mut().zip(FORWARD_DIFFS).enumerate() {
+        let f = if i < 2 { 0 } else { fine };
+        let mut sum = 0i64;
+        for (p, (c, x)) in diffs.iter().zip(nums).enumerate() {
+            // rounded to the nearest unit of the term's last bit
+            let sh = (3 + p as u32) * k - f;
+            sum += (((i64::from(*c) * x) >> (sh - 1)) + 1) >> 1;
+        }
+        *term = sum as u64;
+    }
+    out
 }

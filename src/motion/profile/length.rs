@@ -3,6 +3,7 @@
 
 use super::fixed::{log2_q8, log2_q8_64, log2_q8_up, LOG2_Q8_SLACK};
 use super::{Profile, X_FRAC};
+use crate::motion::schedule::MAX_FINE_BITS;
 
 /// Largest segment, as a power of two (steps), reached on a cruise (a
 /// ramp's are shorter, [`MAX_RAMP_SEGMENT_LOG2`]): a segment is pushed in
@@ -53,6 +54,9 @@ impl SegmentBudget {
 pub(super) const LOG2_Q8_1000: i32 = 2551;
 
 pub(super) const LOG2_Q8_250: i32 = 2039;
+
+/// `⌈256·log2 1000⌉`.
+pub(super) const LOG2_Q8_1000_UP: i32 = 2552;
 
 /// `⌈256·log2 40⌉`.
 pub(super) const LOG2_Q8_40_UP: i32 = 1363;
@@ -117,16 +121,21 @@ impl Profile {
     ///   sees within 0.2 % (the bound is +2 %).
     /// - Precision: `curv` is the curvature at the start
     ///   ([`Profile::curvature`] at `step_ticks`). The segment's terms are
-    ///   rounded to 2^-32 tick, and the highest one's rounding (½ unit)
-    ///   reaches the last interval `C(n−1, 4)` times: kept below 0.1 % of
-    ///   the interval change per step (`|t''|`, which shrinks by up to
-    ///   45 % along an accelerating segment), `n⁴ ≤ |t''|/40` in units of
-    ///   2^-32 tick (0.5 % looked safe by this count, with the fit's
-    ///   0.2 % under the 2 % bound, but let through acceleration spikes of
-    ///   +2.1 % to +4.3 % in the random-move proptests, 2 runs in 36 of
-    ///   300 cases: the margin is kept); its time error, `C(n, 5)` half
-    ///   units, stays below 1/30 tick with ramp segments of at most 2^7
-    ///   steps.
+    ///   rounded to 2^-32 tick, `add2` on to 2^-(32 + f) with the fit's
+    ///   `f = min(16, 3k − 1)` fine bits, and the highest one's rounding
+    ///   (½ unit) reaches the last interval `C(n−1, 4)` times: kept below
+    ///   0.1 % of the interval change per step (`|t''|`, which shrinks by
+    ///   up to 45 % along an accelerating segment), `n⁴ ≤ 2^f·|t''|/40` in
+    ///   units of 2^-32 tick (0.5 % looked safe by this count, with the
+    ///   fit's 0.2 % under the 2 % bound, but let through acceleration
+    ///   spikes of +2.1 % to +4.3 % in the random-move proptests, 2 runs
+    ///   in 36 of 300 cases: the margin is kept); its time error, `C(n, 5)`
+    ///   half units, stays below 1/30 tick with ramp segments of at most
+    ///   2^7 steps. `add`, which drops the fraction of the fine `add2` at
+    ///   each step, is off by at most `n` units at the end: `n ≤
+    ///   |t''|/1000` keeps that within 0.1 % too. The fine bits are what
+    ///   keeps a ramp's segments long at high speed, where `|t''|` is
+    ///   small.
     ///
     /// No division or root: the bounds are compared as logarithms
     /// (`log2_q8`, 1/256 bit, rounded towards shorter segments).
@@ -148,6 +157,14 @@ impl Profile {
                 log2_q8(self.aw.max(1)) - (log2_q8(sl) + LOG2_Q8_SLACK) - (X_FRAC as i32) * 256;
             let accel = piece.slope > 0;
             k = k.min((log_m - if accel { 256 } else { 512 }) >> 8);
+            if !avail.is_power_of_two() {
+                // at most half the piece's rest: its last segments get
+                // shorter by halves, each taking over the small time
+                // error of the one before as a change of acceleration
+                // far below the bound; a short segment after a long one
+                // would take over a long one's error
+                k = k.min((avail / 2).ilog2() as i32);
+            }
             // E (ticks·256) = B/2 − ¼ with B = min(1 µs, p/25)
             let p_q8 = s0 >> 24;
             let b_q8 = budget.us_q8.min((p_q8 * 41) >> 10);
@@ -160,8 +177,14 @@ impl Profile {
             let log_p = log2_q8_up(s0) - 32 * 256;
             let x = log_k + log_e + 5 * log_m - log_p;
             k = k.min(x.div_euclid(6 * 256));
-            let c = curv.unsigned_abs().max(1);
-            k = k.min((log2_q8_64(c) - LOG2_Q8_40_UP).div_euclid(4 * 256));
+            let log_c = log2_q8_64(curv.unsigned_abs().max(1));
+            // with the fit's fine bits f(k) = min(16, 3k − 1): 4k − f(k)
+            // ≤ log2(|t''|/40), and n ≤ |t''|/1000. The second makes the
+            // first hold where 3k − 1 < 16 (k ≤ 5: it needs k + 1 ≤
+            // log2(|t''|/40)), so the first is checked with f = 16 only.
+            let fine = MAX_FINE_BITS as i32 * 256;
+            k = k.min((log_c - LOG2_Q8_40_UP + fine).div_euclid(4 * 256));
+            k = k.min((log_c - LOG2_Q8_1000_UP).div_euclid(256));
             // and the time error of that rounding, C(n, 5)·½ of 2^-32
             // tick summed over the segment: ≤ 1/30 tick up to 2^7
             k = k.min(MAX_RAMP_SEGMENT_LOG2 as i32);

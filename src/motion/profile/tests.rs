@@ -1,6 +1,7 @@
 //! The profile's unit tests.
 
 use super::fixed::*;
+use super::length::MAX_RAMP_SEGMENT_LOG2;
 use super::*;
 
 /// The tests' random numbers: xorshift on 128 bits.
@@ -222,4 +223,33 @@ fn log2_bounds() {
     }
     assert_eq!(log2_q8(1), 0);
     assert_eq!(log2_q8(160) >> 8, 7);
+}
+
+/// A ramp's segments stay 2^7 steps long up to a high step rate: the fit's
+/// fine bits keep the rounding of its highest terms inside the precision
+/// bound where the interval hardly changes from step to step (with terms
+/// at 2^-32 tick only, they shrank to 8 steps towards 1 000 000 steps/s).
+#[test]
+fn ramp_segments_stay_long_at_high_step_rates() {
+    const TICK: u32 = 170_000_000;
+    // to 1 000 000 steps/s at 2 000 000 steps/s²
+    let slope = slope_of(20_000_000);
+    let mut p = Profile::new_run(true, 0, w_of(10_000_000), slope, slope, 0, TICK);
+    let budget = SegmentBudget::new(TICK, 100_000);
+    let rate = |s: u64| f64::from(TICK) * 4294967296.0 / s as f64;
+    let mut fast = 0;
+    loop {
+        let s = p.step_ticks();
+        let v = s.map_or(0.0, rate);
+        if v > 990_000.0 {
+            break;
+        }
+        let n = p.segment_len(s, s.map_or(0, |s| p.curvature(s)), &budget);
+        if v > 200_000.0 {
+            assert_eq!(n, 1 << MAX_RAMP_SEGMENT_LOG2, "at {v} steps/s");
+            fast += 1;
+        }
+        p.advance(n);
+    }
+    assert!(fast > 1_000, "{fast} segments");
 }

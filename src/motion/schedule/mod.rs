@@ -8,7 +8,9 @@
 //! step number (the step times a quintic), which lets the planner match
 //! the profile's time, velocity and acceleration at both ends of every
 //! segment, so that the motor sees no velocity or acceleration jump from
-//! one segment to the next. Times are timer ticks in Q32.32 fixed point.
+//! one segment to the next. Times are timer ticks in Q32.32 fixed point;
+//! `add2`, `add3` and `add4` may carry more fraction bits
+//! ([`Segment::fine_bits`]), of which `add` takes the whole 2^-32 units.
 //!
 //! # A ring of per-step delays
 //!
@@ -144,7 +146,7 @@ mod tests;
 
 pub use brake::{brake_rate, LimitBrake};
 pub use ring::StepSchedule;
-pub use segment::Segment;
+pub use segment::{Segment, MAX_FINE_BITS};
 pub use sink::{PushedSteps, StepSink};
 pub use source::{NextStep, StepSource};
 

@@ -10,6 +10,10 @@ use super::{MAX_DELAY_TICKS, SCHEDULE_STEPS, TICK_FRAC_BITS};
 /// 32-bit bounds ([`Expansion::narrow`]) hold up to here.
 pub(super) const NARROW_STEPS: usize = 512;
 
+/// Most fraction bits of a segment's `add2`, `add3` and `add4` beyond the
+/// interval's 32 ([`Segment::with_fine_bits`]).
+pub const MAX_FINE_BITS: u32 = 16;
+
 /// A run of steps with linearly changing interval (see the module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -18,13 +22,20 @@ pub struct Segment {
     interval: u64,
     /// Ticks (Q32.32) added to the interval after every step.
     add: i64,
-    /// Ticks (Q32.32) added to `add` after every step.
+    /// Added to `add` after every step, in units of 2^-(32 + `fine`) tick
+    /// (its whole 2^-32 units: the sum's fraction is dropped).
     add2: i64,
-    /// Added to `add2` after every step, and `add4` to it: the intervals
-    /// are a quartic in the step number (the planner's quintic fit of the
-    /// step times, planner/segment.rs `fit_segment`).
+    /// Added to `add2` after every step, and `add4` to it (same units):
+    /// the intervals are a quartic in the step number (the planner's
+    /// quintic fit of the step times, planner/segment.rs `fit_segment`).
     add3: i64,
     add4: i64,
+    /// Fraction bits of `add2`, `add3` and `add4` beyond the interval's 32
+    /// (at most [`MAX_FINE_BITS`]): the highest terms' rounding reaches the
+    /// last interval of a segment C(n, 4) times, so finer terms let a
+    /// ramp's segments stay long at high speed, where the interval hardly
+    /// changes from step to step.
+    fine: u8,
     /// Steps, at least 1 and at most what [`StepSchedule::free`](super::StepSchedule::free) allows.
     count: u32,
     /// Positive direction (position counts up).
@@ -49,9 +60,23 @@ impl Segment {
             add2,
             add3,
             add4,
+            fine: 0,
             count,
             forward,
         }
+    }
+
+    /// The same segment with `add2`, `add3` and `add4` read in units of
+    /// 2^-(32 + `bits`) tick (`bits` at most [`MAX_FINE_BITS`]: more are
+    /// taken as that many).
+    #[inline]
+    pub const fn with_fine_bits(mut self, bits: u32) -> Self {
+        self.fine = if bits < MAX_FINE_BITS {
+            bits
+        } else {
+            MAX_FINE_BITS
+        } as u8;
+        self
     }
 
     /// Ticks (Q32.32) from the previous step to the first step of this one.
@@ -66,15 +91,17 @@ impl Segment {
         self.add
     }
 
-    /// Ticks (Q32.32) added to `add` after every step.
+    /// Added to `add` after every step, in units of 2^-(32 +
+    /// [`Segment::fine_bits`]) tick.
     #[inline]
     pub const fn add2(&self) -> i64 {
         self.add2
     }
 
-    /// Added to `add2` after every step, and `add4` to it: the intervals
-    /// are a quartic in the step number (the planner's quintic fit of the
-    /// step times, planner/segment.rs `fit_segment`).
+    /// Added to `add2` after every step, and `add4` to it (the units of
+    /// `add2`): the intervals are a quartic in the step number (the
+    /// planner's quintic fit of the step times, planner/segment.rs
+    /// `fit_segment`).
     #[inline]
     pub const fn add3(&self) -> i64 {
         self.add3
@@ -83,6 +110,12 @@ impl Segment {
     #[inline]
     pub const fn add4(&self) -> i64 {
         self.add4
+    }
+
+    /// Fraction bits of `add2`, `add3` and `add4` beyond the interval's 32.
+    #[inline]
+    pub const fn fine_bits(&self) -> u32 {
+        self.fine as u32
     }
 
     /// Steps, at least 1 and at most what [`StepSchedule::free`](super::StepSchedule::free) allows.
@@ -183,6 +216,8 @@ pub(super) struct Expansion {
     pub(super) add2: u64,
     pub(super) add3: u64,
     pub(super) add4: u64,
+    /// [`Segment::fine_bits`].
+    pub(super) fine: u32,
     pub(super) frac: u32,
     /// The delays written, summed (wrapping): with `frac`'s change, the
     /// exact time they make (`StepSchedule::push_steps`).
@@ -197,7 +232,9 @@ impl Expansion {
     pub(super) fn step(&mut self) -> u32 {
         let delay = clamped(carried(&mut self.frac, self.interval), self.interval);
         self.interval = self.interval.wrapping_add(self.add);
-        self.add = self.add.wrapping_add(self.add2);
+        self.add = self
+            .add
+            .wrapping_add(((self.add2 as i64) >> self.fine) as u64);
         self.add2 = self.add2.wrapping_add(self.add3);
         self.add3 = self.add3.wrapping_add(self.add4);
         self.sum = self.sum.wrapping_add(delay);
@@ -212,6 +249,7 @@ impl Expansion {
             add2: seg.add2 as u64,
             add3: seg.add3 as u64,
             add4: seg.add4 as u64,
+            fine: seg.fine.into(),
             frac: carry.0,
             sum: carry.1,
         }
@@ -231,8 +269,9 @@ impl Expansion {
     /// (`add2 + j·add3 + C(j,2)·add4` and `add3 + j·add4` for every
     /// `j ≤ steps`, the terms after the last step included), so 32-bit
     /// sums give them exactly; and every interval stays between 1 and
-    /// 2^31 ticks (`|interval_j − interval| ≤ Σ C(steps, k)·|term k|`),
-    /// so no delay needs [`clamped`].
+    /// 2^31 ticks (`|interval_j − interval| ≤ Σ C(steps, k)·|term k|`,
+    /// the fine terms over 2^`fine`, plus one unit for each fraction that
+    /// `add`'s steps drop), so no delay needs [`clamped`].
     pub(super) fn narrow(&self, steps: usize) -> bool {
         const LIM: u64 = 1 << 31;
         let m = |t: u64| (t as i64).unsigned_abs();
@@ -248,7 +287,11 @@ impl Expansion {
         let c3 = c2 * l.saturating_sub(2) / 3;
         let c4 = (wide(c3, l.saturating_sub(3)) / 4) as u32;
         // each product below 2^57, 2^48, 2^56, 2^63: no overflow
-        let drift = a1 * u64::from(l) + wide(c2, a2) + wide(c3, a3) + wide(c4, a4);
+        // `add`'s steps drop the fractions of fine terms (at most one
+        // unit each): C(l, 2) more at most
+        let higher = (wide(c2, a2) + wide(c3, a3) + wide(c4, a4)) >> self.fine;
+        let dropped = if self.fine == 0 { 0 } else { u64::from(c2) };
+        let drift = a1 * u64::from(l) + higher + dropped;
         u64::from(a3) + wide(l, a4) < LIM
             && u64::from(a2) + wide(l, a3) + wide(c2, a4) < LIM
             && self.interval.saturating_sub(drift) >= 1 << TICK_FRAC_BITS
@@ -322,14 +365,14 @@ impl Expansion {
         }
         let (mut interval, mut add) = (self.interval, self.add);
         let (mut add2, mut add3, add4) = (self.add2 as i32, self.add3 as i32, self.add4 as i32);
-        let (mut frac, mut sum) = (self.frac, self.sum);
+        let (mut frac, mut sum, fine) = (self.frac, self.sum, self.fine);
         for entry in entries {
             let delay = carried(&mut frac, interval);
             entry.store(delay, Ordering::Relaxed);
             sum = sum.wrapping_add(delay);
             let next_add3 = add3.wrapping_add(add4);
             let next_add2 = add2.wrapping_add(add3);
-            let next_add = add.wrapping_add(add2 as i64 as u64);
+            let next_add = add.wrapping_add((add2 >> fine) as i64 as u64);
             interval = interval.wrapping_add(add);
             (add, add2, add3) = (next_add, next_add2, next_add3);
         }

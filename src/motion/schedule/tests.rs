@@ -63,6 +63,7 @@ fn the_narrow_loop_expands_like_step_by_step() {
             add2: term(16, 48),
             add3: term(24, 40),
             add4: term(30, 34),
+            fine: (term(0, 1) % (u64::from(MAX_FINE_BITS) + 1)) as u32,
             frac: term(0, 1) as u32,
             sum: term(0, 1) as u32,
         };
@@ -86,6 +87,7 @@ fn the_narrow_loop_expands_like_step_by_step() {
         add2,
         add3,
         add4: 0,
+        fine: 0,
         frac: 0,
         sum: 0,
     };
