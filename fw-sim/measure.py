@@ -8,9 +8,10 @@ to docs/generated/fw-sim.md. Run after building the images and the runner
 - reply latency: from the end of a request's last stop bit to the start bit
   of the reply's first character (`--trace-line`), at 115200 and 19200 baud,
   and at 115200 while the motor runs at the board's step rate limit;
-- CPU load at rest and while stepping in velocity mode at 50k, 200k
+- CPU load at rest and while stepping in velocity mode at 50k, 190k, 200k
   steps/s and the board's step rate limit (Board::max_step_rate in
-  src/boards.rs):
+  src/boards.rs; 190k is a period of a whole number of ticks and a fraction
+  on both boards, the others whole):
   the share of core cycles not spent asleep in WFI/WFE (`--stats`), under the
   runner's one-cycle-per-instruction assumption (docs/fw-sim.md, "Time");
 - core cycles a step on ramps: a position move at the board's limit that
@@ -80,7 +81,7 @@ MAX_STEP_RATE = _ceilings()
 # each board's step rate limit (Board::max_step_rate in src/boards.rs): the
 # firmware clamps faster set-points to it, so nothing faster can be measured
 LIMITS = c.LIMITS
-RATES = {b: sorted({0, 50_000, 200_000, LIMITS[b]}) for b in c.BOARDS}
+RATES = {b: sorted({0, 50_000, 190_000, 200_000, LIMITS[b]}) for b in c.BOARDS}
 # the planner's steepest ramp (MAX_ACCEL, steps/s²): the shortest moves
 # that reach each rate
 MAX_ACCEL = int(re.search(r"pub const MAX_ACCEL: u64 = ([0-9_]+);",
@@ -572,12 +573,18 @@ def main() -> int:
               "The last column is how fast the emulator ran meanwhile: emulated",
               "seconds per wall-clock second on the machine that ran this script",
               "(the runner never runs ahead of wall time; below 1 it lags).", "",
-              "| board | steps/s set | steps/s measured | CPU load % | emulator speed |",
-              "|---|---|---|---|---|"]
+              "Ticks a step is the step timer's period at that rate: where it has a",
+              "fraction the delays alternate between two whole numbers of ticks, so",
+              "few steps in a row are alike and the refill writes about one timer",
+              "entry a step, as on a ramp; where it is whole a run of alike steps",
+              "is one entry (docs/firmware.md, \"Step rate limits\").", "",
+              "| board | steps/s set | ticks a step | steps/s measured | CPU load % | emulator speed |",
+              "|---|---|---|---|---|---|"]
     for board in c.BOARDS:
         for rate in RATES[board]:
             load, measured, speed = load_at(board, rate, work)
-            lines.append(f"| {board} | {rate} | {measured:.0f} | {load:.1f} | {speed:.2f} |")
+            ticks = f"{1e9 / c.TICK_NS[board] / rate:.2f}" if rate else "-"
+            lines.append(f"| {board} | {rate} | {ticks} | {measured:.0f} | {load:.1f} | {speed:.2f} |")
             print(lines[-1], flush=True)
     lines += ramp_cost_section(work)
     lines += ["", "## Highest step rate with every pulse on time", "",

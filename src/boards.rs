@@ -42,7 +42,7 @@ impl Board {
         // one arm a board: fw-sim/measure.py and the tests read them
         match self {
             Board::G431 => 500_000,
-            Board::F103 => 250_000,
+            Board::F103 => 300_000,
         }
     }
 
