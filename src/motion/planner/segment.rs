@@ -70,13 +70,18 @@ impl Planner {
         let c1 = s1.map_or(0, |s1| profile.curvature(s1));
         // the span the interrupt must make, from where it will be
         let span = t_last.wrapping_sub(self.t_isr);
+        // a cruise (its piece level, no curvature carried in from a ramp)
+        // is a constant speed: its fit would only spread the last
+        // segment's time error as fine terms, which cost the expansion and
+        // the refill a step each
+        let cruise = slope == 0 && c0 == 0;
         let ([interval, add, add2, add3, add4], fine) = match (n, s0, s1) {
-            (2.., Some(s0), Some(s1)) => {
+            (2.., Some(s0), Some(s1)) if !cruise => {
                 let ends = [(s0, c0), (s1, c1)];
                 fit_segment(n, ends, span)
             }
-            // single steps (or no slope at the end: evenly, the rest of
-            // the span is carried to the next segment through t_isr)
+            // single steps, a cruise or no slope at the end: evenly, the
+            // rest of the span is carried to the next segment through t_isr
             _ => ([span >> n.trailing_zeros(), 0, 0, 0, 0], 0),
         };
         self.t_ideal = t_last;
