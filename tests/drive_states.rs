@@ -585,7 +585,8 @@ fn halt_decelerates_with_0x6084() {
 /// timer + DMA engine) tells the schedule how many it has not made
 /// (`StepSchedule::set_pin_lag`): 0x6064 is the pin's position, and the
 /// target is reached (bit 10) and the motor at rest (bit 9 clear) only
-/// once the pin has caught up.
+/// once the pin has caught up with every step counted, those counted
+/// after the lag was measured too.
 #[test]
 fn the_position_and_target_reached_wait_for_the_pin() {
     let mut rig = rig();
@@ -593,13 +594,21 @@ fn the_position_and_target_reached_wait_for_the_pin() {
     rig.run_until(1_000_000, |r| r.statusword() & REACHED != 0);
     assert_eq!(rig.position(), 500);
     // the last three steps counted are still on their way to the pin
-    rig.sched.set_pin_lag(3);
+    let at = rig.sched.position();
+    rig.sched.set_pin_lag(3, at);
     rig.control();
     assert_eq!(rig.position(), 497, "0x6064 is the pin's");
     let sw = rig.statusword();
     assert_eq!(sw & REACHED, 0, "not reached before the pin: {sw:#06x}");
     assert_ne!(sw & RUNNING, 0, "still running: {sw:#06x}");
-    rig.sched.set_pin_lag(0);
+    // a lag of 0 measured before the last three were counted says nothing
+    // of them: the output was handed them after it looked
+    rig.sched.set_pin_lag(0, at - 3);
+    rig.control();
+    let sw = rig.statusword();
+    assert_eq!(sw & REACHED, 0, "not reached on an old lag: {sw:#06x}");
+    assert_ne!(sw & RUNNING, 0, "still running on an old lag: {sw:#06x}");
+    rig.sched.set_pin_lag(0, at);
     rig.control();
     assert_eq!(rig.position(), 500);
     let sw = rig.statusword();

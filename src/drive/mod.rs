@@ -486,7 +486,7 @@ impl Drive {
 
         self.raw_position = self.pin_position(sched);
         self.velocity = self.planner.actual_velocity(sched);
-        let lagging = sched.pin_lag() != 0;
+        let lagging = !sched.pin_settled();
         self.running = sched.is_running() || !sched.is_empty() || lagging;
         self.ramping = self.planner.ramping(sched);
         self.at_rest = self.planner.at_rest(sched) && !lagging;

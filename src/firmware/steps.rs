@@ -282,7 +282,7 @@ pub fn read_at_pin_position<T>(read: impl FnMut() -> T) -> (T, i32) {
 /// target.
 pub fn publish_pin_lag() {
     let ((), pos, pin) = snapshot(|| ());
-    SCHEDULE.set_pin_lag(pos.wrapping_sub(pin));
+    SCHEDULE.set_pin_lag(pos.wrapping_sub(pin), pos);
 }
 
 /// `read()` with the schedule's position and the STEP pin's, consistent

@@ -55,8 +55,11 @@ pub struct StepSchedule {
     /// The limit brake's state (`BRAKE_*`).
     pub(super) brake: AtomicU8,
     /// Steps counted in the position that the step output has not made
-    /// yet ([`StepSchedule::set_pin_lag`]).
+    /// yet ([`StepSchedule::set_pin_lag`]), the position it was measured
+    /// at, and whether an output has told it at all.
     pub(super) pin_lag: AtomicI32,
+    pub(super) pin_lag_at: AtomicI32,
+    pub(super) pin_lag_told: AtomicBool,
 }
 
 impl Default for StepSchedule {
@@ -85,6 +88,8 @@ impl StepSchedule {
             brake_rate: AtomicU32::new(0),
             brake: AtomicU8::new(BRAKE_NONE),
             pin_lag: AtomicI32::new(0),
+            pin_lag_at: AtomicI32::new(0),
+            pin_lag_told: AtomicBool::new(false),
         }
     }
 
@@ -342,15 +347,27 @@ impl StepSchedule {
     /// that makes each step as it is counted leaves it 0 (the host
     /// simulation); the firmware's timer + DMA engine, which is handed
     /// steps ahead of its timer, sets it from its pulse counter every
-    /// control period. The drive reports the pin's position and is at rest
-    /// only once it is 0 (`Drive`).
-    pub fn set_pin_lag(&self, lag: i32) {
+    /// control period, with `at`, the [`StepSchedule::position`] it was
+    /// measured against. The drive reports the pin's position and is at
+    /// rest only once the pin is settled ([`StepSchedule::pin_settled`]).
+    pub fn set_pin_lag(&self, lag: i32, at: i32) {
         self.pin_lag.store(lag, Ordering::Relaxed);
+        self.pin_lag_at.store(at, Ordering::Relaxed);
+        self.pin_lag_told.store(true, Ordering::Relaxed);
     }
 
     /// [`StepSchedule::set_pin_lag`]'s value.
     pub fn pin_lag(&self) -> i32 {
         self.pin_lag.load(Ordering::Relaxed)
+    }
+
+    /// The STEP pin has made every step the position counts: the lag last
+    /// told is 0 and the position has not moved since it was measured
+    /// (steps handed to the output after that, the last of a move among
+    /// them, may not be on the pin yet), or no output tells a lag.
+    pub fn pin_settled(&self) -> bool {
+        !self.pin_lag_told.load(Ordering::Relaxed)
+            || (self.pin_lag() == 0 && self.pin_lag_at.load(Ordering::Relaxed) == self.position())
     }
 
     /// Raw step count: steps made forward minus steps made backward.
