@@ -33,7 +33,12 @@ impl Symbols {
     /// The index of the symbol holding `addr`, if one does.
     pub fn index(&self, addr: u32) -> Option<usize> {
         let (i, off) = self.nearest(addr)?;
-        (off < self.0[i].1.max(1)).then_some(i)
+        (off < self.size(i).max(1)).then_some(i)
+    }
+
+    /// The size of the symbol at `index` (0: unsized).
+    fn size(&self, index: usize) -> u32 {
+        self.0[index].1
     }
 
     /// The name of the symbol at `index`.
@@ -100,7 +105,7 @@ impl Image {
     /// unsized one below it; "?" if none.
     pub fn symbol(&self, addr: u32) -> String {
         match self.symbols.nearest(addr) {
-            Some((i, off)) if off < self.symbols.0[i].1.max(1) || self.symbols.0[i].1 == 0 => {
+            Some((i, off)) if off < self.symbols.size(i).max(1) || self.symbols.size(i) == 0 => {
                 format!("{}+{off:#x}", self.symbols.name(i))
             }
             _ => "?".into(),

@@ -239,10 +239,11 @@ impl Planner {
         self.t_ideal = self.t_isr;
         // T'(j) from the forward differences at j (D = ln(1 + Δ)):
         // Δ − Δ²/2 + Δ³/3 − Δ⁴/4 + Δ⁵/5, exact for the quintic
-        let fine = (r.add2().wrapping_mul(20))
+        // the fine terms' part, in their units
+        let fine_part = (r.add2().wrapping_mul(20))
             .wrapping_add(r.add3().wrapping_mul(-15))
             .wrapping_add(r.add4().wrapping_mul(12));
-        let higher = (r.add().wrapping_mul(-30)).wrapping_add(fine >> r.fine_bits());
+        let higher = (r.add().wrapping_mul(-30)).wrapping_add(fine_part >> r.fine_bits());
         self.s_join = r.interval().wrapping_add(div_i64(higher, 60) as u64);
         self.s_end = 0;
         taken
@@ -271,8 +272,9 @@ const FORWARD_DIFFS: [[i16; 3]; 5] = [
 ];
 
 /// `[interval, add, add2, add3, add4]` (Q32.32, two's complement; `add2`
-/// on with the fraction bits returned beside them) of a segment of `n = 2^k ≥ 2` steps whose step times follow the quintic
-/// `T(j)` with `T(0) = 0`, `T(n) = span` and the slopes and curvatures
+/// on with the fraction bits returned beside them) of a segment of
+/// `n = 2^k ≥ 2` steps whose step times follow the quintic `T(j)` with
+/// `T(0) = 0`, `T(n) = span` and the slopes and curvatures
 /// `ends = [(T'(0), T''(0)), (T'(n), T''(n))]` (quintic Hermite: the
 /// profile's `dt/dx = 1/v` and `d²t/dx² = −a/v³` at both ends, so that
 /// consecutive segments join with continuous velocity *and*
