@@ -51,18 +51,25 @@ pub fn brake_rate(decel: u64, tick_hz: u32) -> u32 {
 
 /// The interval after `p` (Q32.32 ticks) when braking at `rate`
 /// ([`brake_rate`]), or `None` if the motor is less than two steps from
-/// rest (`q ≥ 1/4`) or slower than 2^24 ticks per step. Constant time and
-/// 32-bit products only (the step engine's refill makes a braking step in
-/// the time of one at the top rate): `p` is taken as a 32-bit mantissa and
-/// a shift, which leaves `q` a relative error below 2^-29, far below what
-/// the series' truncation leaves (module docs).
+/// rest (`q ≥ 1/4`) or slower than 2^24 ticks per step: [`grown`] by
+/// [`brake_q`].
+#[cfg(test)]
 pub(super) fn brake_interval(p: u64, rate: u32) -> Option<u64> {
+    brake_q(p, rate).map(|q| grown(p, q))
+}
+
+/// `q = a·p²` (Q0.32) of the brake at `rate` ([`brake_rate`]) after an
+/// interval `p` (Q32.32 ticks), or `None` if the motor is less than two
+/// steps from rest (`q ≥ 1/4`) or slower than 2^24 ticks per step.
+/// Constant time and 32-bit products only (the step engine's refill makes
+/// a braking step in the time of one at the top rate): `p` is taken as a
+/// 32-bit mantissa and a shift, which leaves `q` a relative error below
+/// 2^-29, far below what the series' truncation leaves (module docs).
+pub(super) fn brake_q(p: u64, rate: u32) -> Option<u32> {
     if p >> (TICK_FRAC_BITS + 24) != 0 {
         return None;
     }
-    // 32 × 32 → 64-bit products (one `umull` each), rounded back to 32
     let wide = |x: u32, y: u32| u64::from(x) * u64::from(y);
-    let mul = |x: u32, y: u32| ((wide(x, y) + (1 << 31)) >> 32) as u32;
     // p ≈ pm · 2^k with pm's top bit set (k = 0 below 2^32: a step
     // shorter than a tick, where q is far below 1/4 anyway); shifts of
     // 32-bit words only (a 64-bit shift by a variable is a library call)
@@ -87,17 +94,25 @@ pub(super) fn brake_interval(p: u64, rate: u32) -> Option<u64> {
         s if top.leading_zeros() as i32 + s <= 1 => return None,
         s => top << -s,
     };
-    if q >= 1 << 30 {
-        return None;
-    }
+    (q < 1 << 30).then_some(q)
+}
+
+/// `p · (1 - 2q)^-1/2` for `q < 1/4` (Q0.32), `p` in Q32.32 ticks: the
+/// interval `n` braking steps after `p` where `q` is `n` times the one
+/// step's [`brake_q`] (`v² ← v² - 2an`). 32 × 32-bit products only.
+pub(super) fn grown(p: u64, q: u32) -> u64 {
+    // 32 × 32 → 64-bit products (one `umull` each), rounded back to 32
+    let wide = |x: u32, y: u32| u64::from(x) * u64::from(y);
+    let mul = |x: u32, y: u32| ((wide(x, y) + (1 << 31)) >> 32) as u32;
     let (q2, q3) = (mul(q, q), mul(mul(q, q), q));
     let q4 = mul(q2, q2);
     // (1-2q)^-1/2 - 1 = q + 3/2 q² + 5/2 q³ + 35/8 q⁴ + …, Q0.32 (below
     // 0.4 at q = 1/4); the rest is below 0.6 % at q = 1/4
     let f = q + q2 + (q2 >> 1) + 2 * q3 + (q3 >> 1) + 4 * q4 + (q4 >> 2) + (q4 >> 3);
     // p · f / 2^32 from p's two halves
+    let (hi, lo) = ((p >> 32) as u32, p as u32);
     let grow = u64::from(hi) * u64::from(f) + ((wide(lo, f) + (1 << 31)) >> 32);
-    Some(p + grow)
+    p + grow
 }
 
 /// What the step interrupt's limit brake is doing (module docs).

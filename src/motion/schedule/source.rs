@@ -4,7 +4,7 @@
 use core::sync::atomic::{compiler_fence, AtomicU32, Ordering};
 
 use super::brake::{
-    brake_interval, BLOCK_BACKWARD, BLOCK_FORWARD, BRAKE_ACTIVE, BRAKE_DONE, BRAKE_FORWARD,
+    brake_q, grown, BLOCK_BACKWARD, BLOCK_FORWARD, BRAKE_ACTIVE, BRAKE_DONE, BRAKE_FORWARD,
 };
 use super::ring::StepSchedule;
 use super::segment::carried;
@@ -53,7 +53,24 @@ pub struct StepSource {
     /// carries, as the producer's (module docs), from the braking start.
     interval: u64,
     frac: u32,
+    /// Braking steps left in the current stride, and what each adds to
+    /// the interval ([`StepSource::brake_next`]).
+    stride_left: u32,
+    stride_add: u64,
 }
+
+/// A fast brake goes in strides of this many steps (a power of two)...
+const STRIDE_LOG: u32 = 4;
+const STRIDE: u32 = 1 << STRIDE_LOG;
+/// ...while a stride's `q` ([`brake_q`] times [`STRIDE`]) is at most 2^-9
+/// (Q0.32): its last interval is exact, and the ones before it, on a
+/// straight line, differ from the exact ones by a tiny fraction of an
+/// interval, and their step-to-step change (the deceleration) by `3/2`
+/// of the stride's `q` at most (the exact intervals' growth rises by a
+/// factor `1 + 3q` a step).
+const STRIDE_MAX_Q: u32 = 1 << (32 - 9 - STRIDE_LOG);
+/// Delays the limit brake's first interval is the mean of: [`mean_ahead`].
+const MEAN_WINDOW: u32 = 64;
 
 impl Default for StepSource {
     fn default() -> Self {
@@ -70,6 +87,8 @@ impl StepSource {
             braking: 0,
             interval: 0,
             frac: 0,
+            stride_left: 0,
+            stride_add: 0,
         }
     }
 
@@ -116,11 +135,38 @@ impl StepSource {
     /// `None`, nothing done, where the brake ends: the slow path ends it.
     #[inline(never)]
     fn brake_plain(&mut self, sched: &StepSchedule) -> Option<u32> {
-        let p = brake_interval(self.interval, self.braking)?;
+        let p = self.brake_next()?;
         sched.move_base(dir(self.forward));
-        let delay = carried(&mut self.frac, p);
+        Some(carried(&mut self.frac, p).max(1))
+    }
+
+    /// The limit brake's next interval, now its last, or `None` (nothing
+    /// changed) where it ends. Each step is `v² ← v² - 2a` from the last
+    /// ([`brake_q`], [`grown`]); while the motor is fast that changes each
+    /// interval by little, and the brake goes in strides of [`STRIDE`]
+    /// steps: the stride's last interval from the series at once (`q`
+    /// times the stride), the ones before it on the straight line there,
+    /// an addition each. Where the stride ends is thus the exact
+    /// deceleration's, and the brake costs a series per stride, not per
+    /// step, at the speeds where steps are shortest.
+    #[inline(always)]
+    fn brake_next(&mut self) -> Option<u64> {
+        let p = if self.stride_left != 0 {
+            self.stride_left -= 1;
+            self.interval + self.stride_add
+        } else {
+            let q = brake_q(self.interval, self.braking)?;
+            if q <= STRIDE_MAX_Q {
+                let end = grown(self.interval, q << STRIDE_LOG);
+                self.stride_add = (end - self.interval) >> STRIDE_LOG;
+                self.stride_left = STRIDE - 1;
+                self.interval + self.stride_add
+            } else {
+                grown(self.interval, q)
+            }
+        };
         self.interval = p;
-        Some(delay.max(1))
+        Some(p)
     }
 
     /// Up to `max()` more steps of [`StepSource::advance_plain`] whose
@@ -245,10 +291,12 @@ impl StepSource {
                     .brake
                     .store(BRAKE_ACTIVE | self.brake_dir(), Ordering::Relaxed);
                 self.braking = rate;
-                // from the interval of the step it would have made, timed
+                // from the interval of the step it would have made (its
+                // exact one, which the rounded delays ahead tell), timed
                 // from the tick of the one just made
-                self.interval = u64::from(delay) << TICK_FRAC_BITS;
+                self.interval = mean_ahead(sched, at, delay);
                 self.frac = HALF_TICK;
+                self.stride_left = 0;
                 sched.set_base(made, at, self.forward);
                 return self.brake_step(sched, made);
             }
@@ -265,10 +313,9 @@ impl StepSource {
     /// One step of the limit brake (module docs), or its end; `made` is
     /// the position reached.
     fn brake_step(&mut self, sched: &StepSchedule, made: i32) -> Option<NextStep> {
-        match brake_interval(self.interval, self.braking) {
+        match self.brake_next() {
             Some(p) => {
                 let delay = carried(&mut self.frac, p);
-                self.interval = p;
                 self.pending = true;
                 sched.running.store(true, Ordering::Relaxed);
                 // the braking steps after it go the brake's own way
@@ -342,6 +389,38 @@ impl StepSource {
 /// a loop round (written out: the images' size-optimised builds do not
 /// unroll), the constant-speed step's whole cost in a run.
 #[inline(always)]
+/// The exact interval of the step at `at`, whose delay is `delay`, as
+/// the delays from there on tell it (Q32.32 ticks): the mean of up to
+/// [`MEAN_WINDOW`] of them, up to the sentinel, a marker or a delay the
+/// brake does not slow (2^24 ticks; then `delay` itself). Each delay rounds its step's exact time with the
+/// fraction carried (module docs), so a run's sum is within a tick of the
+/// exact span, and the mean of `n` within `1/n` tick of the exact interval
+/// (of the run's steps, at a constant speed those of the step at `at`),
+/// where the one delay is off by up to half a tick: at the highest step
+/// rates, a few hundred ticks a step, that would be the brake's start
+/// speed, and its distance twice as much, off by a part in a thousand or
+/// more. Thread mode never writes the entries between `at` and the
+/// sentinel; the loop runs once a brake, not once a step.
+fn mean_ahead(sched: &StepSchedule, at: u32, delay: u32) -> u64 {
+    let (mut sum, mut n) = (0u32, 0u32);
+    while n < MEAN_WINDOW {
+        let d = sched.entry(at.wrapping_add(n)).load(Ordering::Relaxed);
+        if d.wrapping_sub(1) >= 1 << 24 {
+            break;
+        }
+        sum += d;
+        n += 1;
+    }
+    if n == 0 {
+        return u64::from(delay) << TICK_FRAC_BITS;
+    }
+    // sum / n in Q32.32 from 32-bit divisions (no 64-bit division in the
+    // interrupt's code): the remainder, below n ≤ 64, has 26 bits of room
+    let (whole, rest) = (sum / n, sum % n);
+    u64::from(whole) << TICK_FRAC_BITS | u64::from((rest << 26) / n) << 6
+}
+const _: () = assert!(MEAN_WINDOW <= 1 << 6);
+
 fn alike(entries: &[AtomicU32], delay: u32) -> usize {
     let mut rest = entries;
     while let [a, b, c, d, tail @ ..] = rest {

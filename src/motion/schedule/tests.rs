@@ -580,6 +580,39 @@ fn limit_brake_decelerates_at_the_quick_stop_rate() {
     }
 }
 
+/// A cruise whose interval is no whole number of ticks (its delays
+/// alternate): the brake starts from the exact speed, not from the one
+/// rounded delay, so it stops at v0²/2a to within what the delays ahead
+/// tell of the speed (their mean of 64, within 1/64 tick), where half a
+/// tick at a short interval is a large part of the distance.
+#[test]
+fn limit_brake_starts_from_the_exact_speed_between_whole_ticks() {
+    for (ticks, a) in [(20.5f64, 2.0e6f64), (24.37, 2.0e6), (33.9, 1.0e6)] {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.set_brake_rate(Some(brake_rate((a * 10.0) as u64, HZ)));
+        let count = sched.free() as u32;
+        let interval = (ticks * ONE as f64) as u64;
+        sched.push(seg(interval, 0, 0, count, true)).unwrap();
+        for _ in 0..100 {
+            src.advance(&sched).unwrap();
+        }
+        sched.set_limits(false, true);
+        let mut n = 0u32;
+        while src.advance(&sched).is_some() {
+            n += 1;
+        }
+        let v0 = f64::from(HZ) / ticks;
+        let dist = v0 * v0 / (2.0 * a);
+        // v² off by twice the interval's relative error
+        let slack = dist * 2.0 / (64.0 * ticks) + 3.0;
+        assert!(
+            (f64::from(n) - dist).abs() <= slack,
+            "{ticks} ticks a step: {n} braking steps, v0²/2a = {dist} (± {slack})"
+        );
+    }
+}
+
 #[test]
 fn limit_brake_only_towards_the_active_limit_and_only_when_armed() {
     let sched = StepSchedule::new();
