@@ -195,6 +195,10 @@ impl StepShape {
 /// planned at a control period; the step engine's buffer holds less than
 /// a control period of entries, so at most two runs are ever unmade.
 pub const LEDGER_RUNS: usize = 4;
+/// A direction run this long ([`StepLedger`]) has more steps than the
+/// step engine's buffer can hold ahead of the pin (its entries times the
+/// most periods an entry repeats), and fewer than the counts' modulus.
+pub const LONG_RUN: u16 = 1 << 15;
 /// Words of a [`StepLedger`]'s hand-over.
 pub const LEDGER_WORDS: usize = 1 + LEDGER_RUNS / 2;
 
@@ -210,6 +214,10 @@ pub struct StepLedger {
     newest: u8,
     forward: bool,
     pending: bool,
+    /// The newest run has [`LONG_RUN`] steps or more: more than can be
+    /// ahead of the pin, and its start, modulo 2^16 like the counts, no
+    /// longer tells its length.
+    long: bool,
     /// Index of each run's first step; runs alternate in direction.
     starts: [u16; LEDGER_RUNS],
 }
@@ -228,8 +236,17 @@ impl StepLedger {
             newest: 0,
             forward: true,
             pending: false,
+            long: false,
             starts: [0; LEDGER_RUNS],
         }
+    }
+
+    /// Marks the newest run long once it is; called at least every
+    /// `LONG_RUN` steps (a refill gives far fewer), so that its length is
+    /// seen before it wraps.
+    fn check_long(&mut self) {
+        let start = self.starts[usize::from(self.newest)];
+        self.long |= self.given.wrapping_sub(start) >= LONG_RUN;
     }
 
     /// One `StepSource::advance`: `Some(forward)` is a step given to the
@@ -242,8 +259,10 @@ impl StepLedger {
                 self.forward = forward;
                 self.newest = (self.newest + 1) % LEDGER_RUNS as u8;
                 self.starts[usize::from(self.newest)] = self.given;
+                self.long = false;
             }
             self.given = self.given.wrapping_add(1);
+            self.check_long();
         }
     }
 
@@ -251,6 +270,7 @@ impl StepLedger {
     /// still pending (`StepSource::advance_plain`'s steps).
     pub fn advanced_plain(&mut self, n: u16) {
         self.given = self.given.wrapping_add(n);
+        self.check_long();
     }
 
     /// `n` steps of the newest run, given before the pending one, are
@@ -274,7 +294,11 @@ impl StepLedger {
                 break;
             }
             let start = self.starts[at];
-            let n = end.wrapping_sub(start).min(ahead);
+            let n = if at == usize::from(self.newest) && self.long {
+                ahead
+            } else {
+                end.wrapping_sub(start).min(ahead)
+            };
             pin = pin.wrapping_sub(dir * i32::from(n));
             ahead -= n;
             end = start;
@@ -295,6 +319,7 @@ impl StepLedger {
             | u32::from(self.newest) << 16
             | u32::from(!self.forward) << 24
             | u32::from(self.pending) << 25
+            | u32::from(self.long) << 26
     }
 
     /// The starts of runs `2k` and `2k + 1`.
@@ -319,6 +344,7 @@ impl StepLedger {
             newest: (w[0] >> 16) as u8 % LEDGER_RUNS as u8,
             forward: w[0] >> 24 & 1 == 0,
             pending: w[0] >> 25 & 1 != 0,
+            long: w[0] >> 26 & 1 != 0,
             starts,
         }
     }

@@ -4,7 +4,7 @@
 //! | priority | interrupt | shares state with lower levels through |
 //! |---|---|---|
 //! | P0 | step engine's DMA channel (the refill) | atomics only (`StepSchedule`, the pin-position ledger, steps.rs) |
-//! | P1 | switches (EXTI15_10); embassy-time driver (TIM2) | the critical section |
+//! | P1 | switches (EXTI15_10); embassy-time driver (TIM2) | switches: ownership by the NVIC enable (switches.rs); the time driver: the critical section |
 //! | P2 | RS-485 USART; SysTick (the software DE's lead / tail, rs485.rs) | atomics, buffer hand-over by index (rs485.rs) |
 //! | P3 | F103: the frame-gap task's interrupt executor (rs485.rs) | atomics, a pended USART interrupt |
 //! | thread | executor: control loop, dispatcher | — |

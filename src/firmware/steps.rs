@@ -31,16 +31,16 @@
 //! half the refill is not writing), the hand-over of PA15/PA16 and PA11 in
 //! atomics, and what [`read_at_pin_position`] reads under a sequence count.
 
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicI32, AtomicU32, Ordering};
 
 use embassy_stm32::interrupt::typelevel::{Handler, Interrupt};
 use embassy_stm32::pac;
 use embassy_stm32::pac::timer::vals::{Mms, Ocm, Ossi, Sms, Ts};
-use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
+use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape, MAX_PERIODS};
 use modbus_drive::motion::{StepSchedule, StepSource};
 
 use super::board;
-use super::calc::{StepLedger, StepShape, LEDGER_WORDS};
+use super::calc::{StepLedger, StepShape, LEDGER_WORDS, LONG_RUN};
 use super::feed::EngineFeed;
 use super::owned::IrqOwned;
 use super::trim::cut_runs;
@@ -57,6 +57,9 @@ pub fn schedule() -> &'static StepSchedule {
 /// Entries in one half of the DMA buffer: the refill runs once per half,
 /// and a step written now acts at most two halves later.
 const HALF: usize = 8;
+// the ledger tells a long run by its length, which no buffer of pulses
+// ahead of the pin reaches
+const _: () = assert!(2 * HALF as u32 * MAX_PERIODS < LONG_RUN as u32);
 /// Half-words one entry's DMA burst moves (ARR, RCR, CCR1, CCR2).
 const BURST_HALF_WORDS: usize = 4;
 
@@ -70,8 +73,10 @@ static DIR_INVERTED: AtomicBool = AtomicBool::new(false);
 static SHAPE: AtomicU32 = AtomicU32::new(0);
 
 /// The refill's `StepLedger` for [`read_at_pin_position`], written under
-/// [`SEQ`] (`StepLedger::head_word`, then its `start_word`s).
+/// [`SEQ`] (`StepLedger::head_word`, then its `start_word`s)...
 static LEDGER: [AtomicU32; LEDGER_WORDS] = [const { AtomicU32::new(0) }; LEDGER_WORDS];
+/// ...with the schedule's position it goes with ([`publish`]).
+static POSITION: AtomicI32 = AtomicI32::new(0);
 /// Odd while the refill writes the values above.
 static SEQ: AtomicU32 = AtomicU32::new(0);
 /// The limits changed: the refill interrupt, pended, cuts the runs ahead
@@ -286,21 +291,34 @@ pub fn publish_pin_lag() {
 }
 
 /// `read()` with the schedule's position and the STEP pin's, consistent
-/// (see [`read_at_pin_position`]).
+/// (see [`read_at_pin_position`]). The refill preempts this whenever it
+/// runs and changes what the ledger tells only as it ends ([`publish`]):
+/// the ledger, the position and the count are taken in a few loads
+/// between two reads of [`SEQ`], again if a refill came between them, and
+/// `read()` goes before them, outside that window (the count before it
+/// tells whether a pulse came in between). A long window would be cut
+/// again and again while the engine is busiest, and this may run inside
+/// a critical section, which holds off the USART.
 fn snapshot<T>(mut read: impl FnMut() -> T) -> (T, i32, i32) {
     let mut tries = 0;
     loop {
-        let seq = SEQ.load(Ordering::Relaxed);
-        core::sync::atomic::compiler_fence(Ordering::SeqCst);
-        let pos = SCHEDULE.position();
-        let ledger =
-            StepLedger::from_words(&core::array::from_fn(|k| LEDGER[k].load(Ordering::Relaxed)));
-        let made = pulses_made();
+        let before = pulses_made();
         let value = read();
-        let still = pulses_made() == made;
-        core::sync::atomic::compiler_fence(Ordering::SeqCst);
-        if seq & 1 == 0 && SEQ.load(Ordering::Relaxed) == seq && (still || tries >= 3) {
-            return (value, pos, ledger.pin_position(pos, made));
+        let (pos, words, made) = loop {
+            let seq = SEQ.load(Ordering::Relaxed);
+            core::sync::atomic::compiler_fence(Ordering::SeqCst);
+            let pos = POSITION.load(Ordering::Relaxed);
+            let words: [u32; LEDGER_WORDS] =
+                core::array::from_fn(|k| LEDGER[k].load(Ordering::Relaxed));
+            let made = pulses_made();
+            core::sync::atomic::compiler_fence(Ordering::SeqCst);
+            if seq & 1 == 0 && SEQ.load(Ordering::Relaxed) == seq {
+                break (pos, words, made);
+            }
+        };
+        if made == before || tries >= 3 {
+            let pin = StepLedger::from_words(&words).pin_position(pos, made);
+            return (value, pos, pin);
         }
         tries += 1;
     }
@@ -382,24 +400,30 @@ fn brake_from_the_pin(e: &mut Engine, buffer: &mut [Burst; 2 * HALF]) {
     if cut == 0 {
         return;
     }
-    under_seq(|| {
-        e.source.take_back(&SCHEDULE, cut);
-        e.ledger.taken_back(cut as u16);
-        LEDGER[0].store(e.ledger.head_word(), Ordering::Relaxed);
-    });
+    e.source.take_back(&SCHEDULE, cut);
+    e.ledger.taken_back(cut as u16);
+    publish(&e.ledger, false);
 }
 
-/// `f` with [`SEQ`] odd: what [`read_at_pin_position`] reads (the
-/// schedule's position, [`LEDGER`]) changes only inside it.
+/// The ledger (its start words too if `starts`) and the schedule's
+/// position, with [`SEQ`] odd while they are written: what [`snapshot`]
+/// reads. The refill's last stores, after the buffer is written: no pulse
+/// of the entries just written can be made before them, since the DMA
+/// reads the other half meanwhile.
 #[inline(always)]
-fn under_seq<R>(f: impl FnOnce() -> R) -> R {
+fn publish(ledger: &StepLedger, starts: bool) {
     let seq = SEQ.load(Ordering::Relaxed);
     SEQ.store(seq.wrapping_add(1), Ordering::Relaxed);
     core::sync::atomic::compiler_fence(Ordering::SeqCst);
-    let r = f();
+    POSITION.store(SCHEDULE.position(), Ordering::Relaxed);
+    LEDGER[0].store(ledger.head_word(), Ordering::Relaxed);
+    if starts {
+        for (k, word) in LEDGER[1..].iter().enumerate() {
+            word.store(ledger.start_word(k), Ordering::Relaxed);
+        }
+    }
     core::sync::atomic::compiler_fence(Ordering::SeqCst);
     SEQ.store(seq.wrapping_add(2), Ordering::Relaxed);
-    r
 }
 
 /// Writes `half` from the schedule. One copy for both halves.
@@ -418,20 +442,12 @@ fn refill(e: &mut Engine, half: &mut [Burst]) {
         inverted: inverted_before,
         ..
     } = e;
-    let pulses = under_seq(|| {
-        let runs = ledger.newest_run();
-        let mut feed = EngineFeed::new(source, &SCHEDULE, ledger, inverted, *inverted_before);
-        let pulses = writer.fill(half, &mut feed);
-        drop(feed);
-        *inverted_before = inverted;
-        LEDGER[0].store(ledger.head_word(), Ordering::Relaxed);
-        if ledger.newest_run() != runs {
-            for (k, word) in LEDGER[1..].iter().enumerate() {
-                word.store(ledger.start_word(k), Ordering::Relaxed);
-            }
-        }
-        pulses
-    });
+    let runs = ledger.newest_run();
+    let mut feed = EngineFeed::new(source, &SCHEDULE, ledger, inverted, *inverted_before);
+    let pulses = writer.fill(half, &mut feed);
+    drop(feed);
+    *inverted_before = inverted;
+    publish(ledger, ledger.newest_run() != runs);
     let quiet = if pulses == 0 && !writer.busy() {
         QUIET_REFILLS.load(Ordering::Relaxed).saturating_add(1)
     } else {

@@ -23,7 +23,7 @@
 //! the steps not yet made, which TIM3 counts); the control loop hands it
 //! to the core with the debounced change (`Device::control_latched`),
 //! which takes it as the origin if it lies on the current search leg. The
-//! refill outranks the critical section (priority.rs) and may run during
+//! refill outranks the read (priority.rs) and may run during
 //! the read; the pulse count is read before and after the pins and the
 //! pins again if it changed, so position and levels belong together.
 //!
@@ -37,18 +37,21 @@
 //! The homing latch is not confirmed: a spike latches nothing lasting,
 //! the control loop forgets a latch whose switch reads stable again.
 //!
-//! Shared state: the inputs and latches behind a critical section
-//! ([`INPUTS`]), inside which the limits are also sent, so the EXTI
-//! interrupt and the control loop never overwrite a newer reading with an
-//! older one; PA13 polarity and PA14 enable bits in atomics written by the
-//! control loop.
+//! Shared state: the inputs and latches ([`INPUTS`]) belong to the EXTI
+//! interrupt, and to the control loop while it has that one interrupt
+//! disabled in the NVIC ([`with_inputs`]), during which it also sends the
+//! limits, so the two never overwrite a newer reading with an older one.
+//! No critical section: a reading at a limit (two reads and the
+//! confirmation between them) would hold off every interrupt below the
+//! refill, the USART's too, and while the step engine is at its busiest
+//! (a limit brake at the top rate) that time stretches several times over.
+//! PA13 polarity and PA14 enable bits in atomics written by the control
+//! loop.
 
-use core::cell::RefCell;
 use core::sync::atomic::{AtomicU16, Ordering};
 
-use critical_section::Mutex;
 use embassy_stm32::exti::ExtiInput;
-use embassy_stm32::interrupt::typelevel::Handler;
+use embassy_stm32::interrupt::typelevel::{Handler, Interrupt};
 use embassy_stm32::mode::Blocking;
 use embassy_stm32::pac;
 use modbus_drive::drive::io;
@@ -56,6 +59,7 @@ use modbus_drive::motion::{SwitchEdges, Switches};
 
 use super::board;
 use super::calc::LatchedSwitch;
+use super::owned::IrqOwned;
 use super::steps;
 
 type Exti = ExtiInput<'static, Blocking>;
@@ -69,7 +73,9 @@ struct Inputs {
     home: LatchedSwitch,
 }
 
-static INPUTS: Mutex<RefCell<Option<Inputs>>> = Mutex::new(RefCell::new(None));
+/// Owned by the EXTI interrupt while it is enabled, by [`with_inputs`]
+/// while it is disabled.
+static INPUTS: IrqOwned<Option<Inputs>> = IrqOwned::new(None);
 /// PA13: bit 0 CW, bit 1 CCW, bit 2 home; 1 = normally closed.
 static POLARITY: AtomicU16 = AtomicU16::new(0);
 /// PA14: bit 0 CW, bit 1 CCW limit enabled (default both).
@@ -82,14 +88,28 @@ const EXTI_LINES_10_15: u32 = 0xFC00;
 /// The debounced states start inactive: a switch active at power-up is
 /// reported 3 ms later, like any change.
 pub fn install(pins: SwitchInputs) {
-    critical_section::with(|cs| {
-        *INPUTS.borrow_ref_mut(cs) = Some(Inputs {
+    with_inputs(|inputs| {
+        *inputs = Some(Inputs {
             pins,
             cw: LatchedSwitch::new(false),
             ccw: LatchedSwitch::new(false),
             home: LatchedSwitch::new(false),
         })
     });
+}
+
+/// `f` on the inputs from thread code, with the EXTI interrupt disabled
+/// in the NVIC meanwhile (nothing else is masked).
+fn with_inputs<R>(f: impl FnOnce(&mut Option<Inputs>) -> R) -> R {
+    board::SwitchIrq::disable();
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+    // SAFETY: the interrupt cannot run now: thread code owns the inputs.
+    let r = f(unsafe { INPUTS.get() });
+    // SAFETY: the handler is bound (board::Irqs) and finds the inputs
+    // whole.
+    unsafe { board::SwitchIrq::enable() };
+    r
 }
 
 /// PA13 / PA14 as they are now (called by the control loop).
@@ -129,8 +149,7 @@ fn read(i: &mut Inputs) -> Switches {
 /// The control loop's sample: the debounced states, the latched edges of
 /// the switches whose debounced state changed now, and whether any did.
 pub fn sample() -> (Switches, SwitchEdges, bool) {
-    critical_section::with(|cs| {
-        let mut inputs = INPUTS.borrow_ref_mut(cs);
+    with_inputs(|inputs| {
         // Not installed yet: nothing is blocked, nothing moves either.
         let Some(i) = inputs.as_mut() else {
             return Default::default();
@@ -156,10 +175,9 @@ impl Handler<board::SwitchIrq> for SwitchHandler {
         pac::EXTI
             .pr(0)
             .write_value(pac::exti::regs::Lines(EXTI_LINES_10_15));
-        critical_section::with(|cs| {
-            if let Some(i) = INPUTS.borrow_ref_mut(cs).as_mut() {
-                read(i);
-            }
-        });
+        // SAFETY: this interrupt owns the inputs while it is enabled.
+        if let Some(i) = unsafe { INPUTS.get() }.as_mut() {
+            read(i);
+        }
     }
 }
