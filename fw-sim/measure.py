@@ -64,15 +64,18 @@ BAUD_PA52 = c.PA_BASE + 52
 REQUESTS = 20
 # the planner's ceiling for each board, read from the source it lives in:
 # MAX_STEP_RATE at the ring length the board's image is built with (the
-# feature long-schedule, in its Cargo feature)
+# feature long-schedule or longer-schedule, in its Cargo feature)
 def _ceilings() -> dict[str, int]:
     src = (ROOT / "src" / "motion" / "planner" / "mod.rs").read_text()
-    rate = {long: int(re.search(rf'#\[cfg\({"feature" if long else "not[(]feature"} = "long-schedule"\)?\)\]\n'
-                                r"pub const MAX_STEP_RATE: u32 = ([0-9_]+);", src)[1])
-            for long in (True, False)}
+    rate = {}  # the ring feature a cfg asks for (None: neither) -> its ceiling
+    for cfg, value in re.findall(r"#\[cfg\((.*)\)\]\npub const MAX_STEP_RATE: u32 = ([0-9_]+);", src):
+        wanted = re.findall(r'feature = "([a-z-]+)"', re.sub(r'not\(feature = "[a-z-]+"\)', "", cfg))
+        rate[wanted[0] if wanted else None] = int(value)
     cargo = (ROOT / "Cargo.toml").read_text()
-    return {b: rate["long-schedule" in re.search(rf"^board-{b} = \[(.*)\]$", cargo, re.M)[1]]
-            for b in c.BOARDS}
+    def ring(board: str) -> str | None:
+        features = re.search(rf"^board-{board} = \[(.*)\]$", cargo, re.M)[1]
+        return next((f for f in ("longer-schedule", "long-schedule") if f'"{f}"' in features), None)
+    return {b: rate[ring(b)] for b in c.BOARDS}
 
 
 MAX_STEP_RATE = _ceilings()

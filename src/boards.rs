@@ -41,8 +41,8 @@ impl Board {
     pub const fn max_step_rate(self) -> u32 {
         // one arm a board: fw-sim/measure.py and the tests read them
         match self {
-            Board::G431 => 500_000,
-            Board::F103 => 300_000,
+            Board::G431 => 1_000_000,
+            Board::F103 => 500_000,
         }
     }
 

@@ -179,9 +179,9 @@ fn a_quick_stop_at_the_deceleration_limit_stops_on_every_board() {
         let tick = board.step_tick_hz();
         let mut rig = position_rig(board, |a| a, VELOCITY_LIMIT_REG);
         rig.bus.write_single(0x605A, 2).expect("option 2");
-        latch(&mut rig, 1_000_000);
+        latch(&mut rig, 10_000_000);
         let cruising = i64::from(2 * ramp_steps(board));
-        rig.run_until(1_000_000, |r| r.axis.position() > cruising);
+        rig.run_until(3_000_000, |r| r.axis.position() > cruising);
         let at = rig.axis.position();
         rig.bus.write_single(0x6040, 0x000B).expect("quick stop");
         rig.run_until(1_000_000, |r| r.at_rest());
@@ -211,7 +211,7 @@ fn the_limit_brake_at_the_deceleration_limit_stops_on_every_board() {
         let tick = board.step_tick_hz();
         let edge = i64::from(4 * ramp_steps(board));
         let mut rig = position_rig(board, |a| a.with_ccw_limit(edge), VELOCITY_LIMIT_REG);
-        latch(&mut rig, 1_000_000);
+        latch(&mut rig, 10_000_000);
         // the control loop every period until the edge, which goes to the
         // schedule at once (the firmware's EXTI handler), then the
         // interrupt alone
@@ -222,7 +222,7 @@ fn the_limit_brake_at_the_deceleration_limit_stops_on_every_board() {
             if rig.axis.run_until(&rig.sched, until, |s| steps.push(s)) == RunStop::SwitchChanged {
                 break;
             }
-            assert!(next < 1_000_000, "{board:?}: no edge");
+            assert!(next < 3_000_000, "{board:?}: no edge");
             rig.now_us = next;
             rig.control();
         }
@@ -247,6 +247,14 @@ fn the_limit_brake_at_the_deceleration_limit_stops_on_every_board() {
         assert!(
             over <= dist + 2.0 && over >= dist - 4.0,
             "{board:?}: {over} steps past the edge, quick stop distance {dist}"
+        );
+        rig.run_us(10_000);
+        let reg = rig.bus.read(0x6064, 2).expect("0x6064");
+        let reported = (u32::from(reg[0]) << 16 | u32::from(reg[1])) as i32;
+        assert_eq!(
+            i64::from(reported),
+            rig.axis.position(),
+            "{board:?}: 0x6064"
         );
         check_dynamics(
             &rig.steps,

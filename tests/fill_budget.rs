@@ -148,7 +148,8 @@ fn a_cruise_at_the_top_rate_is_filled_in_parts_to_the_same_schedule() {
                 forward: true,
                 ramp: ramp(top, accel),
             },
-            300,
+            // the ramp's time, then 300 ms of cruise
+            (top / accel * 1000.0) as u64 + 300,
         )];
         let budget = 16;
         let parts = same_schedule(board, &goals, board.max_accel() * 10, budget);

@@ -276,19 +276,20 @@ fn pa10_scales_and_pa12_caps_the_move() {
 /// shorter pulse up to the board's own limit, a longer one lower.
 #[test]
 fn pa15_caps_the_step_rate_at_its_pulse_width() {
-    let limit = f64::from(modbus_drive::boards::Board::G431.max_step_rate());
-    // (PA15 in 0.1 µs, expected cruise steps/s) with 60 r/s asked
+    let board = modbus_drive::boards::Board::G431;
+    let limit = f64::from(board.max_step_rate());
+    // (PA15 in 0.1 µs, expected cruise steps/s) with 100 r/s asked
     for (pa15, cruise) in [
         (0u16, 200_000.0),
         (50, 100_000.0),
         (5, limit.min(1_000_000.0)),
     ] {
-        let mut rig = Rig::new(SimAxis::new(10_000_000));
+        let mut rig = Rig::on_board(board, |a| a);
         rig.bus.write_single(0x0064 + 12, 6000).unwrap();
         rig.bus.write_single(0x0064 + 15, pa15).unwrap();
         power_up(&mut rig);
         rig.send_ok("01 06 60 60 00 01 56 14");
-        rig.write_i32(0x6081, 600);
+        rig.write_i32(0x6081, 1000);
         rig.write(0x6083, &[2000, 2000]); // 200 r/s² × PA10: 2e6 steps/s²
         let target = 2 * cruise as i32;
         rig.write_i32(0x607A, target);

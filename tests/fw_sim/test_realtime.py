@@ -82,6 +82,9 @@ def test_every_pulse_is_kept_at_the_top_rate_while_frames_flood_the_bus(start_fw
     m = Master(fw.client())
     m.enable()
     m.write(PA_BASE + 15, pulse_for(LIMITS[board]))
+    # PA12 at 6000 r/min: the default (3000 r/min, 500 000 steps/s at
+    # PA10's default) would cap a board whose limit is above it
+    m.write(PA_BASE + 12, 6000)
     start_move(m, DISTANCE[board], TOP_VELOCITY[board])
     stop = threading.Event()
     flooder = threading.Thread(target=flood, args=(fw.port, line, stop))

@@ -52,8 +52,10 @@ use slots::SlotInfo;
 /// [`PlannerConfig::max_step_rate`]) is at most this; faster requests are
 /// clamped to the board's limit (like PA12). An image checks its own
 /// board against it at compile time (src/firmware); the host, which
-/// simulates every board, has the long ring.
-#[cfg(feature = "long-schedule")]
+/// simulates every board, has the longest ring.
+#[cfg(feature = "longer-schedule")]
+pub const MAX_STEP_RATE: u32 = 1_000_000;
+#[cfg(all(feature = "long-schedule", not(feature = "longer-schedule")))]
 pub const MAX_STEP_RATE: u32 = 500_000;
 #[cfg(not(feature = "long-schedule"))]
 pub const MAX_STEP_RATE: u32 = 250_000;
@@ -69,7 +71,9 @@ pub const MAX_ACCEL: u64 = 2_000_000;
 const _: () = {
     let mut i = 0;
     while i < Board::ALL.len() {
-        assert!(!cfg!(feature = "long-schedule") || Board::ALL[i].max_step_rate() <= MAX_STEP_RATE);
+        assert!(
+            !cfg!(feature = "longer-schedule") || Board::ALL[i].max_step_rate() <= MAX_STEP_RATE
+        );
         assert!(Board::ALL[i].max_accel() <= MAX_ACCEL);
         i += 1;
     }

@@ -102,7 +102,10 @@
 //! ticks, a flag raised) rewrites the position base under the sequence
 //! count; it takes at most one marker and one step, so it is constant
 //! time too. A braking step (below) costs seven 32×32 → 64-bit multiplies
-//! and 32-bit shifts, still no division and no loop. At constant speed the
+//! and 32-bit shifts, still no division and no loop; while the motor is
+//! fast, a stride of braking steps costs that once and each of its steps
+//! an addition. The brake's start reads the delays ahead once (a bounded
+//! loop and two 32-bit divisions: `mean_ahead`). At constant speed the
 //! step engine takes a run of equal delays at once
 //! ([`StepSource::advance_run`]: a compare per step, one store of `next`);
 //! at a limit's edge it gives back the steps it had been handed and not
@@ -125,7 +128,8 @@
 //! change) ([`StepSchedule::set_brake_rate`], written by the drive: 0x6085
 //! outside homing, disarmed in homing where the sequencer decides at the
 //! limits), stops taking entries and decelerates on its own from the
-//! interval of the step it would have made: each interval grows by
+//! interval of the step it would have made (its exact one, the mean of the
+//! delays ahead): each interval grows by
 //! the factor `(1 - 2q)^-1/2 ≈ 1 + q + 3/2 q² + 5/2 q³ + 35/8 q⁴` with `q = a·p²`
 //! (`p` the interval, `a` the deceleration in steps/tick²), which is
 //! `v² ← v² - 2a` per step, the constant deceleration, in a few multiplies.
@@ -154,8 +158,11 @@ pub use source::{NextStep, StepSource};
 /// direction markers, one slot for the end sentinel and the pending step.
 /// At the highest step rate ([`crate::motion::MAX_STEP_RATE`]) a full ring
 /// lasts more than two 1 ms control periods. The feature `long-schedule`
-/// doubles it (4 KiB of RAM), and with it that rate.
-#[cfg(feature = "long-schedule")]
+/// doubles it (4 KiB of RAM), and with it that rate; `longer-schedule`
+/// doubles both again (8 KiB).
+#[cfg(feature = "longer-schedule")]
+pub const SCHEDULE_STEPS: usize = 2048;
+#[cfg(all(feature = "long-schedule", not(feature = "longer-schedule")))]
 pub const SCHEDULE_STEPS: usize = 1024;
 #[cfg(not(feature = "long-schedule"))]
 pub const SCHEDULE_STEPS: usize = 512;
