@@ -93,10 +93,10 @@ proptest! {
     fn random_moves(
         dist in prop_oneof![1i64..200, 200i64..20_000],
         neg in any::<bool>(),
-        v in log_range(20.0, 500_000.0),
+        v in log_range(20.0, 1_000_000.0),
         a in log_range(50.0, 2_000_000.0),
         d in log_range(50.0, 2_000_000.0),
-        tick in prop_oneof![Just(4_000_000u32), Just(8_000_000), Just(10_000_000), Just(72_000_000)],
+        tick in prop_oneof![Just(4_000_000u32), Just(8_000_000), Just(10_000_000), Just(72_000_000), Just(170_000_000)],
     ) {
         // keep each case short in simulated time
         let dur = dist as f64 / v + v / a + v / d;
