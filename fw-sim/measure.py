@@ -55,6 +55,8 @@ import threading
 import time
 from pathlib import Path
 
+from pymodbus.exceptions import ModbusIOException
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "fw_sim"))
 import conftest as c  # noqa: E402  (the test harness: runner, master, register names)
@@ -449,6 +451,79 @@ def flood_section(work: Path, rates: dict[str, int]) -> list[str]:
     return lines
 
 
+def limit_brake(board: str, work: Path) -> tuple[int, int, int, float, int, int, int]:
+    """Velocity mode at the board's limit into the CCW limit, 0x6085 at
+    MAX_ACCEL, the master polling 0x6041 every 20 ms of wall-clock time
+    throughout: (steps/s, v²/2a, steps past the edge, CPU load % while
+    braking, reads sent while braking, reads answered of them, USART
+    overruns the drive counted: function 8, sub-function 0x12)."""
+    rate = LIMITS[board]
+    brake = rate * rate // (2 * MAX_ACCEL)
+    edge = 2 * brake + 20_000  # up to speed, then a cruise
+    st = work / f"{board}-brake.stats"
+    fw = c.Firmware(work, board, ["--ccw-limit", str(edge), "--stats", str(st), "--quiet"])
+    try:
+        m = c.Master(fw.client())
+        ramp = MAX_ACCEL * 10 // STEPS_PER_REV  # 0.1 r/s² (SPEC §5)
+        m.write(c.QUICK_STOP_DECELERATION, ramp)
+        ready_at(m, 3, rate)
+        snaps, sent, answered = [], 0, 0
+        deadline = time.monotonic() + 60
+        while True:
+            assert time.monotonic() < deadline, f"{board}: the brake at {rate} steps/s"
+            s = stats(st)
+            if s["steps"] > edge and snaps and snaps[-1]["steps"] == s["steps"] \
+                    and s["time_ns"] - snaps[-1]["time_ns"] >= 50_000_000:
+                break  # at rest
+            if not snaps or s["time_ns"] != snaps[-1]["time_ns"]:
+                snaps.append(s)
+            if s["steps"] > edge:
+                sent += 1
+                try:
+                    m.statusword()
+                    answered += 1
+                except ModbusIOException:
+                    pass
+            time.sleep(0.02)
+        over = m.read32(c.ACTUAL_POSITION) - edge
+        # the snapshots taken from the edge until the last that still moved
+        final = snaps[-1]["steps"]
+        moving = [x for x in snaps if edge < x["steps"] < final]
+        a, b = moving[0], moving[-1]
+        busy = b["busy_cycles"] - a["busy_cycles"]
+        asleep = b["sleep_cycles"] - a["sleep_cycles"]
+        m.c.close()
+        with fw.raw() as bus:
+            reply = bus.exchange(c.with_crc(c.hexb("01 08 00 12 00 00")))
+        overruns = int.from_bytes(reply[4:6], "big")
+        fw.alive()
+    finally:
+        fw.stop()
+    return rate, brake, over, 100 * busy / max(1, busy + asleep), sent, answered, overruns
+
+
+def limit_brake_section(work: Path) -> list[str]:
+    lines = ["", "## A limit brake from the board's limit", "",
+             "Velocity mode at the board's step rate limit into the CCW limit",
+             f"(`--ccw-limit`), quick stop deceleration 0x6085 at {MAX_ACCEL} steps/s²",
+             "(SPEC §8.7: the limit brakes from the edge step), the master reading",
+             "0x6041 every 20 ms of wall-clock time throughout. Steps past the edge",
+             "are 0x6064 at rest less the edge: v²/2a plus the steps the timer had",
+             "been handed (docs/firmware.md, \"Limits\"). The CPU load is over",
+             "the `--stats` snapshots between the edge and the last step; the",
+             "overruns are the drive's own count afterwards (function 8,",
+             "sub-function 0x12): a receiver the core left unserved too long.", "",
+             "| board | steps/s | v²/2a | steps past the edge | CPU load % while braking "
+             "| reads while braking | answered | USART overruns |",
+             "|---|---|---|---|---|---|---|---|"]
+    for board in c.BOARDS:
+        rate, brake, over, load, sent, answered, overruns = limit_brake(board, work)
+        lines.append(f"| {board} | {rate} | {brake} | {over} | {load:.1f} | {sent} "
+                     f"| {answered} | {overruns} |")
+        print(lines[-1], flush=True)
+    return lines
+
+
 def stepping_latency(board: str, rate: int, work: Path) -> list[float]:
     """Reply latencies (µs, as `latencies`) of reads sent while the motor
     runs at `rate` steps/s in velocity mode."""
@@ -627,6 +702,7 @@ def main() -> int:
                    else " (the board's limit)" if top == LIMITS[board] else "")
         lines.append(f"- {board}, bus {bus}: every pulse on time up to **{top} steps/s**{ceiling}.")
     lines += flood_section(work, {b: highest.get((b, "polled"), STEP_GRID) for b in c.BOARDS})
+    lines += limit_brake_section(work)
     lines += reset_window_section(work)
     OUT.write_text("\n".join(lines) + "\n")
     print(f"wrote {OUT}")
