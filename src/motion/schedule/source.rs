@@ -385,27 +385,29 @@ impl StepSource {
     }
 }
 
-/// How many of `entries`, from the first, hold `delay`: four compares to
-/// a loop round (written out: the images' size-optimised builds do not
-/// unroll), the constant-speed step's whole cost in a run.
-#[inline(always)]
 /// The exact interval of the step at `at`, whose delay is `delay`, as
 /// the delays from there on tell it (Q32.32 ticks): the mean of up to
-/// [`MEAN_WINDOW`] of them, up to the sentinel, a marker or a delay the
-/// brake does not slow (2^24 ticks; then `delay` itself). Each delay rounds its step's exact time with the
-/// fraction carried (module docs), so a run's sum is within a tick of the
-/// exact span, and the mean of `n` within `1/n` tick of the exact interval
-/// (of the run's steps, at a constant speed those of the step at `at`),
-/// where the one delay is off by up to half a tick: at the highest step
-/// rates, a few hundred ticks a step, that would be the brake's start
-/// speed, and its distance twice as much, off by a part in a thousand or
-/// more. Thread mode never writes the entries between `at` and the
-/// sentinel; the loop runs once a brake, not once a step.
+/// [`MEAN_WINDOW`] of them while they keep to two neighbouring whole
+/// ticks (a constant speed's delays do, whatever its fraction of a tick),
+/// up to the sentinel, a marker or a delay the brake does not slow (2^24
+/// ticks; then `delay` itself). Each delay rounds its step's exact time
+/// with the fraction carried (module docs), so the sum of `n` is within a
+/// tick of their exact span and their mean within `1/n` tick of their
+/// exact mean interval, where the one delay is off by up to half a tick:
+/// at the highest step rates, a few hundred ticks a step, enough to put
+/// the brake's start speed, and its distance twice as much, visibly off.
+/// While the speed changes, the mean is that of the steps ahead, the
+/// speed about half the window's steps later; the two-tick band ends the
+/// window before that drift exceeds what one delay's rounding leaves.
+/// Thread mode never writes the entries between `at` and the sentinel;
+/// the loop runs once a brake, not once a step.
 fn mean_ahead(sched: &StepSchedule, at: u32, delay: u32) -> u64 {
     let (mut sum, mut n) = (0u32, 0u32);
+    let (mut lo, mut hi) = (delay, delay);
     while n < MEAN_WINDOW {
         let d = sched.entry(at.wrapping_add(n)).load(Ordering::Relaxed);
-        if d.wrapping_sub(1) >= 1 << 24 {
+        (lo, hi) = (lo.min(d), hi.max(d));
+        if d.wrapping_sub(1) >= 1 << 24 || hi - lo > 1 {
             break;
         }
         sum += d;
@@ -421,6 +423,10 @@ fn mean_ahead(sched: &StepSchedule, at: u32, delay: u32) -> u64 {
 }
 const _: () = assert!(MEAN_WINDOW <= 1 << 6);
 
+/// How many of `entries`, from the first, hold `delay`: four compares to
+/// a loop round (written out: the images' size-optimised builds do not
+/// unroll), the constant-speed step's whole cost in a run.
+#[inline(always)]
 fn alike(entries: &[AtomicU32], delay: u32) -> usize {
     let mut rest = entries;
     while let [a, b, c, d, tail @ ..] = rest {

@@ -613,6 +613,47 @@ fn limit_brake_starts_from_the_exact_speed_between_whole_ticks() {
     }
 }
 
+/// A limit met while accelerating: the delays ahead are those of faster
+/// steps, and the brake's start takes no more of them than keep to two
+/// neighbouring ticks, so it stops at the exact speed's v²/2a within
+/// what one rounded delay would leave (half a tick), at a slow speed
+/// (the delays change by ticks a step: the window is one delay) as at a
+/// fast one (many delays: their mean).
+#[test]
+fn limit_brake_met_while_accelerating_starts_from_the_speed_at_the_edge() {
+    // (interval, its change a step, both ticks; deceleration steps/s²)
+    for (ticks, add, a) in [
+        (500.0f64, -2.0f64, 2.0e6f64),
+        (80.3, -0.004, 2.0e6),
+        (40.7, -0.0004, 1.0e6),
+    ] {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.set_brake_rate(Some(brake_rate((a * 10.0) as u64, HZ)));
+        let count = sched.free() as u32;
+        let (interval, step) = ((ticks * ONE as f64) as u64, (add * ONE as f64) as i64);
+        sched.push(seg(interval, step, 0, count, true)).unwrap();
+        let made = 100u32;
+        for _ in 0..made {
+            src.advance(&sched).unwrap();
+        }
+        sched.set_limits(false, true);
+        let mut n = 0u32;
+        while src.advance(&sched).is_some() {
+            n += 1;
+        }
+        // the step the brake takes over is the one after those made
+        let p = ticks + add * f64::from(made);
+        let v = f64::from(HZ) / p;
+        let dist = v * v / (2.0 * a);
+        let slack = dist * 2.0 * 0.5 / p + 3.0;
+        assert!(
+            (f64::from(n) - dist).abs() <= slack,
+            "{ticks} ticks a step, {add} a step: {n} braking steps, v²/2a = {dist} (± {slack})"
+        );
+    }
+}
+
 #[test]
 fn limit_brake_only_towards_the_active_limit_and_only_when_armed() {
     let sched = StepSchedule::new();
