@@ -1,7 +1,12 @@
 //! A limit's brake from the step the timer is at: the runs written ahead
 //! of the timer (entries of several alike periods, `motion::burst`) are
 //! cut to one period each, so the brake, which the next refill starts,
-//! waits for a step per entry, not for a run per entry. HAL-free, so
+//! waits for a step per entry, not for a run per entry. All but the
+//! newest: the refill that starts the brake writes its half while the DMA
+//! plays the other, and that refill (the brake's first steps, the start
+//! speed from the delays ahead) takes longer than a step per entry at the
+//! top rates; the newest entry's run, the other half's last, gives it
+//! that time. HAL-free, so
 //! `tests/firmware_calc.rs` includes it by path and runs it on the host.
 //!
 //! The DMA reads the buffer while this writes it. An entry is written only
@@ -14,8 +19,8 @@
 use modbus_drive::motion::burst::Burst;
 
 /// Cuts the runs among the entries the DMA has not reached, in DIR level
-/// `level` back from `newest` (the last entry written), to their first
-/// period. `unread()` is the index of the first entry the DMA has not
+/// `level` back from `newest` (the last entry written, which keeps its
+/// run), to their first period. `unread()` is the index of the first entry the DMA has not
 /// started. Returns the steps cut (all in the direction of `level`).
 pub fn cut_runs<const LEN: usize>(
     buffer: &mut [Burst; LEN],
@@ -34,7 +39,7 @@ pub fn cut_runs<const LEN: usize>(
         lo -= 1;
     }
     let mut cut = 0;
-    for i in lo..=span {
+    for i in lo..span {
         let k = (first + i) % len;
         let b = buffer[k];
         if b.periods() == 1 || b.pulse_ticks() == 0 {

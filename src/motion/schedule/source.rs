@@ -69,8 +69,9 @@ const STRIDE: u32 = 1 << STRIDE_LOG;
 /// of the stride's `q` at most (the exact intervals' growth rises by a
 /// factor `1 + 3q` a step).
 const STRIDE_MAX_Q: u32 = 1 << (32 - 9 - STRIDE_LOG);
-/// Delays the limit brake's first interval is the mean of: [`mean_ahead`].
-const MEAN_WINDOW: u32 = 64;
+/// Delays the limit brake's first interval is the mean of (a power of
+/// two): [`mean_ahead`].
+const MEAN_WINDOW: u32 = 32;
 
 impl Default for StepSource {
     fn default() -> Self {
@@ -386,42 +387,56 @@ impl StepSource {
 }
 
 /// The exact interval of the step at `at`, whose delay is `delay`, as
-/// the delays from there on tell it (Q32.32 ticks): the mean of up to
-/// [`MEAN_WINDOW`] of them while they keep to two neighbouring whole
-/// ticks (a constant speed's delays do, whatever its fraction of a tick),
-/// up to the sentinel, a marker or a delay the brake does not slow (2^24
-/// ticks; then `delay` itself). Each delay rounds its step's exact time
-/// with the fraction carried (module docs), so the sum of `n` is within a
-/// tick of their exact span and their mean within `1/n` tick of their
-/// exact mean interval, where the one delay is off by up to half a tick:
-/// at the highest step rates, a few hundred ticks a step, enough to put
-/// the brake's start speed, and its distance twice as much, visibly off.
-/// While the speed changes, the mean is that of the steps ahead, the
-/// speed about half the window's steps later; the two-tick band ends the
-/// window before that drift exceeds what one delay's rounding leaves.
-/// Thread mode never writes the entries between `at` and the sentinel;
-/// the loop runs once a brake, not once a step.
+/// the delays from there on tell it (Q32.32 ticks): the mean of the
+/// [`MEAN_WINDOW`] delays from `at` if they keep to two neighbouring
+/// whole ticks, as a constant speed's do whatever its fraction of a tick,
+/// else `delay` itself (the window reaches the sentinel, a marker, or a
+/// speed that changes by more than a tick across it, where the mean would
+/// be that of the steps ahead and lead the speed by more than one delay's
+/// rounding; or a delay the brake does not slow, 2^24 ticks). Each delay
+/// rounds its step's exact time with the fraction carried (module docs),
+/// so their sum is within a tick of their exact span and their mean
+/// within `1 / MEAN_WINDOW` tick of their exact mean interval, where the
+/// one delay is off by up to half a tick: at the highest step rates, a
+/// few hundred ticks a step, enough to put the brake's start speed, and
+/// its distance twice as much, visibly off. A fixed window, read whole
+/// without a branch an entry, and a shift for the mean: this runs in the
+/// refill that starts the brake, whose deadline is the other buffer half,
+/// a step an entry once the runs ahead are cut. Thread mode never writes
+/// the entries between `at` and the sentinel (`ring[head]`, always `END`:
+/// a window across it reads 0 and takes `delay`), nor those behind.
 fn mean_ahead(sched: &StepSchedule, at: u32, delay: u32) -> u64 {
-    let (mut sum, mut n) = (0u32, 0u32);
-    let (mut lo, mut hi) = (delay, delay);
-    while n < MEAN_WINDOW {
-        let d = sched.entry(at.wrapping_add(n)).load(Ordering::Relaxed);
-        (lo, hi) = (lo.min(d), hi.max(d));
-        if d.wrapping_sub(1) >= 1 << 24 || hi - lo > 1 {
-            break;
-        }
-        sum += d;
-        n += 1;
-    }
-    if n == 0 {
-        return u64::from(delay) << TICK_FRAC_BITS;
-    }
-    // sum / n in Q32.32 from 32-bit divisions (no 64-bit division in the
-    // interrupt's code): the remainder, below n ≤ 64, has 26 bits of room
-    let (whole, rest) = (sum / n, sum % n);
-    u64::from(whole) << TICK_FRAC_BITS | u64::from((rest << 26) / n) << 6
+    const SHIFT: u32 = TICK_FRAC_BITS - MEAN_WINDOW.ilog2();
+    // the window as the ring's slices up to its end and from its start:
+    // no index arithmetic an entry
+    let (i, n) = (at as usize % SCHEDULE_STEPS, MEAN_WINDOW as usize);
+    let ring = sched.ring();
+    let head = &ring[i..SCHEDULE_STEPS.min(i + n)];
+    let (s0, lo0, hi0) = sum_min_max(head);
+    let (s1, lo1, hi1) = sum_min_max(&ring[..n - head.len()]);
+    let (sum, lo, hi) = (s0.wrapping_add(s1), lo0.min(lo1), hi0.max(hi1));
+    // one shift for both outcomes: two would be merged into a shift by a
+    // variable, a library call on these cores
+    let total = if lo == 0 || hi - lo > 1 || hi >= 1 << 24 {
+        u64::from(delay) * u64::from(MEAN_WINDOW)
+    } else {
+        u64::from(sum)
+    };
+    total << SHIFT
 }
-const _: () = assert!(MEAN_WINDOW <= 1 << 6);
+/// The wrapping sum, the least and the greatest of `entries`: one plain
+/// loop, its state in registers (a chained iterator, or a closure over
+/// the sums, kept it in memory).
+fn sum_min_max(entries: &[AtomicU32]) -> (u32, u32, u32) {
+    let (mut sum, mut lo, mut hi) = (0u32, u32::MAX, 0u32);
+    for e in entries {
+        let d = e.load(Ordering::Relaxed);
+        sum = sum.wrapping_add(d);
+        (lo, hi) = (lo.min(d), hi.max(d));
+    }
+    (sum, lo, hi)
+}
+const _: () = assert!(MEAN_WINDOW.is_power_of_two() && MEAN_WINDOW < (SCHEDULE_STEPS as u32) / 2);
 
 /// How many of `entries`, from the first, hold `delay`: four compares to
 /// a loop round (written out: the images' size-optimised builds do not

@@ -583,7 +583,7 @@ fn limit_brake_decelerates_at_the_quick_stop_rate() {
 /// A cruise whose interval is no whole number of ticks (its delays
 /// alternate): the brake starts from the exact speed, not from the one
 /// rounded delay, so it stops at v0²/2a to within what the delays ahead
-/// tell of the speed (their mean of 64, within 1/64 tick), where half a
+/// tell of the speed (their mean of 32, within 1/32 tick), where half a
 /// tick at a short interval is a large part of the distance.
 #[test]
 fn limit_brake_starts_from_the_exact_speed_between_whole_ticks() {
@@ -605,7 +605,7 @@ fn limit_brake_starts_from_the_exact_speed_between_whole_ticks() {
         let v0 = f64::from(HZ) / ticks;
         let dist = v0 * v0 / (2.0 * a);
         // v² off by twice the interval's relative error
-        let slack = dist * 2.0 / (64.0 * ticks) + 3.0;
+        let slack = dist * 2.0 / (32.0 * ticks) + 3.0;
         assert!(
             (f64::from(n) - dist).abs() <= slack,
             "{ticks} ticks a step: {n} braking steps, v0²/2a = {dist} (± {slack})"
@@ -614,11 +614,11 @@ fn limit_brake_starts_from_the_exact_speed_between_whole_ticks() {
 }
 
 /// A limit met while accelerating: the delays ahead are those of faster
-/// steps, and the brake's start takes no more of them than keep to two
-/// neighbouring ticks, so it stops at the exact speed's v²/2a within
-/// what one rounded delay would leave (half a tick), at a slow speed
-/// (the delays change by ticks a step: the window is one delay) as at a
-/// fast one (many delays: their mean).
+/// steps, and the brake's start takes their mean only while they keep to
+/// two neighbouring ticks (else the one delay), so it stops at the exact
+/// speed's v²/2a within what one rounded delay would leave (half a tick),
+/// at a slow speed (the delays change by ticks a step) as at a fast one
+/// (the window's mean).
 #[test]
 fn limit_brake_met_while_accelerating_starts_from_the_speed_at_the_edge() {
     // (interval, its change a step, both ticks; deceleration steps/s²)
