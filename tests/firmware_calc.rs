@@ -465,6 +465,29 @@ impl DmaEngine {
         }
     }
 
+    /// Entries played until the schedule and the writer are at rest and
+    /// the DMA at a half's start (at most `max`), the ledger giving the
+    /// pin's position after each.
+    fn to_rest_with_the_pin(&mut self, sched: &StepSchedule, max: usize) {
+        let mut entries = 0;
+        while sched.is_running()
+            || !sched.is_empty()
+            || self.e.writer.busy()
+            || !self.unread.is_multiple_of(HALF)
+        {
+            self.step(sched);
+            let made = self.made.len() as u16;
+            assert_eq!(
+                self.e.ledger.pin_position(sched.position(), made),
+                self.pin(),
+                "entry {entries}, {} made",
+                self.made.len()
+            );
+            entries += 1;
+            assert!(entries < max);
+        }
+    }
+
     fn pin(&self) -> i32 {
         self.made.iter().map(|&f| if f { 1 } else { -1 }).sum()
     }
@@ -522,18 +545,7 @@ fn a_limit_cuts_the_runs_ahead_of_the_timer_and_brakes_from_the_pin_spec_8_7() {
             d.buffer
         );
         // the pin and the schedule agree at every pulse from here on
-        let mut steps = 0;
-        while sched.is_running()
-            || !sched.is_empty()
-            || d.e.writer.busy()
-            || !d.unread.is_multiple_of(HALF)
-        {
-            d.step(&sched);
-            let made = d.made.len() as u16;
-            assert_eq!(d.e.ledger.pin_position(sched.position(), made), d.pin());
-            steps += 1;
-            assert!(steps < 100_000);
-        }
+        d.to_rest_with_the_pin(&sched, 100_000);
         // and the entries still in the buffer
         for _ in 0..2 * HALF {
             d.step(&sched);
@@ -1084,22 +1096,6 @@ fn the_pin_position_holds_through_a_run_longer_than_the_counts_wrap() {
     assert!(sched.set_limits(false, true));
     let unread = d.unread;
     d.brake_from_the_pin(&sched, || unread);
-    let mut entries = 0;
-    while sched.is_running()
-        || !sched.is_empty()
-        || d.e.writer.busy()
-        || !d.unread.is_multiple_of(HALF)
-    {
-        d.step(&sched);
-        let made = d.made.len() as u16;
-        assert_eq!(
-            d.e.ledger.pin_position(sched.position(), made),
-            d.pin(),
-            "entry {entries}, {} made",
-            d.made.len()
-        );
-        entries += 1;
-        assert!(entries < 1_000_000);
-    }
+    d.to_rest_with_the_pin(&sched, 1_000_000);
     assert!(d.made.len() > 3 << 16, "{}", d.made.len());
 }
