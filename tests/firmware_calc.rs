@@ -468,7 +468,7 @@ impl DmaEngine {
     /// Entries played until the schedule and the writer are at rest and
     /// the DMA at a half's start (at most `max`), the ledger giving the
     /// pin's position after each.
-    fn to_rest_with_the_pin(&mut self, sched: &StepSchedule, max: usize) {
+    fn play_to_rest_checking_the_pin(&mut self, sched: &StepSchedule, max: usize) {
         let mut entries = 0;
         while sched.is_running()
             || !sched.is_empty()
@@ -509,6 +509,7 @@ impl DmaEngine {
         );
         self.e.source.take_back(sched, cut);
         self.e.ledger.taken_back(cut as u16);
+        self.e.source.prepare_brake(sched);
         cut
     }
 }
@@ -545,7 +546,7 @@ fn a_limit_cuts_the_runs_ahead_of_the_timer_and_brakes_from_the_pin_spec_8_7() {
             d.buffer
         );
         // the pin and the schedule agree at every pulse from here on
-        d.to_rest_with_the_pin(&sched, 100_000);
+        d.play_to_rest_checking_the_pin(&sched, 100_000);
         // and the entries still in the buffer
         for _ in 0..2 * HALF {
             d.step(&sched);
@@ -1096,6 +1097,6 @@ fn the_pin_position_holds_through_a_run_longer_than_the_counts_wrap() {
     assert!(sched.set_limits(false, true));
     let unread = d.unread;
     d.brake_from_the_pin(&sched, || unread);
-    d.to_rest_with_the_pin(&sched, 1_000_000);
+    d.play_to_rest_checking_the_pin(&sched, 1_000_000);
     assert!(d.made.len() > 3 << 16, "{}", d.made.len());
 }

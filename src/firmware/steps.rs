@@ -390,19 +390,21 @@ fn unread() -> usize {
 
 /// Cuts the runs ahead of the timer (`trim::cut_runs`) when the pending
 /// step runs into an active limit, and takes their steps back from the
-/// schedule and the ledger, published as the refill publishes them.
+/// schedule and the ledger, published as the refill publishes them; then
+/// reads the brake's start speed (`StepSource::prepare_brake`), here and
+/// not in the refill that starts the brake.
 #[inline(never)]
 fn brake_from_the_pin(e: &mut Engine, buffer: &mut [Burst; 2 * HALF]) {
     if !e.source.limit_ahead(&SCHEDULE) {
         return;
     }
     let cut = cut_runs(buffer, e.newest, e.writer.level(), unread);
-    if cut == 0 {
-        return;
+    if cut != 0 {
+        e.source.take_back(&SCHEDULE, cut);
+        e.ledger.taken_back(cut as u16);
+        publish(&e.ledger, false);
     }
-    e.source.take_back(&SCHEDULE, cut);
-    e.ledger.taken_back(cut as u16);
-    publish(&e.ledger, false);
+    e.source.prepare_brake(&SCHEDULE);
 }
 
 /// The ledger (its start words too if `starts`) and the schedule's

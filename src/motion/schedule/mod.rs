@@ -104,8 +104,9 @@
 //! time too. A braking step (below) costs seven 32×32 → 64-bit multiplies
 //! and 32-bit shifts, still no division and no loop; while the motor is
 //! fast, a stride of braking steps costs that once and each of its steps
-//! an addition. The brake's start reads the delays ahead once (a bounded
-//! loop and two 32-bit divisions: `mean_ahead`). At constant speed the
+//! an addition. The brake's start reads the delays ahead once (a loop of
+//! a fixed length and a shift: `mean_ahead`), in the slow path or ahead
+//! of it ([`StepSource::prepare_brake`]). At constant speed the
 //! step engine takes a run of equal delays at once
 //! ([`StepSource::advance_run`]: a compare per step, one store of `next`);
 //! at a limit's edge it gives back the steps it had been handed and not

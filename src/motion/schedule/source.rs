@@ -57,6 +57,11 @@ pub struct StepSource {
     /// the interval ([`StepSource::brake_next`]).
     stride_left: u32,
     stride_add: u64,
+    /// `interval` holds the start interval of the brake
+    /// [`StepSource::limit_ahead`] announces, read ahead of it
+    /// ([`StepSource::prepare_brake`]) for the entry at `next`; cleared by
+    /// the slow path, which the brake's start always goes through.
+    prepared: bool,
 }
 
 /// A fast brake goes in strides of this many steps (a power of two)...
@@ -90,6 +95,7 @@ impl StepSource {
             frac: 0,
             stride_left: 0,
             stride_add: 0,
+            prepared: false,
         }
     }
 
@@ -218,6 +224,25 @@ impl StepSource {
             && sched.brake_rate.load(Ordering::Relaxed) != 0
     }
 
+    /// If [`StepSource::limit_ahead`], reads the brake's start speed now,
+    /// for the `advance` that starts it: a step engine calls it where it
+    /// learns of the limit, so that the refill that starts the brake,
+    /// whose deadline is the steps already handed to the timer, does not
+    /// read the delays ahead as well. That `advance` is the next one and
+    /// takes the slow path (the limits or the brake rate raised attention
+    /// when they were set, and no slow path has run since, or the brake
+    /// would have started); it takes what was read if the brake starts at
+    /// that entry (always, unless a marker comes first), and forgets it
+    /// otherwise.
+    pub fn prepare_brake(&mut self, sched: &StepSchedule) {
+        let at = sched.next.load(Ordering::Relaxed);
+        let delay = sched.entry(at).load(Ordering::Relaxed);
+        if self.limit_ahead(sched) && delay as i32 > 0 {
+            self.interval = mean_ahead(sched, at, delay);
+            self.prepared = true;
+        }
+    }
+
     /// `steps` steps given before the pending one, in its direction, are
     /// not made after all: the position goes back by them. What they were
     /// part of is dropped by the limit brake that follows
@@ -239,6 +264,7 @@ impl StepSource {
     /// stores it again ([`StepSchedule::set_base`]).
     #[inline(never)]
     fn advance_slow(&mut self, sched: &StepSchedule) -> Option<NextStep> {
+        let prepared = core::mem::take(&mut self.prepared);
         let next = sched.next.load(Ordering::Relaxed);
         let mut made = sched.base_position(next);
         if self.pending {
@@ -295,7 +321,9 @@ impl StepSource {
                 // from the interval of the step it would have made (its
                 // exact one, which the rounded delays ahead tell), timed
                 // from the tick of the one just made
-                self.interval = mean_ahead(sched, at, delay);
+                if !(prepared && at == next) {
+                    self.interval = mean_ahead(sched, at, delay);
+                }
                 self.frac = HALF_TICK;
                 self.stride_left = 0;
                 sched.set_base(made, at, self.forward);

@@ -654,6 +654,43 @@ fn limit_brake_met_while_accelerating_starts_from_the_speed_at_the_edge() {
     }
 }
 
+/// A brake whose start speed was read ahead (`prepare_brake`, where a
+/// step engine learns of the limit) makes the same steps as one that
+/// reads it as it starts; one read for a limit released before the brake
+/// started is forgotten.
+#[test]
+fn a_brake_prepared_ahead_makes_the_steps_of_one_read_at_its_start() {
+    // the delays of a brake after 50 steps of a ramp; `early`: a limit
+    // met, read ahead and released 20 steps before
+    let brake = |prepare: bool, early: bool| {
+        let sched = StepSchedule::new();
+        let mut src = StepSource::new();
+        sched.set_brake_rate(Some(brake_rate(20_000_000, HZ)));
+        let count = sched.free() as u32;
+        let interval = (33.37 * ONE as f64) as u64;
+        sched
+            .push(seg(interval, -(ONE as i64) / 50, 0, count, true))
+            .unwrap();
+        for k in 0..50 {
+            if early && k == 30 {
+                sched.set_limits(false, true);
+                src.prepare_brake(&sched);
+                sched.set_limits(false, false);
+            }
+            src.advance(&sched).unwrap();
+        }
+        sched.set_limits(false, true);
+        assert!(src.limit_ahead(&sched));
+        if prepare {
+            src.prepare_brake(&sched);
+        }
+        std::iter::from_fn(|| src.advance(&sched).map(|s| s.delay_ticks())).collect::<Vec<_>>()
+    };
+    let plain = brake(false, false);
+    assert_eq!(brake(true, false), plain);
+    assert_eq!(brake(false, true), plain);
+}
+
 #[test]
 fn limit_brake_only_towards_the_active_limit_and_only_when_armed() {
     let sched = StepSchedule::new();
