@@ -101,6 +101,8 @@ TICK_NS = c.TICK_NS
 SCHEDULE = Path(os.environ.get("FW_SIM_SCHEDULE_BIN")
                 or ROOT / "target" / "debug" / "examples" / "step_schedule")
 STEPS_PER_REV = 10_000  # PA10 default (SPEC §7)
+# EE-Set (SPEC §9): the parameters saved, new format, k = 1
+EE_SET = c.with_crc(c.hexb("01 10 00 3A 00 01 02 00 01"))
 # the firmware's warning when a DMA refill came a buffer half late
 # (src/firmware/control.rs)
 LATE_REFILL_LOG = re.compile(r"step engine: (\d+) refill\(s\) came a buffer half late")
@@ -454,9 +456,10 @@ def flood_section(work: Path, rates: dict[str, int]) -> list[str]:
 def limit_brake(board: str, work: Path) -> tuple[int, int, int, float, int, int, int]:
     """Velocity mode at the board's limit into the CCW limit, 0x6085 at
     MAX_ACCEL, the master polling 0x6041 every 20 ms of wall-clock time
-    throughout: (steps/s, v²/2a, steps past the edge, CPU load % while
-    braking, reads sent while braking, reads answered of them, USART
-    overruns the drive counted: function 8, sub-function 0x12)."""
+    throughout, then an EE-Set: (steps/s, v²/2a, steps past the edge, CPU
+    load % while braking, reads sent while braking, reads answered of
+    them, USART overruns the drive counted: function 8, sub-function 0x12,
+    bytes of stack never reached since power-on)."""
     rate = LIMITS[board]
     brake = rate * rate // (2 * MAX_ACCEL)
     edge = 2 * brake + 20_000  # up to speed, then a cruise
@@ -495,11 +498,15 @@ def limit_brake(board: str, work: Path) -> tuple[int, int, int, float, int, int,
         m.c.close()
         with fw.raw() as bus:
             reply = bus.exchange(c.with_crc(c.hexb("01 08 00 12 00 00")))
-        overruns = int.from_bytes(reply[4:6], "big")
+            overruns = int.from_bytes(reply[4:6], "big")
+            # an EE-Set: the store's save, the deepest call after the boot's
+            assert bus.exchange(EE_SET, timeout=3) == c.with_crc(c.hexb("01 10 00 3A 00 01"))
+        time.sleep(0.5)  # the save's erase and programs done, the stats rewritten
+        stack = stats(st)["stack_untouched"]
         fw.alive()
     finally:
         fw.stop()
-    return rate, brake, over, 100 * busy / max(1, busy + asleep), sent, answered, overruns
+    return rate, brake, over, 100 * busy / max(1, busy + asleep), sent, answered, overruns, stack
 
 
 def limit_brake_section(work: Path) -> list[str]:
@@ -516,11 +523,21 @@ def limit_brake_section(work: Path) -> list[str]:
              "| board | steps/s | v²/2a | steps past the edge | CPU load % while braking "
              "| reads while braking | answered | USART overruns |",
              "|---|---|---|---|---|---|---|---|"]
+    stacks = {}
     for board in c.BOARDS:
-        rate, brake, over, load, sent, answered, overruns = limit_brake(board, work)
+        rate, brake, over, load, sent, answered, overruns, stacks[board] = limit_brake(board, work)
         lines.append(f"| {board} | {rate} | {brake} | {over} | {load:.1f} | {sent} "
                      f"| {answered} | {overruns} |")
         print(lines[-1], flush=True)
+    lines += ["", "## Stack headroom", "",
+              "Bytes at the far end of the stack region (below the statics, flip-link)",
+              "never written from power-on to the end of the run above and an EE-Set",
+              "after it: fw-sim paints the region at power-on (fw-sim/src/stack.rs,",
+              "`--stats`). The boot's `install_device` (the `Device` built on its",
+              "frame) is the deepest call; an interrupt in it stacks its frames",
+              "below (docs/firmware.md, \"Sizes\").", "",
+              "| board | stack never reached, B |", "|---|---|"]
+    lines += [f"| {board} | {stacks[board]} |" for board in c.BOARDS]
     return lines
 
 

@@ -37,7 +37,8 @@ Runs the unmodified firmware image of a board on an emulated STM32.
   --profile     rewritten with --stats: instructions per firmware function
                 since reset, most first (`insns name` lines)
   --stats       rewritten every 50 ms (wall): emulated time_ns, busy and
-                sleeping core cycles, step pulses
+                sleeping core cycles, step pulses, and the bytes at the
+                stack's far end never written since power-on
   --state       file holding the parameter flash pages (kept across runs)
   --cw-limit / --ccw-limit / --home-switch: switch positions in steps
   --write-protect the parameter pages are write-protected (as by the option

@@ -19,6 +19,7 @@ mod pin_trace;
 mod profile;
 mod rtt;
 mod scs;
+mod stack;
 mod trace;
 
 use std::cell::RefCell;
@@ -144,6 +145,7 @@ fn run() -> Result<i32, String> {
     let line = Line::new(&args.tcp, &args.modbus_tcp, args.pty_link.as_ref())
         .map_err(|e| format!("line: {e}"))?;
     eprintln!("fw-sim: {} running {}", chip.name, elf.display());
+    stack::paint(&mut uc)?;
     let pc = cpu::reset(&mut uc)?;
     let mut r = Runner {
         uc,
@@ -286,6 +288,7 @@ impl Runner {
         self.uc
             .mem_write(base as u64, &vec![0; len as usize])
             .map_err(|e| format!("{e:?}"))?;
+        stack::paint(&mut self.uc)?;
         self.pc = cpu::reset(&mut self.uc)?;
         self.sleeping = None;
         Ok(())
@@ -356,13 +359,15 @@ impl Runner {
             p.write(&self.image, path);
         }
         let Some(path) = &self.stats else { return };
+        let untouched = stack::untouched(&self.uc).unwrap_or(0);
         let m = self.uc.get_data();
         let text = format!(
-            "time_ns {}\nbusy_cycles {}\nsleep_cycles {}\nsteps {}\n",
+            "time_ns {}\nbusy_cycles {}\nsleep_cycles {}\nsteps {}\nstack_untouched {}\n",
             m.clock.now() / 1000,
             m.clock.busy_cycles(),
             m.clock.sleep_cycles(),
-            m.steps_total
+            m.steps_total,
+            untouched
         );
         let tmp = path.with_extension("tmp");
         if std::fs::write(&tmp, text).is_ok() {

@@ -39,9 +39,16 @@ static DEVICE: OnceLock<Mutex<ThreadModeRawMutex, RefCell<Device>>> = OnceLock::
 /// The parameter store (SPEC §9) on the board's parameter pages.
 pub type Store = ParamStore<FlashRegion<Flash<'static, FlashBlocking>>>;
 
-/// Installs the device (`main`, once, before any task starts).
-pub fn install(device: Device) {
-    if DEVICE.init(Mutex::new(RefCell::new(device))).is_err() {
+/// Installs the device `build` makes (`main`, once, before any task
+/// starts). Built inside the lock's initialiser, not passed in: a value
+/// passed to `init` is copied on the way, and comes back in its `Err`.
+pub fn install(build: impl FnOnce() -> Device) {
+    let mut built = false;
+    DEVICE.get_or_init(|| {
+        built = true;
+        Mutex::new(RefCell::new(build()))
+    });
+    if !built {
         defmt::panic!("device installed twice");
     }
 }

@@ -184,7 +184,10 @@ fn read_boot(store: &mut dispatch::Store) -> Boot {
 /// its frame, which is gone once it is installed (in `main`'s frame it
 /// would stay under every call of the control loop, `main` awaiting it),
 /// and a `Device` local of `main` would stay in main's future (a static)
-/// after it has been moved to the dispatcher: its RAM twice.
+/// after it has been moved to the dispatcher: its RAM twice. Built by
+/// the installing closure and set up once installed, so that the frame
+/// holds as few of its copies as the compiler makes for one move: this
+/// is the deepest the F103's stack goes (docs/firmware.md, "Sizes").
 #[inline(never)]
 fn install_device(
     boot: &Boot,
@@ -193,18 +196,20 @@ fn install_device(
     // The planner times steps in the step timer's ticks
     // (calc::step_prescaler) and keeps to the board's limits; it fills
     // the schedule in parts that the control loop spaces out.
-    let mut device = Device::with_planner_config(
-        Identity::new(board::NAME),
-        PlannerConfig::for_board(board::BOARD).with_fill_budget(control::FILL_BUDGET),
-    );
-    device.set_reset_cause(reset_cause);
-    device.apply_boot(boot);
-    let at = (
-        device.line(),
-        device.address(),
-        device.driver_enable(),
-        device.params().direction_inverted(),
-    );
-    dispatch::install(device);
-    at
+    dispatch::install(|| {
+        Device::with_planner_config(
+            Identity::new(board::NAME),
+            PlannerConfig::for_board(board::BOARD).with_fill_budget(control::FILL_BUDGET),
+        )
+    });
+    defmt::unwrap!(dispatch::with_device(|device| {
+        device.set_reset_cause(reset_cause);
+        device.apply_boot(boot);
+        (
+            device.line(),
+            device.address(),
+            device.driver_enable(),
+            device.params().direction_inverted(),
+        )
+    }))
 }
