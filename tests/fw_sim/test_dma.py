@@ -15,7 +15,9 @@ import pytest
 
 from conftest import FLASH, SIM, elf_image
 
-SRC, DST = 0x2000_0200, 0x2000_0300
+# above the image's initial stack pointer: the stack region below it is
+# painted at power-on (fw-sim/src/stack.rs), the rest of SRAM reads 0
+SRC, DST = 0x2000_1200, 0x2000_1300
 MARKER = 0x4000_4400
 DMA1_CCR1 = 0x4002_0008
 # EN | DIR (memory → "peripheral") | PSIZE = MSIZE = 32 bits | MEM2MEM
