@@ -428,11 +428,12 @@ impl StepSource {
 /// one delay is off by up to half a tick: at the highest step rates, a
 /// few hundred ticks a step, enough to put the brake's start speed, and
 /// its distance twice as much, visibly off. A fixed window, read whole
-/// without a branch an entry, and a shift for the mean: this runs in the
-/// refill that starts the brake, whose deadline is the other buffer half,
-/// a step an entry once the runs ahead are cut. Thread mode never writes
-/// the entries between `at` and the sentinel (`ring[head]`, always `END`:
-/// a window across it reads 0 and takes `delay`), nor those behind.
+/// without a branch an entry, and a shift for the mean: this runs once a
+/// brake, in the step interrupt, where the time before the brake's first
+/// steps are due is a few steps at the top rates. Thread mode never
+/// writes the entries between `at` and the sentinel (`ring[head]`,
+/// always `END`); a window that reaches past them holds the sentinel, 0,
+/// and takes `delay`.
 fn mean_ahead(sched: &StepSchedule, at: u32, delay: u32) -> u64 {
     const SHIFT: u32 = TICK_FRAC_BITS - MEAN_WINDOW.ilog2();
     // the window as the ring's slices up to its end and from its start:
@@ -452,6 +453,7 @@ fn mean_ahead(sched: &StepSchedule, at: u32, delay: u32) -> u64 {
     };
     total << SHIFT
 }
+
 /// The wrapping sum, the least and the greatest of `entries`: one plain
 /// loop, its state in registers (a chained iterator, or a closure over
 /// the sums, kept it in memory).
@@ -464,6 +466,7 @@ fn sum_min_max(entries: &[AtomicU32]) -> (u32, u32, u32) {
     }
     (sum, lo, hi)
 }
+
 const _: () = assert!(MEAN_WINDOW.is_power_of_two() && MEAN_WINDOW < (SCHEDULE_STEPS as u32) / 2);
 
 /// How many of `entries`, from the first, hold `delay`: four compares to
