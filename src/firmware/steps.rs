@@ -297,8 +297,8 @@ pub fn publish_pin_lag() {
 /// between two reads of [`SEQ`], again if a refill came between them, and
 /// `read()` goes before them, outside that window (the count before it
 /// tells whether a pulse came in between). A long window would be cut
-/// again and again while the engine is busiest, and this may run inside
-/// a critical section, which holds off the USART.
+/// again and again while the engine is busiest, and the switches' reading
+/// holds its EXTI line masked while this runs.
 fn snapshot<T>(mut read: impl FnMut() -> T) -> (T, i32, i32) {
     let mut tries = 0;
     loop {
