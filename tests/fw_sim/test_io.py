@@ -29,6 +29,25 @@ def test_a_ccw_limit_stops_the_axis_with_the_quick_stop_distance(start_fw, board
     limits.run_into_the_ccw_limit_at_10000(Master(fw.client()), f"{board}: ")
 
 
+def run_into_the_ccw_limit(m: Master, board: str, rate: int):
+    """Velocity mode at `rate` steps/s (PA12 at 6000 r/min, PA15 short
+    enough), every ramp and 0x6085 at 2 000 000 steps/s², until the CCW
+    limit has stopped the motor."""
+    m.write(MAX_SPEED_PA12, 6000)
+    m.write(PA_BASE + 15, pulse_for(rate))
+    m.enable()
+    m.write(MODE, 3)
+    m.write(ACCELERATION, 2000)
+    m.write(DECELERATION, 2000)
+    m.write(QUICK_STOP_DECELERATION, 2000)
+    m.write32(PROFILE_VELOCITY, rate // 1000)
+    m.wait(lambda s: s & CCW_LIMIT, 20, f"{board}: the CCW limit")
+    deadline = time.monotonic() + 20
+    while m.read32(ACTUAL_VELOCITY) != 0:
+        assert time.monotonic() < deadline, f"{board}: still moving"
+        time.sleep(0.02)
+
+
 def test_a_limit_at_the_top_rate_brakes_from_the_step_the_pin_is_at(start_fw, board):
     """The board's step rate limit into a CCW limit, 0x6085 = 2000
     (2 000 000 steps/s²): v²/2a past the edge, plus the steps the timer
@@ -43,19 +62,7 @@ def test_a_limit_at_the_top_rate_brakes_from_the_step_the_pin_is_at(start_fw, bo
     edge = 2 * brake + 20_000  # up to speed first (0x6083 alike), then a cruise
     fw = start_fw(board, "--ccw-limit", str(edge))
     m = Master(fw.client())
-    m.write(MAX_SPEED_PA12, 6000)
-    m.write(PA_BASE + 15, pulse_for(rate))
-    m.enable()
-    m.write(MODE, 3)
-    m.write(ACCELERATION, 2000)
-    m.write(DECELERATION, 2000)
-    m.write(QUICK_STOP_DECELERATION, 2000)
-    m.write32(PROFILE_VELOCITY, rate // 1000)
-    m.wait(lambda s: s & CCW_LIMIT, 20, f"{board}: the CCW limit")
-    deadline = time.monotonic() + 20
-    while m.read32(ACTUAL_VELOCITY) != 0:
-        assert time.monotonic() < deadline, f"{board}: still moving"
-        time.sleep(0.02)
+    run_into_the_ccw_limit(m, board, rate)
     fw.alive()
     over = m.read32(ACTUAL_POSITION) - edge
     period_ticks = 1e9 / rate / TICK_NS[board]

@@ -13,10 +13,8 @@ from __future__ import annotations
 
 import time
 
-from conftest import (ACCELERATION, ACTUAL_VELOCITY, CCW_LIMIT, DECELERATION, LIMITS, MODE,
-                      PA_BASE, PROFILE_VELOCITY, QUICK_STOP_DECELERATION, Master, hexb,
-                      pulse_for, with_crc)
-from test_io import EE_SET
+from conftest import LIMITS, Master, hexb, with_crc
+from test_io import EE_SET, run_into_the_ccw_limit
 
 HEADROOM = 1024
 
@@ -36,18 +34,7 @@ def test_the_stack_keeps_headroom(start_fw, board, tmp_path):
     m = Master(fw.client())
     booted = untouched(stats)
     assert booted >= HEADROOM, f"{board}: {booted} B of stack never reached after the boot"
-    m.write(PA_BASE + 12, 6000)
-    m.write(PA_BASE + 15, pulse_for(rate))
-    m.enable()
-    m.write(MODE, 3)
-    for reg in (ACCELERATION, DECELERATION, QUICK_STOP_DECELERATION):
-        m.write(reg, 2000)
-    m.write32(PROFILE_VELOCITY, rate // 1000)
-    m.wait(lambda s: s & CCW_LIMIT, 20, f"{board}: the CCW limit")
-    deadline = time.monotonic() + 20
-    while m.read32(ACTUAL_VELOCITY) != 0:
-        assert time.monotonic() < deadline, f"{board}: still moving"
-        time.sleep(0.02)
+    run_into_the_ccw_limit(m, board, rate)
     # the save last: the flash erase it starts stalls the core (the USART
     # loses what arrives meanwhile)
     m.c.close()
