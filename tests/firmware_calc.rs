@@ -436,6 +436,20 @@ impl DmaEngine {
         d
     }
 
+    /// The engine `entries` entries into a cruise at `interval_ticks`
+    /// on `sched`, whose brake is armed at 2e6 steps/s² at `tick_hz`.
+    fn cruising(sched: &StepSchedule, tick_hz: u32, interval_ticks: u64, entries: usize) -> Self {
+        sched.set_brake_rate(Some(brake_rate(20_000_000, tick_hz)));
+        sched
+            .push(segment(interval_ticks, sched.free() as u32, true))
+            .unwrap();
+        let mut d = Self::new(sched);
+        for _ in 0..entries {
+            d.step(sched);
+        }
+        d
+    }
+
     fn refill(&mut self, sched: &StepSchedule, at: usize) {
         let Engine {
             writer,
@@ -519,12 +533,7 @@ fn a_limit_cuts_the_runs_ahead_of_the_timer_and_brakes_from_the_pin_spec_8_7() {
     // 100 000 steps/s at 72 MHz, quick stop 2e6 steps/s² (2500 steps)
     for edge_at in [40usize, 41, 47, 53] {
         let sched = StepSchedule::new();
-        sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
-        sched.push(segment(720, sched.free() as u32, true)).unwrap();
-        let mut d = DmaEngine::new(&sched);
-        for _ in 0..edge_at {
-            d.step(&sched);
-        }
+        let mut d = DmaEngine::cruising(&sched, F103_TICK_HZ, 720, edge_at);
         assert!(d.buffer.iter().any(|b| b.periods() > 1), "a cruise in runs");
         let before = d.made.len();
         assert!(sched.set_limits(false, true));
@@ -567,12 +576,7 @@ fn a_limit_cuts_the_runs_ahead_of_the_timer_and_brakes_from_the_pin_spec_8_7() {
 #[test]
 fn no_run_is_cut_while_the_motion_leaves_the_limit() {
     let sched = StepSchedule::new();
-    sched.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
-    sched.push(segment(720, sched.free() as u32, true)).unwrap();
-    let mut d = DmaEngine::new(&sched);
-    for _ in 0..40 {
-        d.step(&sched);
-    }
+    let mut d = DmaEngine::cruising(&sched, F103_TICK_HZ, 720, 40);
     let buffer = d.buffer;
     assert!(sched.set_limits(true, false)); // CW: blocks backward only
     let unread = d.unread;
@@ -585,14 +589,7 @@ fn a_run_is_cut_only_two_entries_or_more_ahead_of_the_dma() {
     // the DMA moves on 0, 1 or 2 entries at each look while the runs are cut
     for moves in [0usize, 1, 2] {
         let sched2 = StepSchedule::new();
-        sched2.set_brake_rate(Some(brake_rate(20_000_000, F103_TICK_HZ)));
-        sched2
-            .push(segment(720, sched2.free() as u32, true))
-            .unwrap();
-        let mut d = DmaEngine::new(&sched2);
-        for _ in 0..40 {
-            d.step(&sched2);
-        }
+        let mut d = DmaEngine::cruising(&sched2, F103_TICK_HZ, 720, 40);
         let before = d.buffer;
         let first = d.unread;
         let span = (d.newest + 2 * HALF - first) % (2 * HALF);
@@ -1086,14 +1083,8 @@ fn a_supervised_task_gets_the_longest_legitimate_frame_and_more() {
 /// entry, as the counts wrap.
 #[test]
 fn the_pin_position_holds_through_a_run_longer_than_the_counts_wrap() {
-    let hz = 170_000_000;
     let sched = StepSchedule::new();
-    sched.set_brake_rate(Some(brake_rate(20_000_000, hz)));
-    sched.push(segment(170, sched.free() as u32, true)).unwrap();
-    let mut d = DmaEngine::new(&sched);
-    for _ in 0..40 {
-        d.step(&sched);
-    }
+    let mut d = DmaEngine::cruising(&sched, 170_000_000, 170, 40);
     assert!(sched.set_limits(false, true));
     let unread = d.unread;
     d.brake_from_the_pin(&sched, || unread);

@@ -241,10 +241,11 @@ impl StepLedger {
         }
     }
 
-    /// Marks the newest run long once it is; called at least every
-    /// `LONG_RUN` steps (a refill gives far fewer), so that its length is
-    /// seen before it wraps.
-    fn check_long(&mut self) {
+    /// Marks the newest run long once it is. Call it at least once every
+    /// [`LONG_RUN`] steps given, so that the run's length is seen before
+    /// it wraps: the refill's feed calls it once a fill (a fill gives far
+    /// fewer), not once a step.
+    pub fn check_long(&mut self) {
         let start = self.starts[usize::from(self.newest)];
         self.long |= self.given.wrapping_sub(start) >= LONG_RUN;
     }
@@ -262,7 +263,6 @@ impl StepLedger {
                 self.long = false;
             }
             self.given = self.given.wrapping_add(1);
-            self.check_long();
         }
     }
 
@@ -270,7 +270,6 @@ impl StepLedger {
     /// still pending (`StepSource::advance_plain`'s steps).
     pub fn advanced_plain(&mut self, n: u16) {
         self.given = self.given.wrapping_add(n);
-        self.check_long();
     }
 
     /// `n` steps of the newest run, given before the pending one, are

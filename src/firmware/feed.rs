@@ -11,7 +11,8 @@ use super::calc::StepLedger;
 /// One refill's [`StepFeed`]. Its plain steps skip the ledger's per-step
 /// work (they are in the direction of the step before them): they are
 /// counted, and the count goes to the ledger before the next other step
-/// and when the feed is dropped.
+/// and when the feed is dropped, which also has the ledger look at the
+/// newest run's length (`StepLedger::check_long`).
 pub struct EngineFeed<'a> {
     source: &'a mut StepSource,
     sched: &'a StepSchedule,
@@ -80,5 +81,6 @@ impl StepFeed for EngineFeed<'_> {
 impl Drop for EngineFeed<'_> {
     fn drop(&mut self) {
         self.settle();
+        self.ledger.check_long();
     }
 }

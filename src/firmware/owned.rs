@@ -4,8 +4,9 @@
 //! `static` of it says which in its `SAFETY` comments:
 //! - by the interrupt's enable: it belongs to one interrupt handler while
 //!   that interrupt is enabled, and to thread code while it is disabled in
-//!   the NVIC (before it is first enabled, or around a change: rs485.rs's
-//!   link);
+//!   the NVIC (before it is first enabled, or around a change:
+//!   [`IrqOwned::with_irq_disabled`], rs485.rs's link, switches.rs's
+//!   inputs);
 //! - by an atomic state that the two sides hand it over with: the side the
 //!   state names owns it, and only the owner moves the state on (with
 //!   Release, the other side reads it with Acquire): rx_slots.rs's slots
@@ -16,6 +17,8 @@
 //! section is needed, and none masks anything.
 
 use core::cell::UnsafeCell;
+
+use embassy_stm32::interrupt::typelevel::Interrupt;
 
 pub struct IrqOwned<T>(UnsafeCell<T>);
 
@@ -36,5 +39,26 @@ impl<T> IrqOwned<T> {
     pub unsafe fn get(&self) -> &mut T {
         // SAFETY: exclusive by the caller's contract.
         unsafe { &mut *self.0.get() }
+    }
+
+    /// `f` on the value from thread code, with interrupt `I`, whose
+    /// handler owns it while enabled, disabled in the NVIC meanwhile
+    /// (nothing else is masked) and enabled again after.
+    ///
+    /// # Safety
+    /// The value belongs to `I`'s handler while `I` is enabled (the first
+    /// kind of owner above), that handler is bound, and what `f` leaves
+    /// is what the handler may find; no reference from [`IrqOwned::get`]
+    /// is alive.
+    pub unsafe fn with_irq_disabled<I: Interrupt, R>(&self, f: impl FnOnce(&mut T) -> R) -> R {
+        I::disable();
+        cortex_m::asm::dsb();
+        cortex_m::asm::isb();
+        // SAFETY: `I` cannot run now: thread code owns the value (the
+        // caller's contract)
+        let r = f(unsafe { self.get() });
+        // SAFETY: the handler is bound (the caller's contract)
+        unsafe { I::enable() };
+        r
     }
 }

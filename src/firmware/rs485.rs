@@ -129,28 +129,28 @@ static LINK_READY: AtomicBool = AtomicBool::new(false);
 /// the NVIC meanwhile (nothing else is masked). The link is set up at the
 /// first call.
 fn with_link<R>(f: impl FnOnce(&mut Link) -> R) -> R {
-    board::UartIrq::disable();
-    cortex_m::asm::dsb();
-    cortex_m::asm::isb();
-    // SAFETY: the interrupt cannot run now: thread code owns the link.
-    let slot = unsafe { LINK.get() };
-    let link = if LINK_READY.load(Ordering::Relaxed) {
-        // SAFETY: initialised by the first call (LINK_READY).
-        unsafe { slot.assume_init_mut() }
-    } else {
-        slot.write(Link {
-            assembler: FrameAssembler::new(FrameTiming::new(LineConfig::DEFAULT)),
-            write_slot: 0,
-            tx_pos: 0,
-            // replaced by `apply_line` before the first reply
-            de_drive: DeDrive::default(),
+    // SAFETY: the link belongs to the USART interrupt while it is enabled;
+    // its handler is bound (board::Irqs) and finds the link set up (below,
+    // at the first call) and marked so.
+    unsafe {
+        LINK.with_irq_disabled::<board::UartIrq, _>(|slot| {
+            let link = if LINK_READY.load(Ordering::Relaxed) {
+                // SAFETY: initialised by the first call (LINK_READY).
+                slot.assume_init_mut()
+            } else {
+                slot.write(Link {
+                    assembler: FrameAssembler::new(FrameTiming::new(LineConfig::DEFAULT)),
+                    write_slot: 0,
+                    tx_pos: 0,
+                    // replaced by `apply_line` before the first reply
+                    de_drive: DeDrive::default(),
+                })
+            };
+            let r = f(link);
+            LINK_READY.store(true, Ordering::Release);
+            r
         })
-    };
-    let r = f(link);
-    LINK_READY.store(true, Ordering::Release);
-    // SAFETY: the handler is bound (board::Irqs) and its state is set up.
-    unsafe { board::UartIrq::enable() };
-    r
+    }
 }
 
 /// Microseconds from the embassy-time driver (tick 1 MHz), wrapping.

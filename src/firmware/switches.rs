@@ -51,7 +51,7 @@
 use core::sync::atomic::{AtomicU16, Ordering};
 
 use embassy_stm32::exti::ExtiInput;
-use embassy_stm32::interrupt::typelevel::{Handler, Interrupt};
+use embassy_stm32::interrupt::typelevel::Handler;
 use embassy_stm32::mode::Blocking;
 use embassy_stm32::pac;
 use modbus_drive::drive::io;
@@ -101,15 +101,9 @@ pub fn install(pins: SwitchInputs) {
 /// `f` on the inputs from thread code, with the EXTI interrupt disabled
 /// in the NVIC meanwhile (nothing else is masked).
 fn with_inputs<R>(f: impl FnOnce(&mut Option<Inputs>) -> R) -> R {
-    board::SwitchIrq::disable();
-    cortex_m::asm::dsb();
-    cortex_m::asm::isb();
-    // SAFETY: the interrupt cannot run now: thread code owns the inputs.
-    let r = f(unsafe { INPUTS.get() });
-    // SAFETY: the handler is bound (board::Irqs) and finds the inputs
-    // whole.
-    unsafe { board::SwitchIrq::enable() };
-    r
+    // SAFETY: the inputs belong to the EXTI interrupt while it is enabled;
+    // its handler is bound (board::Irqs) and finds them whole.
+    unsafe { INPUTS.with_irq_disabled::<board::SwitchIrq, _>(f) }
 }
 
 /// PA13 / PA14 as they are now (called by the control loop).

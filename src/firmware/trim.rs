@@ -3,10 +3,9 @@
 //! cut to one period each, so the brake, which the next refill starts,
 //! waits for a step per entry, not for a run per entry. All but the
 //! newest: the refill that starts the brake writes its half while the DMA
-//! plays the other, and that refill (the brake's first steps, the start
-//! speed from the delays ahead) takes longer than a step per entry at the
-//! top rates; the newest entry's run, the other half's last, gives it
-//! that time. HAL-free, so
+//! plays the other, and that refill (the brake's first steps) takes
+//! longer than a step per entry at the top rates; the newest entry's run,
+//! the other half's last, gives it that time. HAL-free, so
 //! `tests/firmware_calc.rs` includes it by path and runs it on the host.
 //!
 //! The DMA reads the buffer while this writes it. An entry is written only
@@ -20,8 +19,9 @@ use modbus_drive::motion::burst::Burst;
 
 /// Cuts the runs among the entries the DMA has not reached, in DIR level
 /// `level` back from `newest` (the last entry written, which keeps its
-/// run), to their first period. `unread()` is the index of the first entry the DMA has not
-/// started. Returns the steps cut (all in the direction of `level`).
+/// run), to their first period. `unread()` is the index of the first
+/// entry the DMA has not started. Returns the steps cut (all in the
+/// direction of `level`).
 pub fn cut_runs<const LEN: usize>(
     buffer: &mut [Burst; LEN],
     newest: usize,

@@ -235,9 +235,12 @@ impl StepSource {
     /// that entry (always, unless a marker comes first), and forgets it
     /// otherwise.
     pub fn prepare_brake(&mut self, sched: &StepSchedule) {
+        if !self.limit_ahead(sched) {
+            return;
+        }
         let at = sched.next.load(Ordering::Relaxed);
         let delay = sched.entry(at).load(Ordering::Relaxed);
-        if self.limit_ahead(sched) && delay as i32 > 0 {
+        if delay as i32 > 0 {
             self.interval = mean_ahead(sched, at, delay);
             self.prepared = true;
         }
