@@ -108,7 +108,9 @@
 //! a fixed length and a shift: `mean_ahead`), in the slow path or ahead
 //! of it ([`StepSource::prepare_brake`]). At constant speed the
 //! step engine takes a run of equal delays at once
-//! ([`StepSource::advance_run`]: a compare per step, one store of `next`);
+//! ([`StepSource::advance_run`]: one store of `next`, and no per-step
+//! work where the producer noted the run as it pushed a constant speed
+//! of whole ticks, three stores a push; a compare per step elsewhere);
 //! at a limit's edge it gives back the steps it had been handed and not
 //! made ([`StepSource::take_back`]) so that the brake starts nearer the
 //! edge. The expansion is

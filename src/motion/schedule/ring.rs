@@ -11,6 +11,12 @@ use super::segment::{time_made, Expansion, Segment};
 use super::sink::{PushedSteps, StepSink};
 use super::{dir, END, HALF_TICK, MARK_BACKWARD, MARK_FORWARD, SCHEDULE_STEPS};
 
+/// Entries a known run may lie behind the queue's end before a push of
+/// other delays forgets it: far less than the 2^32 after which its
+/// wrapping indices would name new entries, and a push moves the end by
+/// less than a ring.
+const STALE_RUN: u32 = 1 << 30;
+
 /// The shared ring of per-step delays plus what the interrupt reports back
 /// (see the module docs for who may call what). `repr(C)`: the ring at the
 /// start and `next`/`quiet` right behind it, so that the interrupt's
@@ -60,6 +66,14 @@ pub struct StepSchedule {
     pub(super) pin_lag: AtomicI32,
     pub(super) pin_lag_at: AtomicI32,
     pub(super) pin_lag_told: AtomicBool,
+    /// A run of equal delays the producer has pushed, for the consumer to
+    /// take without comparing them ([`StepSchedule::run_ahead`]): the
+    /// entries from `run_from` up to `run_to` (excluded, wrapping) all
+    /// hold `run_delay`; 0 there (the sentinel's value, never a delay):
+    /// none known. Producer only.
+    pub(super) run_from: AtomicU32,
+    pub(super) run_to: AtomicU32,
+    pub(super) run_delay: AtomicU32,
 }
 
 impl Default for StepSchedule {
@@ -90,6 +104,9 @@ impl StepSchedule {
             pin_lag: AtomicI32::new(0),
             pin_lag_at: AtomicI32::new(0),
             pin_lag_told: AtomicBool::new(false),
+            run_from: AtomicU32::new(0),
+            run_to: AtomicU32::new(0),
+            run_delay: AtomicU32::new(END),
         }
     }
 
@@ -151,6 +168,7 @@ impl StepSchedule {
         if count == 0 || entries > self.room() {
             return None;
         }
+        let uniform = seg.uniform_delay();
         let frac = self.carry_in();
         let mut carry = (frac, 0);
         // ring[head], the old sentinel, is written last (module docs)
@@ -184,6 +202,8 @@ impl StepSchedule {
         self.head_backward.store(!seg.forward(), Ordering::Relaxed);
         compiler_fence(Ordering::SeqCst);
         self.head.store(end, Ordering::Relaxed);
+        compiler_fence(Ordering::SeqCst);
+        self.note_run(uniform, from, end);
         seg.consume(count);
         Some(time_made(frac, carry))
     }
@@ -223,6 +243,7 @@ impl StepSchedule {
         if (at.wrapping_sub(next) as i32) < 0 || head.wrapping_sub(at) as i32 <= 0 {
             return false;
         }
+        self.cut_run(at);
         self.head.store(at, Ordering::Relaxed);
         compiler_fence(Ordering::SeqCst);
         self.entry(at).store(END, Ordering::Relaxed);
@@ -233,6 +254,63 @@ impl StepSchedule {
         }
         self.frac.store(frac, Ordering::Relaxed);
         true
+    }
+
+    /// The known run after a push of the entries `from` up to `end`, all
+    /// `uniform` if that is `Some` (a constant speed of whole ticks): it
+    /// grows by them if they continue it, else they are the run. A push
+    /// of other delays keeps it, unless it lies so far behind the queue
+    /// that its indices could come round again. The consumer may come in
+    /// between any two stores: a run it could then see is either the old
+    /// one or the new one (`run_delay` is 0 while the ends change).
+    fn note_run(&self, uniform: Option<u32>, from: u32, end: u32) {
+        let to = self.run_to.load(Ordering::Relaxed);
+        match uniform {
+            Some(delay) if delay == self.run_delay.load(Ordering::Relaxed) && to == from => {
+                self.run_to.store(end, Ordering::Relaxed);
+            }
+            Some(delay) => {
+                self.run_delay.store(END, Ordering::Relaxed);
+                compiler_fence(Ordering::SeqCst);
+                self.run_from.store(from, Ordering::Relaxed);
+                self.run_to.store(end, Ordering::Relaxed);
+                compiler_fence(Ordering::SeqCst);
+                self.run_delay.store(delay, Ordering::Relaxed);
+            }
+            None if from.wrapping_sub(to) > STALE_RUN => {
+                self.run_delay.store(END, Ordering::Relaxed);
+            }
+            None => {}
+        }
+    }
+
+    /// Before the entries from `at` on are taken back (and written again
+    /// by later pushes): the known run ends before `at`.
+    fn cut_run(&self, at: u32) {
+        let from = self.run_from.load(Ordering::Relaxed);
+        if self.run_to.load(Ordering::Relaxed).wrapping_sub(at) as i32 > 0 {
+            if at.wrapping_sub(from) as i32 > 0 {
+                self.run_to.store(at, Ordering::Relaxed);
+            } else {
+                self.run_delay.store(END, Ordering::Relaxed);
+            }
+        }
+        compiler_fence(Ordering::SeqCst);
+    }
+
+    /// Consumer side: how many entries from `start` on are known to hold
+    /// `delay` (a delay, not 0) without reading them: those of the run
+    /// the producer noted, if `start` lies in it.
+    #[inline(always)]
+    pub(super) fn run_ahead(&self, start: u32, delay: u32) -> usize {
+        let from = self.run_from.load(Ordering::Relaxed);
+        let to = self.run_to.load(Ordering::Relaxed);
+        if self.run_delay.load(Ordering::Relaxed) != delay
+            || start.wrapping_sub(from) >= to.wrapping_sub(from)
+        {
+            return 0;
+        }
+        to.wrapping_sub(start) as usize
     }
 
     /// Expands the next steps of `seg` for the entries `from` up to `to`

@@ -136,6 +136,14 @@ impl Segment {
     pub const fn is_constant(&self) -> bool {
         self.add | self.add2 | self.add3 | self.add4 == 0
     }
+
+    /// The one delay every step of it gets, if it has one: a constant
+    /// speed of whole ticks (no fraction to carry), a plain delay.
+    #[inline]
+    pub(super) fn uniform_delay(&self) -> Option<u32> {
+        let whole = (self.interval >> TICK_FRAC_BITS) as u32;
+        (self.is_constant() && self.interval as u32 == 0 && whole as i32 > 0).then_some(whole)
+    }
 }
 
 impl Segment {

@@ -180,10 +180,11 @@ impl StepSource {
     /// delay is `delay`, taken at once: the steps taken. `delay` is one
     /// `advance_plain` has just given (a plain delay); `max` is asked only
     /// if the next step is one. A constant speed is a run of equal delays,
-    /// which the step engine repeats in one timer entry; this takes them at
-    /// a compare per step, with one store of `next` and one look at `quiet`
-    /// for the run (nothing that could raise attention runs while the
-    /// consumer does).
+    /// which the step engine repeats in one timer entry; this takes them
+    /// with one store of `next` and one look at `quiet` for the run
+    /// (nothing that could raise attention runs while the consumer does):
+    /// the ones the producer noted as a run ([`StepSchedule::run_ahead`])
+    /// at once, any after them at a compare each.
     #[inline(always)]
     pub fn advance_run(
         &mut self,
@@ -201,7 +202,8 @@ impl StepSource {
         // entries, once a ring round): the scan stays one contiguous loop
         let i = start as usize % SCHEDULE_STEPS;
         let max = (max() as usize).min(SCHEDULE_STEPS - i);
-        let taken = alike(&sched.ring()[i..i + max], delay);
+        let known = sched.run_ahead(start, delay).min(max);
+        let taken = known + alike(&sched.ring()[i + known..i + max], delay);
         sched
             .next
             .store(start.wrapping_add(taken as u32), Ordering::Relaxed);

@@ -296,6 +296,132 @@ fn runs_take_each_equal_step_once_and_stop_at_the_ring_end() {
     assert_eq!(src.advance_run(&sched, 9, || 100), 2);
 }
 
+/// A constant speed of whole ticks is a run the producer notes as it
+/// pushes it: a run takes it without reading it (an entry inside it
+/// changed behind the schedule's back is taken as the run's), and
+/// growing pushes of the same delay make it longer.
+#[test]
+fn a_noted_run_is_taken_without_reading_its_entries() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.push(seg(7 * ONE, 0, 0, 50, true)).unwrap();
+    sched.push(seg(7 * ONE, 0, 0, 50, true)).unwrap();
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(7));
+    assert_eq!(src.advance_plain(&sched), Some(7));
+    let start = sched.next.load(Ordering::Relaxed);
+    sched
+        .entry(start.wrapping_add(60))
+        .store(8, Ordering::Relaxed);
+    assert_eq!(src.advance_run(&sched, 7, || 1000), 98);
+    // a delay with a fraction, and a ramp, note nothing: compared
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    for s in [
+        seg(7 * ONE + 1, 0, 0, 50, true),
+        seg(7 * ONE, 1, 0, 50, true),
+    ] {
+        sched.push(s).unwrap();
+        let (d, n) = drain(&mut src, &sched);
+        assert!(d[..n].iter().all(|&d| d == 7), "{:?}", &d[..n]);
+    }
+    sched.push(seg(7 * ONE + 1, 0, 0, 50, true)).unwrap();
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(7));
+    let start = sched.next.load(Ordering::Relaxed);
+    sched
+        .entry(start.wrapping_add(20))
+        .store(8, Ordering::Relaxed);
+    assert_eq!(src.advance_run(&sched, 7, || 1000), 20);
+}
+
+/// A run noted long ago is forgotten by the first push of other delays
+/// once the queue has moved far past it, before its wrapping indices
+/// could name new entries: here the indices have come round (set by
+/// hand) and the new entries at them are not the old run's.
+#[test]
+fn a_noted_run_is_forgotten_before_its_indices_come_round() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    sched.push(seg(7 * ONE, 0, 0, 50, true)).unwrap();
+    drain(&mut src, &sched);
+    let start = sched.run_from.load(Ordering::Relaxed);
+    sched.entry(start).store(END, Ordering::Relaxed);
+    sched.head.store(start, Ordering::Relaxed);
+    sched.next.store(start, Ordering::Relaxed);
+    sched.push(seg(7 * ONE, 1, 0, 10, true)).unwrap();
+    sched.push(seg(9 * ONE, 1, 0, 10, true)).unwrap();
+    assert_eq!(src.advance(&sched).map(|s| s.delay_ticks()), Some(7));
+    assert_eq!(src.advance_run(&sched, 7, || 100), 9);
+}
+
+/// The noted run never outlives its entries: a cut inside it ends it
+/// there (the entries after the cut are written again with another
+/// delay), a cut before it forgets it, a direction marker starts a new
+/// one, and a flush followed by the same delay goes on with it. Random
+/// pushes, cuts, flushes and runs, each run's count against the entries
+/// compared one by one.
+#[test]
+fn a_noted_run_ends_where_its_entries_do() {
+    let sched = StepSchedule::new();
+    let mut src = StepSource::new();
+    let mut rng = xorshift(0xD1B5_4A32_D192_ED03);
+    let (mut runs, mut cut_inside) = (0, 0);
+    for round in 0..20_000 {
+        let r = rng();
+        match r % 8 {
+            0..=3 if sched.free() >= 40 => {
+                let delay = [5, 7, 7, 7][(r >> 8) as usize % 4] * ONE;
+                let add = if (r >> 12).is_multiple_of(4) { 3 } else { 0 };
+                let n = 1 + (r >> 16) as u32 % 30;
+                sched
+                    .push(seg(delay, add, 0, n, !(r >> 24).is_multiple_of(16)))
+                    .unwrap();
+            }
+            4 => {
+                // a cut somewhere in the queue ahead of the interrupt
+                let next = sched.next.load(Ordering::Relaxed);
+                let head = sched.head.load(Ordering::Relaxed);
+                let ahead = head.wrapping_sub(next);
+                if ahead > 1 {
+                    let at = next.wrapping_add(1 + (r >> 8) as u32 % (ahead - 1));
+                    let inside = sched.run_ahead(at, sched.run_delay.load(Ordering::Relaxed)) > 0;
+                    if sched.truncate(at, HALF_TICK) {
+                        cut_inside += usize::from(inside);
+                    }
+                }
+            }
+            5 if (r >> 8).is_multiple_of(16) => sched.request_flush(),
+            _ => {
+                let Some(step) = src.advance(&sched) else {
+                    continue;
+                };
+                let delay = step.delay_ticks();
+                let start = sched.next.load(Ordering::Relaxed);
+                let i = start as usize % SCHEDULE_STEPS;
+                let ask = (r >> 8) as u32 % 200;
+                let room = (ask as usize).min(SCHEDULE_STEPS - i);
+                let expect = if sched.quiet.load(Ordering::Relaxed) {
+                    sched.ring()[i..i + room]
+                        .iter()
+                        .take_while(|e| e.load(Ordering::Relaxed) == delay)
+                        .count()
+                } else {
+                    0
+                };
+                assert_eq!(
+                    src.advance_run(&sched, delay, || ask) as usize,
+                    expect,
+                    "round {round}"
+                );
+                runs += usize::from(expect > 0);
+            }
+        }
+    }
+    assert!(
+        runs > 1000 && cut_inside > 100,
+        "{runs} runs, {cut_inside} cuts inside a run"
+    );
+}
+
 /// A flush that drops a queued direction marker leaves the interrupt
 /// in the last push's direction: the next push (which needs no marker)
 /// goes the right way.
