@@ -112,6 +112,41 @@ impl Slave {
         self.listen_only
     }
 
+    /// Whether [`Slave::handle`] will answer `rx` at all, told before it
+    /// runs, with the same `own_address` and PA (`standard`: PA54's
+    /// standard exception profile, `answer_frame_errors`: PA55): a frame
+    /// for us outside listen-only mode, good or with its frame errors
+    /// answered. A request to enter listen-only mode (0x08 / 0x04) is
+    /// told unanswered, though a malformed one gets an exception. For a
+    /// glue that gets the line ready before the reply is made.
+    pub fn will_answer(
+        &self,
+        rx: &RxEvent<'_>,
+        own_address: u8,
+        standard: bool,
+        answer_frame_errors: bool,
+    ) -> bool {
+        let RxEvent::Frame {
+            bytes,
+            parity_error,
+        } = *rx
+        else {
+            return false;
+        };
+        if bytes.len() < MIN_FRAME
+            || bytes[0] != own_address
+            || own_address == BROADCAST
+            || self.listen_only
+        {
+            return false;
+        }
+        if parity_error || crc16(bytes) != 0 {
+            // both frame errors have the same code, if any
+            return answer_frame_errors && Exception::Crc.code(standard).is_some();
+        }
+        !matches!(bytes[1..], [0x08, 0x00, 0x04, ..])
+    }
+
     /// One event of the frame assembler. `own_address` is the unicast
     /// address in force (a new PA51 waits for the reply, §7); PA54 and PA55
     /// are read from `regs.pa`. A reply is written into `reply`.

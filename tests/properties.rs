@@ -183,3 +183,71 @@ proptest! {
         prop_assert_eq!(all, Ok(expect));
     }
 }
+
+/// Diagnostics requests (0x08) of every sub-function and data word a
+/// test below sends: 0x04 (listen-only) among them, well-formed or not.
+fn any_diagnostics() -> impl Strategy<Value = Vec<u8>> {
+    (
+        0u16..0x16,
+        prop_oneof![Just(0u16), Just(0xFF00), any::<u16>()],
+    )
+        .prop_map(|(sub, data)| {
+            let mut p = vec![0x08];
+            p.extend_from_slice(&sub.to_be_bytes());
+            p.extend_from_slice(&data.to_be_bytes());
+            p
+        })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+    /// `Device::will_answer_at_once`, told before the frame is handled,
+    /// is what handling it then does: true exactly for a frame that gets
+    /// a reply (or an EE request's deferred one) due t3.5 after it, but
+    /// for a request to enter listen-only mode, which may be malformed
+    /// and get an exception. The firmware raises the transceiver's DE on
+    /// it before the reply exists, so a reply it does not foresee is
+    /// only later, and a foreseen one that never comes a driver held for
+    /// nothing.
+    #[test]
+    fn a_reply_is_foreseen_exactly(
+        frames in proptest::collection::vec(
+            (prop_oneof![any_chunk(), (any_address(), any_diagnostics()).prop_map(|(a, p)| frame(a, &p))],
+             any::<bool>()),
+            1..8),
+        pa54 in 0u16..=1,
+        pa55 in 0u16..=1,
+        pa56 in prop_oneof![Just(0u16), 1u16..=3],
+    ) {
+        let mut bus = Bus::with_params(|pa| {
+            pa.set_unchecked(54, pa54);
+            pa.set_unchecked(55, pa55);
+            pa.set_unchecked(56, pa56);
+        });
+        let mut reply = [0u8; modbus_drive::rtu::MAX_FRAME];
+        for (bytes, parity_error) in frames {
+            if bytes.len() < 4 {
+                continue; // the assembler never closes such a frame
+            }
+            let ev = modbus_drive::rtu::RxEvent::Frame { bytes: &bytes, parity_error };
+            let foreseen = bus.device.will_answer_at_once(&ev);
+            let enters_listen_only = !parity_error
+                && modbus_drive::rtu::crc16(&bytes) == 0
+                && bytes.get(1..4) == Some(&[0x08, 0x00, 0x04][..]);
+            let response = bus.device.handle_rx(ev, &mut reply);
+            let answered = matches!(response, modbus_drive::device::Response::Reply(_))
+                || bus.device.pending_ee().is_some();
+            prop_assert_eq!(
+                foreseen,
+                answered && pa56 == 0 && !enters_listen_only,
+                "{:02X?} parity {}", bytes, parity_error
+            );
+            bus.device.reply_sent();
+            if bus.device.pending_ee().is_some() {
+                bus.device.refuse_storage(&mut reply);
+                bus.device.reply_sent();
+            }
+        }
+    }
+}

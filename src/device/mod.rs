@@ -174,6 +174,22 @@ impl Device {
         self.storage_busy = busy;
     }
 
+    /// Whether [`Device::handle_rx`] will answer `rx` with a reply due at
+    /// once, t3.5 after its last byte (PA56 = 0), told before it runs
+    /// ([`crate::slave::Slave::will_answer`]); an EE request's reply, deferred
+    /// until the flash is done, counts as answered. The firmware raises
+    /// the transceiver's DE on it, so that the lead runs while the reply
+    /// is made.
+    pub fn will_answer_at_once(&self, rx: &RxEvent<'_>) -> bool {
+        self.pa.response_delay_ms() == 0
+            && self.slave.will_answer(
+                rx,
+                self.address,
+                self.pa.standard_exceptions(),
+                self.pa.answer_frame_errors(),
+            )
+    }
+
     /// A closed frame (or frame error) from the assembler. Writes any reply
     /// into `reply` and says how much of it to send. Bus errors are counted
     /// (§6) and reported as events.

@@ -116,10 +116,22 @@ impl Device {
         line: &mut impl Line,
         storage: &mut impl Storage,
     ) -> Polled {
+        self.poll_with(now_us, line, storage, &mut [0u8; MAX_FRAME])
+    }
+
+    /// [`Device::poll`] making the reply in `reply`, a buffer the host
+    /// keeps (its contents do not matter): a firmware spares itself
+    /// clearing one on the stack for each frame.
+    pub fn poll_with(
+        &mut self,
+        now_us: u64,
+        line: &mut impl Line,
+        storage: &mut impl Storage,
+        reply: &mut [u8; MAX_FRAME],
+    ) -> Polled {
         if self.ee_busy_until_us.is_some_and(|t| now_us >= t) {
             self.ee_busy_until_us = None;
         }
-        let mut reply = [0u8; MAX_FRAME];
         let (mut response, mut due_us) = {
             let Some(request) = line.receive() else {
                 return Polled::Idle;
@@ -127,14 +139,14 @@ impl Device {
             let due_us = request
                 .last_byte_us
                 .map_or(now_us, |t| t + u64::from(self.reply_delay_us()));
-            (self.handle_rx(request.event, &mut reply), due_us)
+            (self.handle_rx(request.event, reply), due_us)
         };
         let mut ee = false;
         if self.pending_ee().is_some() {
             let deferred = if storage.ready() {
-                self.poll_storage(storage.store(), &mut reply)
+                self.poll_storage(storage.store(), reply)
             } else {
-                self.refuse_storage(&mut reply)
+                self.refuse_storage(reply)
             };
             if let Some(deferred) = deferred {
                 response = deferred;

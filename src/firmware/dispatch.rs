@@ -104,29 +104,33 @@ impl EventLog {
 /// The RS-485 line as [`Device::poll`] sees it: the frame the link
 /// received, and the reply and line format `poll` queues, which the task
 /// carries out after it, in that order ([`Rs485Line::carry_out`]).
+#[derive(Clone, Copy)]
+enum Queued {
+    Reply { at_us: u64, started: bool },
+    Nothing { at_us: u64 },
+}
+
 struct Rs485Line<'a> {
     received: Option<&'a RxFrame>,
     /// The time driver's µs now, and the frame's last byte on that scale
     /// (the link stamps bytes with its wrapping 32-bit µs).
     now_us: u64,
     last_byte_us: u64,
-    /// The task's own buffer, kept across frames: not cleared for each
-    /// (only `queued`'s first bytes are ever sent).
-    reply: &'a mut [u8; MAX_FRAME],
-    /// Bytes of `reply` to send, and when.
-    queued: Option<(usize, u64)>,
+    /// A reply loaded into the link (`rs485::load`): when it may leave,
+    /// and whether it has started; or an empty one, which only delays
+    /// what follows it.
+    queued: Option<Queued>,
     line: Option<LineConfig>,
 }
 
 impl<'a> Rs485Line<'a> {
-    fn new(received: &'a RxFrame, reply: &'a mut [u8; MAX_FRAME]) -> Self {
+    fn new(received: &'a RxFrame) -> Self {
         let now_us = embassy_time::Instant::now().as_micros();
         let ago = (now_us as u32).wrapping_sub(received.last_byte_at_us());
         Self {
             received: Some(received),
             now_us,
             last_byte_us: now_us.saturating_sub(u64::from(ago)),
-            reply,
             queued: None,
             line: None,
         }
@@ -135,14 +139,15 @@ impl<'a> Rs485Line<'a> {
     /// Sends the queued reply at its time, then puts a new line format and
     /// the DE lead / tail `de` in force (SPEC §7: after the reply).
     async fn carry_out(&mut self, uart: &mut Uart<'static, Blocking>, de: DriverEnable) {
-        if let Some((n, at_us)) = self.queued.take() {
-            if n > 0 {
-                // `send` waits itself: DE rises its lead before `at_us`
-                let wait_us = at_us.saturating_sub(embassy_time::Instant::now().as_micros());
-                rs485::send(&self.reply[..n], u32::try_from(wait_us).unwrap_or(u32::MAX)).await;
-            } else {
+        match self.queued.take() {
+            // `finish` waits itself: DE rises its lead before `at_us`
+            Some(Queued::Reply { at_us, started }) => {
+                rs485::finish(started, wait_until(at_us)).await;
+            }
+            Some(Queued::Nothing { at_us }) => {
                 embassy_time::Timer::at(embassy_time::Instant::from_micros(at_us)).await;
             }
+            None => {}
         }
         if let Some(line) = self.line.take() {
             if let Err(e) = rs485::apply_line(uart, line, de) {
@@ -156,16 +161,30 @@ impl<'a> Rs485Line<'a> {
     }
 }
 
+/// µs from now until `at_us` on the time driver's scale (0 if past).
+fn wait_until(at_us: u64) -> u32 {
+    let wait = at_us.saturating_sub(embassy_time::Instant::now().as_micros());
+    u32::try_from(wait).unwrap_or(u32::MAX)
+}
+
 impl Line for Rs485Line<'_> {
     fn receive(&mut self) -> Option<Request<'_>> {
         let received = self.received.take()?;
         Some(Request::new(received.event(), Some(self.last_byte_us)))
     }
 
+    /// Loads a reply into the link at once, and starts it if it is due
+    /// within the DE lead: the lead then runs while the core finishes
+    /// `poll`.
     fn send(&mut self, bytes: &[u8], at_us: u64) {
-        let n = bytes.len().min(MAX_FRAME);
-        self.reply[..n].copy_from_slice(&bytes[..n]);
-        self.queued = Some((n, at_us));
+        self.queued = Some(if bytes.is_empty() {
+            Queued::Nothing { at_us }
+        } else {
+            Queued::Reply {
+                at_us,
+                started: rs485::load(bytes, wait_until(at_us)),
+            }
+        });
     }
 
     fn reconfigure(&mut self, line: LineConfig) {
@@ -195,6 +214,7 @@ impl Storage for FlashStorage<'_> {
 #[embassy_executor::task]
 pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store) {
     let mut log = EventLog::new();
+    // the core makes each reply here (kept across frames: never cleared)
     let mut reply = [0; MAX_FRAME];
     loop {
         fault::DISPATCHER.idle();
@@ -204,15 +224,22 @@ pub async fn dispatcher_task(mut uart: Uart<'static, Blocking>, mut store: Store
         if fault::test_trigger(rx.event()) {
             core::future::pending::<()>().await; // stuck on purpose
         }
-        let mut line = Rs485Line::new(&rx, &mut reply);
+        let mut line = Rs485Line::new(&rx);
         let mut storage = FlashStorage(&mut store);
         // PA57 / PA58 as the request left them, for a reconfigured line
         let Some(de) = with_device(|d| {
-            d.poll(line.now_us, &mut line, &mut storage);
+            if d.will_answer_at_once(&rx.event()) {
+                // the DE lead runs while the reply is made
+                rs485::raise_early();
+            }
+            d.poll_with(line.now_us, &mut line, &mut storage, &mut reply);
             d.driver_enable()
         }) else {
             continue;
         };
+        if line.queued.is_none() {
+            rs485::drop_early();
+        }
         // the reply first: what the core reported is logged after it
         line.carry_out(&mut uart, de).await;
         log.drain();

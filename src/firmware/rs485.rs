@@ -76,13 +76,19 @@ const TX_LEAD: u8 = 3;
 /// Software DE: the last stop bit has left, SysTick times the tail, then
 /// [`TX_IDLE`].
 const TX_TAIL: u8 = 4;
+/// Software DE raised for a reply not made yet ([`raise_early`]): SysTick
+/// times the lead, then [`TX_EARLY_DONE`]; [`load`] makes it [`TX_LEAD`].
+const TX_EARLY: u8 = 5;
+/// The early lead is over; [`load`] requests the reply at once.
+const TX_EARLY_DONE: u8 = 6;
 
 struct TxBuf {
     bytes: [u8; MAX_FRAME],
     len: usize,
 }
 
-/// The reply: [`send`]'s while [`TX_STATE`] is idle, the interrupt's after.
+/// The reply: [`load`]'s while [`TX_STATE`] is idle or early, the
+/// interrupt's once requested.
 static TX: IrqOwned<TxBuf> = IrqOwned::new(TxBuf {
     bytes: [0; MAX_FRAME],
     len: 0,
@@ -333,6 +339,15 @@ fn de_timer_start(us: u32) {
     }
 }
 
+/// Stops SysTick; an interrupt it had already raised has run by the
+/// return (it outranks thread code).
+fn de_timer_stop() {
+    // SAFETY: as in `de_timer_start`
+    unsafe { (*cortex_m::peripheral::SYST::PTR).csr.write(0) };
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+}
+
 const SYST_ENABLE: u32 = 1 << 0;
 const SYST_TICKINT: u32 = 1 << 1;
 const SYST_CORE_CLOCK: u32 = 1 << 2;
@@ -353,6 +368,8 @@ fn SysTick() {
             TX_STATE.store(TX_IDLE, Ordering::Release);
             TX_DONE.signal(());
         }
+        // thread code moves it on with a compare-and-swap (`load`)
+        TX_EARLY => TX_STATE.store(TX_EARLY_DONE, Ordering::Release),
         _ => {}
     }
 }
@@ -496,30 +513,105 @@ fn on_byte(link: &mut Link, byte: u8, at_us: u32, flags: RxFlags) {
     }
 }
 
-/// Sends `bytes` (≤ 256) in one burst, its first start bit no earlier than
-/// `not_before_us` from now, and returns once the last stop bit has left
-/// the wire and DE is released.
-pub async fn send(bytes: &[u8], not_before_us: u32) {
-    if TX_STATE.load(Ordering::Acquire) != TX_IDLE {
-        return; // never: the dispatcher sends one reply at a time
+/// Raises a software DE for a reply the core has foreseen
+/// (`Device::will_answer_at_once`) before it is made, and times its lead
+/// from now: the lead then runs while the dispatcher makes the reply,
+/// which [`load`] starts at its end, or at once if it is over. Nothing
+/// with no software lead, or while a reply is under way. [`drop_early`]
+/// takes it back if no reply comes after all.
+pub fn raise_early() {
+    let lead = DE_LEAD_US.load(Ordering::Relaxed);
+    if lead == 0 || TX_STATE.load(Ordering::Acquire) != TX_IDLE {
+        return;
+    }
+    TX_DONE.reset();
+    set_de(true);
+    TX_STATE.store(TX_EARLY, Ordering::Release);
+    de_timer_start(lead);
+}
+
+/// After the core's `poll` loaded no reply: a DE [`raise_early`] raised
+/// is dropped (the line was held at its idle level meanwhile, while the
+/// master waited for an answer).
+pub fn drop_early() {
+    if !matches!(TX_STATE.load(Ordering::Acquire), TX_EARLY | TX_EARLY_DONE) {
+        return;
+    }
+    de_timer_stop();
+    TX_STATE.store(TX_IDLE, Ordering::Release);
+    set_de(false);
+}
+
+/// Loads `bytes` (≤ 256) as the reply and starts it if its first start
+/// bit may leave within the DE lead, `not_before_us` from now: DE rises
+/// (unless [`raise_early`] raised it) and the lead runs while the caller
+/// goes on (the dispatcher calls this from inside `Device::poll`, as the
+/// core queues the reply). Returns whether it started; either way
+/// [`finish`] sends the rest of it.
+pub fn load(bytes: &[u8], not_before_us: u32) -> bool {
+    let due = not_before_us <= DE_LEAD_US.load(Ordering::Relaxed);
+    if !due {
+        drop_early();
+    }
+    let state = TX_STATE.load(Ordering::Acquire);
+    if !matches!(state, TX_IDLE | TX_EARLY | TX_EARLY_DONE) {
+        return false; // never: the dispatcher sends one reply at a time
     }
     let n = bytes.len().min(MAX_FRAME);
-    // SAFETY: TX_STATE is idle: the buffer is ours until we request.
+    // SAFETY: TX_STATE is idle or early: the buffer is ours until we
+    // request.
     let tx = unsafe { TX.get() };
     tx.bytes[..n].copy_from_slice(&bytes[..n]);
     tx.len = n;
-    let (lead, tail) = (
-        DE_LEAD_US.load(Ordering::Relaxed),
-        DE_TAIL_US.load(Ordering::Relaxed),
-    );
-    // DE rises the lead before the earliest start (or now, and the start
-    // waits for the lead). One time-driver tick more: a wait of n ticks may
-    // start late in a tick.
-    let wait = not_before_us.saturating_sub(lead);
-    if wait > 0 {
-        embassy_time::Timer::after_micros(u64::from(wait) + 1).await;
+    if !due {
+        return false;
     }
+    if state == TX_IDLE {
+        request();
+    } else if TX_STATE
+        .compare_exchange(TX_EARLY, TX_LEAD, Ordering::AcqRel, Ordering::Acquire)
+        .is_err()
+    {
+        // the early lead ended meanwhile (TX_EARLY_DONE)
+        TX_STATE.store(TX_REQUESTED, Ordering::Release);
+        board::UartIrq::pend();
+    }
+    true
+}
+
+/// Sends the reply [`load`] loaded, its first start bit no earlier than
+/// `not_before_us` from now unless `load` started it already, and returns
+/// once the last stop bit has left the wire and DE is released.
+pub async fn finish(started: bool, not_before_us: u32) {
+    if !started {
+        if TX_STATE.load(Ordering::Acquire) != TX_IDLE {
+            return;
+        }
+        // DE rises the lead before the earliest start (or now, and the
+        // start waits for the lead). One time-driver tick more: a wait of
+        // n ticks may start late in a tick.
+        let wait = not_before_us.saturating_sub(DE_LEAD_US.load(Ordering::Relaxed));
+        if wait > 0 {
+            embassy_time::Timer::after_micros(u64::from(wait) + 1).await;
+        }
+        request();
+    }
+    TX_DONE.wait().await;
+    // A software DE is released by now (the SysTick interrupt signalled at
+    // the end of the tail). The USART's own DEDT tail still runs after TC:
+    // whatever follows the reply (`apply_line` disables the USART) waits
+    // for it.
+    let tail = DE_TAIL_US.load(Ordering::Relaxed);
+    if tail > 0 && !de_is_software() {
+        embassy_time::Timer::after_micros(u64::from(tail) + 1).await;
+    }
+}
+
+/// Starts the loaded reply: DE raised and its lead timed by SysTick, whose
+/// interrupt then requests it, or requested at once (no software lead).
+fn request() {
     TX_DONE.reset();
+    let lead = DE_LEAD_US.load(Ordering::Relaxed);
     if lead > 0 {
         // no transmission runs: no interrupt touches DE; SysTick's
         // interrupt starts the reply at the end of the lead
@@ -529,14 +621,6 @@ pub async fn send(bytes: &[u8], not_before_us: u32) {
     } else {
         TX_STATE.store(TX_REQUESTED, Ordering::Release);
         board::UartIrq::pend(); // the interrupt starts it
-    }
-    TX_DONE.wait().await;
-    // A software DE is released by now (the SysTick interrupt signalled at
-    // the end of the tail). The USART's own DEDT tail still runs after TC:
-    // whatever follows the reply (`apply_line` disables the USART) waits
-    // for it.
-    if tail > 0 && !de_is_software() {
-        embassy_time::Timer::after_micros(u64::from(tail) + 1).await;
     }
 }
 
