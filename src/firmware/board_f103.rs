@@ -28,7 +28,7 @@
 //!
 //! This USART has no receiver timeout and no driver-enable output: t3.5 is
 //! timed by `rs485::frame_gap_task`, DE is a GPIO raised and dropped by
-//! `rs485::send`.
+//! `rs485.rs` (the dispatcher and SysTick).
 
 use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};

@@ -13,17 +13,19 @@
 //!   [`FrameAssembler::poll`]; t1.5 is judged by the assembler from the
 //!   timestamps.
 //!
-//! Transmit: [`send`] hands the reply to the interrupt, which feeds the data
+//! Transmit: [`load`] and [`finish`] hand the reply to the interrupt, which feeds the data
 //! register on TXE (one burst, no gaps) and finishes at TC. DE leads the
 //! first start bit and trails the last stop bit by PA57 / PA58
 //! ([`apply_line`], `calc::DeDrive`): on the G431 the USART's
 //! hardware driver-enable does it (DEAT / DEDT) while they fit; beyond
 //! that, and always on the F103, DE is a GPIO timed by SysTick as a
 //! one-shot compare (nothing else uses it; embassy-time runs on TIM2):
-//! [`send`] raises DE and arms SysTick for the lead, whose interrupt starts
-//! the transmission; at TC the USART interrupt arms it for the tail, whose
-//! interrupt drops DE and wakes [`send`]. No busy wait: the dispatcher
-//! awaits, and both interrupts return at once.
+//! the dispatcher raises DE and arms SysTick for the lead ([`raise_early`]
+//! once the core foresees a reply, before it is made; else [`load`] or
+//! [`finish`]), whose interrupt starts the transmission once the reply is
+//! loaded; at TC the USART interrupt arms it for the tail, whose interrupt
+//! drops DE and wakes [`finish`]. No busy wait: the dispatcher awaits, and
+//! both interrupts return at once.
 //!
 //! Shared state, no lock held while bytes are copied (priority.rs):
 //! - the link (assembler, line timing, DE lead / tail) belongs to the USART
@@ -33,13 +35,13 @@
 //!   the interrupt while free and by the dispatcher once marked full,
 //!   handed over with an atomic state; a frame that finds no
 //!   free slot is dropped and counted;
-//! - a reply goes the same way: [`send`] fills the transmit buffer while
-//!   no transmission runs ([`TX_STATE`] idle), marks it requested and pends
+//! - a reply goes the same way: [`load`] fills the transmit buffer while
+//!   no transmission runs ([`TX_STATE`] idle or early), marks it requested and pends
 //!   the interrupt, which starts it (only the interrupt writes CR1 while
 //!   the link runs); with a software DE it marks the lead instead, and the
 //!   SysTick interrupt marks it requested at the lead's end; at TC the
 //!   USART interrupt marks the tail, and SysTick idle at its end;
-//!   a software DE is raised by [`send`] before it arms the lead (no
+//!   a software DE is raised by the dispatcher before it arms the lead (no
 //!   interrupt touches the pin while no transmission runs) and dropped by
 //!   the SysTick interrupt at the end of the tail;
 //! - SysTick runs at the USART's priority, so neither interrupts the other:
@@ -95,7 +97,7 @@ static TX: IrqOwned<TxBuf> = IrqOwned::new(TxBuf {
 });
 static TX_STATE: AtomicU8 = AtomicU8::new(TX_IDLE);
 /// The DE lead software times (0: the USART does, or none) and the tail
-/// (µs), as [`apply_line`] left them for [`send`].
+/// (µs), as [`apply_line`] left them for the dispatcher's calls.
 static DE_LEAD_US: AtomicU32 = AtomicU32::new(0);
 static DE_TAIL_US: AtomicU32 = AtomicU32::new(0);
 static DE_SOFTWARE: AtomicBool = AtomicBool::new(false);
@@ -223,7 +225,7 @@ pub fn apply_line(
     #[cfg(feature = "board-f103")]
     T35_US.store(timing.t35_us(), Ordering::Relaxed);
     let de_drive = DeDrive::new(de, line, de_samples_per_bit());
-    // `send`'s copy: thread code only (the dispatcher, main before it)
+    // the dispatcher's copy: thread code only (the dispatcher, main before it)
     let lead = if de_drive.software {
         de_drive.lead_us
     } else {
@@ -312,7 +314,7 @@ impl Handler<board::UartIrq> for UartHandler {
         start_tx(link);
         if let Some(tail_us) = on_uart(link, at_us) {
             // The software DE tail, timed from here rather than from
-            // `send`: the dispatcher task may wake much later (thread mode
+            // `finish`: the dispatcher task may wake much later (thread mode
             // shares the CPU with the control loop), and a master may send
             // its next request soon after our last stop bit.
             TX_STATE.store(TX_TAIL, Ordering::Relaxed);
@@ -374,7 +376,7 @@ fn SysTick() {
     }
 }
 
-/// A reply [`send`] asked for: start feeding the data register.
+/// A reply the dispatcher requested: start feeding the data register.
 fn start_tx(link: &mut Link) {
     if TX_STATE.load(Ordering::Acquire) != TX_REQUESTED {
         return;
@@ -633,7 +635,9 @@ fn de_is_software() -> bool {
 /// PA58 exceed DEAT / DEDT): the USART's DE pin taken over as a GPIO
 /// (output data set first, so the switch from the alternate function, low
 /// between frames, is glitch-free) and handed back to the USART low.
-/// Called by [`send`] to raise it and by the SysTick interrupt to drop it,
+/// Called by the dispatcher to raise it (and to drop a DE raised for a
+/// reply that did not come, with SysTick stopped) and by the SysTick
+/// interrupt to drop it,
 /// never both at once (a transmission runs between them); GPIOA's mode
 /// register has no other writer while the drive runs.
 #[cfg(feature = "board-g431")]
