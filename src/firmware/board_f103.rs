@@ -27,8 +27,8 @@
 //! PA6, which nothing drives.
 //!
 //! This USART has no receiver timeout and no driver-enable output: t3.5 is
-//! timed by `rs485::frame_gap_task`, DE is a GPIO raised and dropped by
-//! `rs485.rs` (the dispatcher and SysTick).
+//! timed by SysTick, and DE is a GPIO raised and dropped by `rs485.rs`
+//! (the dispatcher and SysTick).
 
 use embassy_stm32::exti::{ExtiInput, TriggerEdge};
 use embassy_stm32::flash::{Blocking as FlashBlocking, Flash};
@@ -75,9 +75,6 @@ pub const STEP_DMA_CH: usize = 4;
 pub type UartIrq = interrupt::typelevel::USART1;
 pub type StepIrq = interrupt::typelevel::DMA1_CHANNEL5;
 pub type SwitchIrq = interrupt::typelevel::EXTI15_10;
-/// The frame-gap task's executor (rs485.rs): SPI2's vector, a peripheral
-/// this board leaves unused, pended by software only.
-pub type FrameGapIrq = interrupt::typelevel::SPI2;
 
 bind_interrupts!(pub struct Irqs {
     USART1 => super::rs485::UartHandler;

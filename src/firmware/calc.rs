@@ -485,8 +485,8 @@ pub const WATCHDOG_TIMEOUT_US: u32 = 500_000;
 /// chip plus a page move that rewrites a few records (RM0440 / RM0008 flash
 /// timings), rounded up.
 pub const LONGEST_STALL_US: u32 = 100_000;
-/// The longest a supervised task (fault.rs: the dispatcher, the F103's
-/// frame-gap task) may legitimately stay busy with one event: a frame's
+/// The longest a supervised task (fault.rs: the dispatcher) may
+/// legitimately stay busy with one event: a frame's
 /// reply wait (PA56 up to 100 ms, plus t3.5), the longest reply at the
 /// slowest line (256 characters of 12 bits at 9600 baud: 320 ms), DE lead
 /// and tail, and an EE operation ([`LONGEST_STALL_US`]); with room for the

@@ -26,9 +26,9 @@
 //!
 //! Watchdog: the IWDG, fed by the control loop at each tick, and only
 //! while every other long-lived task has checked in ([`Supervised`]: the
-//! dispatcher, and on the F103 the frame-gap task). Such a task is busy
-//! from the event it handles until it waits again; a wait for its next
-//! event (a frame, a byte) is not a hang, an interrupt ends it. Busy for
+//! dispatcher). Such a task is busy from the event it handles until it
+//! waits again; a wait for its next event (a frame) is not a hang, an
+//! interrupt ends it. Busy for
 //! longer than `calc::TASK_LIMIT_US` (the longest legitimate frame, reply
 //! and EE operation) is a stuck task: the control loop stops feeding and
 //! the watchdog resets the chip, whose pins are safe from the first
@@ -101,11 +101,7 @@ impl Watchdog {
     /// docs); the control loop's own tick is the check of itself.
     pub fn feed(&self) {
         let now = now_ms();
-        #[cfg(feature = "board-f103")]
-        let overdue = DISPATCHER.overdue(now) || FRAME_GAP.overdue(now);
-        #[cfg(feature = "board-g431")]
-        let overdue = DISPATCHER.overdue(now);
-        if overdue {
+        if DISPATCHER.overdue(now) {
             if !STUCK_LOGGED.swap(true, Ordering::Relaxed) {
                 defmt::error!("a task is stuck: watchdog no longer fed, reset follows");
             }
@@ -150,8 +146,6 @@ impl Supervised {
 }
 
 pub static DISPATCHER: Supervised = Supervised::new();
-#[cfg(feature = "board-f103")]
-pub static FRAME_GAP: Supervised = Supervised::new();
 
 /// PA23 as the control loop last saw it: the fault path's brake hold.
 static BRAKE_ENGAGE_MS: AtomicU16 = AtomicU16::new(0);
@@ -278,9 +272,8 @@ unsafe fn NonMaskableInt() {
 /// Test builds only (`--features fault-test`, for the firmware-in-the-loop
 /// tests): a write (function 0x06) to register 0xFA17 of 0xDEAD panics, of
 /// 0x5717 sticks the dispatcher (it never finishes that frame), of 0xC0DE
-/// sticks the control loop (it never ticks again), of 0x6A90 sticks the
-/// F103's frame-gap task at the next frame's first byte (no frame closes
-/// after it). Returns true for the dispatcher's.
+/// sticks the control loop (it never ticks again). Returns true for the
+/// dispatcher's.
 #[cfg(feature = "fault-test")]
 pub fn test_trigger(ev: modbus_drive::rtu::RxEvent<'_>) -> bool {
     let modbus_drive::rtu::RxEvent::Frame {
@@ -297,22 +290,8 @@ pub fn test_trigger(ev: modbus_drive::rtu::RxEvent<'_>) -> bool {
             false
         }
         0x5717 => true,
-        #[cfg(feature = "board-f103")]
-        0x6A90 => {
-            FRAME_GAP_STUCK.store(true, Ordering::Relaxed);
-            false
-        }
         _ => false,
     }
-}
-
-#[cfg(all(feature = "fault-test", feature = "board-f103"))]
-static FRAME_GAP_STUCK: AtomicBool = AtomicBool::new(false);
-
-/// Test builds only: the frame-gap task is to stick ([`test_trigger`]).
-#[cfg(all(feature = "fault-test", feature = "board-f103"))]
-pub fn frame_gap_stuck() -> bool {
-    FRAME_GAP_STUCK.load(Ordering::Relaxed)
 }
 
 #[cfg(feature = "fault-test")]

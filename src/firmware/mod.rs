@@ -116,8 +116,6 @@ async fn main(spawner: Spawner) {
         dispatch::dispatcher_task(uart, store).ok(),
         "task spawned twice"
     ));
-    #[cfg(feature = "board-f103")]
-    rs485::start_frame_gap();
 
     // The step engine's pins and pulse counter stay owned here for good,
     // and so does the F103's DE pin (an output that rs485 drives through

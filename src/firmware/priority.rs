@@ -5,8 +5,7 @@
 //! |---|---|---|
 //! | P0 | step engine's DMA channel (the refill) | atomics only (`StepSchedule`, the pin-position ledger, steps.rs) |
 //! | P1 | switches (EXTI15_10); embassy-time driver (TIM2) | switches: ownership by the NVIC enable (switches.rs); the time driver: the critical section |
-//! | P2 | RS-485 USART; SysTick (the software DE's lead / tail, rs485.rs) | atomics, buffer hand-over by index (rs485.rs) |
-//! | P3 | F103: the frame-gap task's interrupt executor (rs485.rs) | atomics, a pended USART interrupt |
+//! | P2 | RS-485 USART; SysTick (the software DE's lead / tail; on the F103 also the frame gap, rs485.rs) | atomics, buffer hand-over by index (rs485.rs) |
 //! | thread | executor: control loop, dispatcher | — |
 //!
 //! The `critical-section` implementation of the whole image (embassy's
@@ -43,13 +42,6 @@ pub const PRIO_UART: Priority = Priority::P2;
 /// With TIM2 higher, the pending TIM2 interrupt always runs first.
 pub const PRIO_TIME: Priority = Priority::P1;
 
-/// F103: the executor of the task that closes a frame after t3.5
-/// (`rs485::frame_gap_task`), below the USART it pends (which then runs at
-/// once) and above thread mode, so that the frame closes on time while the
-/// control loop holds the thread.
-#[cfg(feature = "board-f103")]
-pub const PRIO_FRAME_GAP: Priority = Priority::P3;
-
 /// BASEPRI inside a critical section: masks P1 and below.
 pub const MASK: u8 = PRIO_SWITCH as u8;
 
@@ -61,8 +53,6 @@ pub fn init() {
     board::SwitchIrq::set_priority(PRIO_SWITCH);
     board::UartIrq::set_priority(PRIO_UART);
     TIM2::set_priority(PRIO_TIME);
-    #[cfg(feature = "board-f103")]
-    board::FrameGapIrq::set_priority(PRIO_FRAME_GAP);
     // SAFETY: a byte write of SHPR3 at boot; SysTick is not running.
     unsafe {
         cortex_m::Peripherals::steal()

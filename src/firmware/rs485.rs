@@ -8,10 +8,10 @@
 //! The frame closes after t3.5 of silence:
 //! - STM32G431: the USART receiver timeout (RTOF) fires t3.5 after the last
 //!   stop bit → [`FrameAssembler::end_of_frame`];
-//! - STM32F103 (no receiver timeout): [`frame_gap_task`] sleeps on an
-//!   embassy-time alarm until t3.5 after the last byte and calls
-//!   [`FrameAssembler::poll`]; t1.5 is judged by the assembler from the
-//!   timestamps.
+//! - STM32F103 (no receiver timeout): each byte arms SysTick for t3.5
+//!   (the one-shot DE uses too, idle while a frame arrives), whose
+//!   interrupt has the USART interrupt call [`FrameAssembler::poll`];
+//!   t1.5 is judged by the assembler from the timestamps.
 //!
 //! Transmit: [`load`] and [`finish`] hand the reply to the interrupt, which feeds the data
 //! register on TXE (one burst, no gaps) and finishes at TC. DE leads the
@@ -47,8 +47,11 @@
 //! - SysTick runs at the USART's priority, so neither interrupts the other:
 //!   the lead's SysTick interrupt only moves [`TX_STATE`] on and pends the
 //!   USART interrupt, which alone touches the link;
-//! - F103: the frame-gap task asks the interrupt to poll the assembler
-//!   through an atomic flag and a pended interrupt.
+//! - F103: the frame gap's SysTick interrupt asks the USART interrupt to
+//!   poll the assembler through an atomic flag and a pended interrupt; a
+//!   byte arms the gap only while no reply is under way (SysTick times its
+//!   lead or tail then), and the end of the tail, or of a DE raised for
+//!   nothing, arms it for a frame that arrived meanwhile.
 //!
 //! `FRAME_READY` and [`TX_DONE`] only wake tasks (embassy-sync signals;
 //! their critical section is short and leaves the step engine's refill alone).
@@ -104,14 +107,13 @@ static DE_SOFTWARE: AtomicBool = AtomicBool::new(false);
 /// The interrupt has sent the last stop bit of the reply.
 static TX_DONE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
-/// F103: a byte arrived (wakes the frame-gap task); its time and t3.5.
-#[cfg(feature = "board-f103")]
-static RX_ACTIVITY: Signal<CriticalSectionRawMutex, ()> = Signal::new();
+/// F103: the last byte's time and t3.5, for the frame gap's SysTick.
 #[cfg(feature = "board-f103")]
 static LAST_BYTE_AT_US: AtomicU32 = AtomicU32::new(0);
 #[cfg(feature = "board-f103")]
 static T35_US: AtomicU32 = AtomicU32::new(0);
-/// F103: the frame-gap task asks the interrupt to poll the assembler.
+/// F103: the frame gap's SysTick asks the USART interrupt to poll the
+/// assembler.
 #[cfg(feature = "board-f103")]
 static POLL_REQUESTED: AtomicBool = AtomicBool::new(false);
 /// F103: a frame is being received (the assembler's `is_receiving`).
@@ -293,7 +295,8 @@ fn arm_receiver(line: LineConfig, de: DeDrive) {
 }
 
 /// STM32F103 (RM0008 USART chapter): RXNE interrupt only; t3.5 is timed by
-/// [`frame_gap_task`]. Error flags are read with RXNE (SR then DR clears them).
+/// SysTick ([`arm_gap`]). Error flags are read with RXNE (SR then DR clears
+/// them).
 #[cfg(feature = "board-f103")]
 fn arm_receiver(_line: LineConfig, _de: DeDrive) {
     board::UART.cr1().modify(|w| w.set_rxneie(true));
@@ -361,6 +364,12 @@ fn SysTick() {
     // SAFETY: one-shot: stopped first; only `de_timer_start` rearms it.
     unsafe { (*cortex_m::peripheral::SYST::PTR).csr.write(0) };
     match TX_STATE.load(Ordering::Acquire) {
+        // no reply under way: the frame gap ran out
+        #[cfg(feature = "board-f103")]
+        TX_IDLE => {
+            POLL_REQUESTED.store(true, Ordering::Relaxed);
+            board::UartIrq::pend();
+        }
         TX_LEAD => {
             TX_STATE.store(TX_REQUESTED, Ordering::Release);
             board::UartIrq::pend(); // which starts the transmission
@@ -369,6 +378,8 @@ fn SysTick() {
             set_de(false);
             TX_STATE.store(TX_IDLE, Ordering::Release);
             TX_DONE.signal(());
+            #[cfg(feature = "board-f103")]
+            arm_gap_if_receiving();
         }
         // thread code moves it on with a compare-and-swap (`load`)
         TX_EARLY => TX_STATE.store(TX_EARLY_DONE, Ordering::Release),
@@ -469,6 +480,8 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
             rx_slots::deliver(&mut link.write_slot, ev, last);
         }
         RECEIVING.store(link.assembler.is_receiving(), Ordering::Relaxed);
+        // a poll the assembler found early: the rest of the gap
+        arm_gap_if_receiving();
     }
     let sr = r.sr().read();
     if sr.rxne() || sr.ore() {
@@ -479,7 +492,7 @@ fn on_uart(link: &mut Link, at_us: u32) -> Option<u32> {
             on_byte(link, byte, at_us, flags);
             LAST_BYTE_AT_US.store(link.assembler.last_byte_at_us(), Ordering::Relaxed);
             RECEIVING.store(link.assembler.is_receiving(), Ordering::Relaxed);
-            RX_ACTIVITY.signal(());
+            arm_gap_if_receiving();
         }
     }
     let cr1 = r.cr1().read();
@@ -527,6 +540,8 @@ pub fn raise_early() {
         return;
     }
     TX_DONE.reset();
+    // a frame gap SysTick still timed has run by now, as a gap
+    de_timer_stop();
     set_de(true);
     TX_STATE.store(TX_EARLY, Ordering::Release);
     de_timer_start(lead);
@@ -542,6 +557,8 @@ pub fn drop_early() {
     de_timer_stop();
     TX_STATE.store(TX_IDLE, Ordering::Release);
     set_de(false);
+    #[cfg(feature = "board-f103")]
+    arm_gap_if_receiving();
 }
 
 /// Loads `bytes` (≤ 256) as the reply and starts it if its first start
@@ -614,6 +631,9 @@ pub async fn finish(started: bool, not_before_us: u32) {
 fn request() {
     TX_DONE.reset();
     let lead = DE_LEAD_US.load(Ordering::Relaxed);
+    // a frame gap SysTick still timed has run by now, as a gap (it never
+    // ends a lead)
+    de_timer_stop();
     if lead > 0 {
         // no transmission runs: no interrupt touches DE; SysTick's
         // interrupt starts the reply at the end of the lead
@@ -670,62 +690,18 @@ fn set_de(high: bool) {
     });
 }
 
-/// F103: the executor of [`frame_gap_task`] alone, on an interrupt
-/// (`priority::PRIO_FRAME_GAP`): in thread mode the task would wait for
-/// the control loop's part to end before closing the frame, and the
-/// dispatcher it wakes would then wait for the next part.
+/// F103: arms SysTick for the rest of t3.5 after the last byte while a
+/// frame arrives and no reply is under way (a lead or a tail has SysTick
+/// then; the end of either calls this again). Called by the USART and
+/// SysTick interrupts, which share a priority, and by thread code
+/// (`drop_early`), which SysTick's or the USART's interrupt may preempt:
+/// each arms the same gap from the same atomics, the last one wins.
 #[cfg(feature = "board-f103")]
-static FRAME_GAP_EXECUTOR: embassy_executor::InterruptExecutor =
-    embassy_executor::InterruptExecutor::new();
-
-#[cfg(feature = "board-f103")]
-mod frame_gap_vector {
-    use embassy_stm32::interrupt;
-
-    #[interrupt]
-    unsafe fn SPI2() {
-        // SAFETY: this vector is the executor's alone (board::FrameGapIrq),
-        // started by `start_frame_gap` before it is ever pended.
-        unsafe { super::FRAME_GAP_EXECUTOR.on_interrupt() }
+fn arm_gap_if_receiving() {
+    if !RECEIVING.load(Ordering::Relaxed) || TX_STATE.load(Ordering::Acquire) != TX_IDLE {
+        return;
     }
-}
-
-/// F103: starts [`frame_gap_task`] on its interrupt executor (`main`,
-/// once, after `priority::init` has set the executor's priority).
-#[cfg(feature = "board-f103")]
-pub fn start_frame_gap() {
-    use embassy_stm32::interrupt::typelevel::Interrupt as _;
-    let spawner = FRAME_GAP_EXECUTOR.start(board::FrameGapIrq::IRQ);
-    spawner.spawn(defmt::unwrap!(frame_gap_task().ok(), "task spawned twice"));
-}
-
-/// STM32F103: closes a frame t3.5 after its last byte (no receiver timeout
-/// in this USART). The assembler itself rejects early polls, so a byte that
-/// arrives while this task sleeps just makes it sleep again.
-#[cfg(feature = "board-f103")]
-#[embassy_executor::task]
-pub async fn frame_gap_task() {
-    loop {
-        super::fault::FRAME_GAP.idle();
-        RX_ACTIVITY.wait().await;
-        while RECEIVING.load(Ordering::Relaxed) {
-            // checked in at each byte's gap: a bus that never falls silent
-            // keeps it busy, not stuck
-            super::fault::FRAME_GAP.busy();
-            #[cfg(feature = "fault-test")]
-            if super::fault::frame_gap_stuck() {
-                core::future::pending::<()>().await; // stuck on purpose
-            }
-            let last = LAST_BYTE_AT_US.load(Ordering::Relaxed);
-            let t35 = T35_US.load(Ordering::Relaxed);
-            let wait = super::calc::reply_wait_us(now_us(), last, t35);
-            embassy_time::Timer::after_micros(u64::from(wait)).await;
-            POLL_REQUESTED.store(true, Ordering::Relaxed);
-            board::UartIrq::pend();
-            // the interrupt outranks this task: it has polled once the
-            // pend has taken effect
-            cortex_m::asm::dsb();
-            cortex_m::asm::isb();
-        }
-    }
+    let last = LAST_BYTE_AT_US.load(Ordering::Relaxed);
+    let t35 = T35_US.load(Ordering::Relaxed);
+    de_timer_start(super::calc::reply_wait_us(now_us(), last, t35));
 }

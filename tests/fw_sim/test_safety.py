@@ -38,9 +38,7 @@ WINDOW_MAX_CYCLES = 100
 # fault-test triggers (fault::test_trigger): a write to 0xFA17
 STICK_DISPATCHER = with_crc(bytes([0x01, 0x06, 0xFA, 0x17, 0x57, 0x17]))
 STICK_CONTROL = with_crc(bytes([0x01, 0x06, 0xFA, 0x17, 0xC0, 0xDE]))
-STICK_FRAME_GAP = with_crc(bytes([0x01, 0x06, 0xFA, 0x17, 0x6A, 0x90]))
 # a request no earlier frame of the test repeats: DP-rES, read by a raw master
-READ_DP_RES = with_crc(bytes([0x01, 0x03, 0x00, 0x17, 0x00, 0x01]))
 PANIC = with_crc(bytes([0x01, 0x06, 0xFA, 0x17, 0xDE, 0xAD]))
 
 SAFE = {"enable": "0", "brake": "0", "step": "0", "de": "0"}
@@ -83,15 +81,6 @@ def line_rx_end(line_csv, frame: bytes) -> int:
     at = values.rfind(frame)
     assert at >= 0, "the frame is on the line"
     return rx[at + len(frame) - 1][0]
-
-
-def line_frame_ns(line_csv, frame: bytes) -> int:
-    """From the end of `frame`'s first character to the end of its last, ns."""
-    rx = [(int(r["time_ns"]), int(r["value"])) for r in read_csv(line_csv) if r["event"] == "rx"]
-    values = bytes(v for _, v in rx)
-    at = values.rfind(frame)
-    assert at >= 0, "the frame is on the line"
-    return rx[at + len(frame) - 1][0] - rx[at][0]
 
 
 def wait_for_reset(fw, timeout=15.0):
@@ -183,11 +172,9 @@ def test_de_at_9600_keeps_ten_bit_lead_and_tail_while_moving_and_polled(start_fw
     assert 9 <= min(tails) and max(tails) <= 11, f"{board}: tail {tails}"
 
 
-@pytest.mark.parametrize("stuck", ["dispatcher", "control loop", "frame-gap task"])
+@pytest.mark.parametrize("stuck", ["dispatcher", "control loop"])
 def test_a_stuck_task_resets_the_drive_with_the_outputs_safe(start_fw, board, tmp_path,
                                                              fault_test_elf, monkeypatch, stuck):
-    if stuck == "frame-gap task" and board != "f103":
-        pytest.skip("the G431 closes frames by the USART's receiver timeout: no such task")
     monkeypatch.setitem(ELF, board, fault_test_elf[board])
     pins, line, steps = tmp_path / "pins.csv", tmp_path / "line.csv", tmp_path / "steps.csv"
     fw = start_fw(board, "--trace-pins", str(pins), "--trace-line", str(line),
@@ -197,21 +184,13 @@ def test_a_stuck_task_resets_the_drive_with_the_outputs_safe(start_fw, board, tm
     m.enable()
     start_move(m, 1_000_000, 10)  # 10 000 steps/s: longer than the test
     m.wait(lambda sw: sw & MOTOR_RUNNING, 5, "moving")
-    trigger = {"dispatcher": STICK_DISPATCHER, "control loop": STICK_CONTROL,
-               "frame-gap task": STICK_FRAME_GAP}[stuck]
+    trigger = {"dispatcher": STICK_DISPATCHER, "control loop": STICK_CONTROL}[stuck]
     with fw.raw() as bus:
         reply = bus.exchange(trigger, timeout=0.5)
-        if stuck == "frame-gap task":
-            # the task sticks at this request's first byte: no frame closes
-            assert bus.exchange(READ_DP_RES, timeout=0.5) == b"", "a deaf drive answers nothing"
     if stuck == "dispatcher":
         assert reply == b"", "a stuck dispatcher answers nothing"
     wait_for_reset(fw)
-    if stuck == "frame-gap task":
-        # from the first character of the request it stuck on
-        t_trigger = line_rx_end(line, READ_DP_RES) - line_frame_ns(line, READ_DP_RES)
-    else:
-        t_trigger = line_rx_end(line, trigger)
+    t_trigger = line_rx_end(line, trigger)
     rows = pin_rows(pins)
     t_reset = next(t for t, _, pin, _ in rows if pin == "reset")
     after_s = (t_reset - t_trigger) / 1e9
@@ -221,10 +200,6 @@ def test_a_stuck_task_resets_the_drive_with_the_outputs_safe(start_fw, board, tm
     # tick; the last feed is no earlier than the frame, and the watchdog
     # then runs out in full; later by the frame's t3.5 and the wake-up only
     lo = (0 if stuck == "control loop" else TASK_LIMIT_S) + WATCHDOG_S
-    if stuck == "frame-gap task":
-        # busy from the first character on: the last feed is the control
-        # tick before the task's limit ran out, up to one period before it
-        lo -= CONTROL_PERIOD_S
     assert lo <= after_s <= lo + 0.01, f"{board}: reset {after_s:.3f} s after the trigger"
     pulses = [int(p["time_ns"]) for p in read_csv(steps)]
     if stuck != "control loop":
