@@ -10,9 +10,9 @@ import time
 from pathlib import Path
 
 
-from conftest import (ROOT, TICK_NS, ACCELERATION, ACTUAL_POSITION, CONTROLWORD, DECELERATION, MODE,
-                      MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY, STATE_MASK,
-                      TARGET_POSITION, TARGET_REACHED, Master)
+from conftest import (ROOT, TICK_NS, LIMITS, PA_BASE, ACCELERATION, ACTUAL_POSITION, CONTROLWORD,
+                      DECELERATION, MODE, MOTOR_RUNNING, OPERATION_ENABLED, PROFILE_VELOCITY,
+                      STATE_MASK, TARGET_POSITION, TARGET_REACHED, Master, pulse_for)
 
 DISTANCE = 2000
 SCHEDULE = Path(os.environ.get("FW_SIM_SCHEDULE_BIN")
@@ -152,3 +152,57 @@ def test_the_first_interval_follows_the_hosts_step_schedule(start_fw, board, tmp
     pin = traced_move(start_fw, board, tmp_path)
     got = (pin[1] - pin[0]) / tick_ns
     assert abs(got - (host[1] - host[0])) <= 1, f"{board}: {got} ticks, schedule {host[1] - host[0]}"
+
+
+def trapezoid_s(dist: int, v: float, a: float, k: int) -> float:
+    """The continuous trapezoid from rest to rest over `dist` steps, cruise
+    `v`, acceleration and deceleration `a` (steps/s, steps/s²): the time (s)
+    at which it reaches position `k` (tests/common/axis.rs
+    `trapezoid_time`, equal ramps)."""
+    xa = min(v * v / (2 * a), dist / 2)
+    vp = (2 * a * xa) ** 0.5
+    ta, tc = vp / a, (dist - 2 * xa) / vp
+    if k <= xa:
+        return (2 * k / a) ** 0.5
+    if k <= dist - xa:
+        return ta + (k - xa) / vp
+    return ta + tc + ta - (2 * max(dist - k, 0) / a) ** 0.5
+
+
+def test_a_move_at_the_top_rate_keeps_every_pulse_within_2us_of_the_trapezoid(
+        start_fw, board, tmp_path):
+    """The step engine's bound on the pin itself: a position move at the
+    board's step rate limit (Board::max_step_rate) with 2 000 000 steps/s²
+    ramps, PA12 = 6000 r/min and PA10 = 10 000 (its default), the master
+    polling the statusword throughout. As many pulses as steps, and every
+    pulse within 2 µs of the ideal trapezoid's time for its step (from the
+    trapezoid's start that fits the pulses best: the start of a move is not
+    on the pin)."""
+    rate, accel = LIMITS[board], 2_000_000
+    distance = rate * rate // accel + 2_000  # the ramps and a cruise
+    steps = tmp_path / "steps.csv"
+    m = Master(start_fw(board, "--trace-steps", str(steps), "--quiet").client())
+    assert m.read(PA_BASE + 10) == 10_000
+    m.enable()
+    m.write(MODE, 1)
+    m.write(PA_BASE + 12, 6000)
+    m.write(PA_BASE + 15, pulse_for(rate))
+    # 0x6081 in 0.1 r/s, 0x6083 / 0x6084 in 0.1 r/s² (SPEC §5)
+    m.write32(PROFILE_VELOCITY, rate // 1000)
+    m.write(ACCELERATION, accel // 1000)
+    m.write(DECELERATION, accel // 1000)
+    m.write32(TARGET_POSITION, distance)
+    m.write(CONTROLWORD, 0x001F)
+    m.write(CONTROLWORD, 0x000F)
+    polls = len(m.wait(settled, 60, "target reached"))
+    assert m.read32(ACTUAL_POSITION) == distance
+    time.sleep(0.2)  # the trace is written as emulated time passes
+    pin = [int(p["time_ns"]) for p in read_csv(steps)]
+    assert len(pin) == distance, f"{board}: {len(pin)} pulses for {distance} steps"
+    off = [t - trapezoid_s(distance, rate, accel, k + 1) * 1e9 for k, t in enumerate(pin)]
+    start = (max(off) + min(off)) / 2
+    worst = max(abs(o - start) for o in off)
+    print(f"{board}: {distance} pulses at up to {rate} steps/s, {polls} reads during the "
+          f"move; worst {worst:.0f} ns from the trapezoid")
+    assert polls > 10, "the master polled throughout"
+    assert worst <= 2_000, f"{board}: a pulse {worst:.0f} ns from the trapezoid"
