@@ -37,8 +37,8 @@ TOP_FUNCTIONS = 40
 # G431 ≤ 56 KiB) are the limits the size part must stay under.
 ROOM = 4 * 1024
 BUDGETS = {
-    "STM32G431CB": (58124 + ROOM, 16 * 1024),
-    "STM32F103C8": (56224 + ROOM, 12 * 1024),
+    "STM32G431CB": (59284 + ROOM, 16 * 1024),
+    "STM32F103C8": (56960 + ROOM, 12 * 1024),
 }
 UNNAMED = "unnamed constants in .rodata (literals, switch and lookup tables)"
 PADDING = "alignment padding, unsized symbols"
