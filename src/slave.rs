@@ -113,8 +113,8 @@ impl Slave {
     }
 
     /// Whether [`Slave::handle`] will answer `rx` at all, told before it
-    /// runs, with the same `own_address` and PA (`standard`: PA54's
-    /// standard exception profile, `answer_frame_errors`: PA55): a frame
+    /// runs, with the same `own_address` and PA (`standard`: PA55's
+    /// standard exception profile, `answer_frame_errors`: PA54): a frame
     /// for us outside listen-only mode, good or with its frame errors
     /// answered. A request to enter listen-only mode (0x08 / 0x04) is
     /// told unanswered, though a malformed one gets an exception. For a

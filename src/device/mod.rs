@@ -176,8 +176,8 @@ impl Device {
 
     /// Whether [`Device::handle_rx`] will answer `rx` with a reply due at
     /// once, t3.5 after its last byte (PA56 = 0), told before it runs
-    /// ([`crate::slave::Slave::will_answer`]); an EE request's reply, deferred
-    /// until the flash is done, counts as answered. The firmware raises
+    /// ([`crate::slave::Slave::will_answer`]); an EE request's reply,
+    /// deferred until the flash is done, counts as answered. The firmware raises
     /// the transceiver's DE on it, so that the lead runs while the reply
     /// is made.
     pub fn will_answer_at_once(&self, rx: &RxEvent<'_>) -> bool {

@@ -101,24 +101,24 @@ impl EventLog {
     }
 }
 
-/// The RS-485 line as [`Device::poll`] sees it: the frame the link
-/// received, and the reply and line format `poll` queues, which the task
-/// carries out after it, in that order ([`Rs485Line::carry_out`]).
+/// What `poll` queued on the line: a reply loaded into the link
+/// (`rs485::load`), when it may leave and whether it has started; or an
+/// empty one, which only delays what follows it.
 #[derive(Clone, Copy)]
 enum Queued {
     Reply { at_us: u64, started: bool },
     Nothing { at_us: u64 },
 }
 
+/// The RS-485 line as [`Device::poll`] sees it: the frame the link
+/// received, and the reply and line format `poll` queues, which the task
+/// carries out after it, in that order ([`Rs485Line::carry_out`]).
 struct Rs485Line<'a> {
     received: Option<&'a RxFrame>,
     /// The time driver's µs now, and the frame's last byte on that scale
     /// (the link stamps bytes with its wrapping 32-bit µs).
     now_us: u64,
     last_byte_us: u64,
-    /// A reply loaded into the link (`rs485::load`): when it may leave,
-    /// and whether it has started; or an empty one, which only delays
-    /// what follows it.
     queued: Option<Queued>,
     line: Option<LineConfig>,
 }

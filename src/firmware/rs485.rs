@@ -13,15 +13,15 @@
 //!   interrupt has the USART interrupt call [`FrameAssembler::poll`];
 //!   t1.5 is judged by the assembler from the timestamps.
 //!
-//! Transmit: [`load`] and [`finish`] hand the reply to the interrupt, which feeds the data
-//! register on TXE (one burst, no gaps) and finishes at TC. DE leads the
-//! first start bit and trails the last stop bit by PA57 / PA58
-//! ([`apply_line`], `calc::DeDrive`): on the G431 the USART's
-//! hardware driver-enable does it (DEAT / DEDT) while they fit; beyond
-//! that, and always on the F103, DE is a GPIO timed by SysTick as a
-//! one-shot compare (nothing else uses it; embassy-time runs on TIM2):
-//! the dispatcher raises DE and arms SysTick for the lead ([`raise_early`]
-//! once the core foresees a reply, before it is made; else [`load`] or
+//! Transmit: [`load`] and [`finish`] hand the reply to the interrupt, which
+//! feeds the data register on TXE (one burst, no gaps) and finishes at TC.
+//! DE leads the first start bit and trails the last stop bit by PA57 / PA58
+//! ([`apply_line`], `calc::DeDrive`): on the G431 the USART's hardware
+//! driver-enable does it (DEAT / DEDT) while they fit; beyond that, and
+//! always on the F103, DE is a GPIO timed by SysTick as a one-shot compare
+//! (nothing outside this module uses it; embassy-time runs on TIM2): the
+//! dispatcher raises DE and arms SysTick for the lead ([`raise_early`] once
+//! the core foresees a reply, before it is made; else [`load`] or
 //! [`finish`]), whose interrupt starts the transmission once the reply is
 //! loaded; at TC the USART interrupt arms it for the tail, whose interrupt
 //! drops DE and wakes [`finish`]. No busy wait: the dispatcher awaits, and
@@ -35,13 +35,13 @@
 //!   the interrupt while free and by the dispatcher once marked full,
 //!   handed over with an atomic state; a frame that finds no
 //!   free slot is dropped and counted;
-//! - a reply goes the same way: [`load`] fills the transmit buffer while
-//!   no transmission runs ([`TX_STATE`] idle or early), marks it requested and pends
-//!   the interrupt, which starts it (only the interrupt writes CR1 while
-//!   the link runs); with a software DE it marks the lead instead, and the
-//!   SysTick interrupt marks it requested at the lead's end; at TC the
-//!   USART interrupt marks the tail, and SysTick idle at its end;
-//!   a software DE is raised by the dispatcher before it arms the lead (no
+//! - a reply goes the same way: [`load`] fills the transmit buffer while no
+//!   transmission runs ([`TX_STATE`] idle or early), marks it requested and
+//!   pends the interrupt, which starts it (only the interrupt writes CR1
+//!   while the link runs); with a software DE it marks the lead instead,
+//!   and the SysTick interrupt marks it requested at the lead's end; at TC
+//!   the USART interrupt marks the tail, and SysTick idle at its end; a
+//!   software DE is raised by the dispatcher before it arms the lead (no
 //!   interrupt touches the pin while no transmission runs) and dropped by
 //!   the SysTick interrupt at the end of the tail;
 //! - SysTick runs at the USART's priority, so neither interrupts the other:
@@ -295,7 +295,7 @@ fn arm_receiver(line: LineConfig, de: DeDrive) {
 }
 
 /// STM32F103 (RM0008 USART chapter): RXNE interrupt only; t3.5 is timed by
-/// SysTick ([`arm_gap`]). Error flags are read with RXNE (SR then DR clears
+/// SysTick ([`arm_gap_if_receiving`]). Error flags are read with RXNE (SR then DR clears
 /// them).
 #[cfg(feature = "board-f103")]
 fn arm_receiver(_line: LineConfig, _de: DeDrive) {
@@ -327,7 +327,8 @@ impl Handler<board::UartIrq> for UartHandler {
 }
 
 /// Arms SysTick to interrupt once, `us` from now (core clock; at most the
-/// longest DE lead or tail, well inside its 24 bits).
+/// longest DE lead or tail, or the F103's t3.5 at the slowest line, well
+/// inside its 24 bits).
 fn de_timer_start(us: u32) {
     let cycles = us
         .saturating_mul(board::SYSCLK_HZ / 1_000_000)
