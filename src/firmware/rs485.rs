@@ -540,12 +540,8 @@ pub fn raise_early() {
     if lead == 0 || TX_STATE.load(Ordering::Acquire) != TX_IDLE {
         return;
     }
-    TX_DONE.reset();
-    // a frame gap SysTick still timed has run by now, as a gap
-    de_timer_stop();
-    set_de(true);
-    TX_STATE.store(TX_EARLY, Ordering::Release);
-    de_timer_start(lead);
+    begin_reply();
+    raise_for_lead(TX_EARLY, lead);
 }
 
 /// After the core's `poll` loaded no reply: a DE [`raise_early`] raised
@@ -630,21 +626,31 @@ pub async fn finish(started: bool, not_before_us: u32) {
 /// Starts the loaded reply: DE raised and its lead timed by SysTick, whose
 /// interrupt then requests it, or requested at once (no software lead).
 fn request() {
-    TX_DONE.reset();
+    begin_reply();
     let lead = DE_LEAD_US.load(Ordering::Relaxed);
-    // a frame gap SysTick still timed has run by now, as a gap (it never
-    // ends a lead)
-    de_timer_stop();
     if lead > 0 {
-        // no transmission runs: no interrupt touches DE; SysTick's
-        // interrupt starts the reply at the end of the lead
-        set_de(true);
-        TX_STATE.store(TX_LEAD, Ordering::Release);
-        de_timer_start(lead);
+        // SysTick's interrupt starts the reply at the end of the lead
+        raise_for_lead(TX_LEAD, lead);
     } else {
         TX_STATE.store(TX_REQUESTED, Ordering::Release);
         board::UartIrq::pend(); // the interrupt starts it
     }
+}
+
+/// Before a reply's DE or transmission starts: [`TX_DONE`] cleared for
+/// it, and a frame gap SysTick still timed has run by the return, as a
+/// gap (it never ends a lead).
+fn begin_reply() {
+    TX_DONE.reset();
+    de_timer_stop();
+}
+
+/// Raises DE and times its lead (SysTick), in `state` meanwhile. No
+/// transmission runs: no interrupt touches DE.
+fn raise_for_lead(state: u8, lead_us: u32) {
+    set_de(true);
+    TX_STATE.store(state, Ordering::Release);
+    de_timer_start(lead_us);
 }
 
 /// Software times DE for the line in force ([`apply_line`]).
