@@ -1,8 +1,9 @@
-//! The planner's fill in parts (`PlannerConfig::with_fill_budget`, what the
-//! firmware's control loop uses so that a frame waits for one part of the
+//! The planner's fill in parts (`PlannerConfig::with_fill_budget`, and a
+//! sink that asks for a pause, `StepSink::pause_wanted`: what the
+//! firmware's control loop uses so that a frame waits for one push of the
 //! control call, not all of it): the parts push exactly the steps one
 //! unbounded fill pushes, each part after the first stays within the
-//! budget, and the schedule never runs dry.
+//! budget (within one push when asked), and the schedule never runs dry.
 
 mod common;
 
@@ -10,11 +11,35 @@ use common::axis::Rig;
 use modbus_drive::boards::Board;
 use modbus_drive::motion::sim::{RunStop, SimAxis, StepRecord};
 use modbus_drive::motion::{
-    Fill, Goal, Planner, PlannerConfig, Ramp, StepSchedule, CONSTANT_STEPS_PER_BUDGET, FIT_COST,
+    Fill, Goal, Planner, PlannerConfig, PushedSteps, Ramp, StepSchedule, StepSink,
+    CONSTANT_STEPS_PER_BUDGET, FIT_COST, PUSH_STEPS,
 };
 use proptest::prelude::*;
 
 const PERIOD_US: u64 = 1000;
+
+/// The simulated axis as the fill's sink, asking for a pause at every
+/// `every`-th question (never without `every`), as the firmware's
+/// control loop asks while a frame waits.
+struct Asking<'a> {
+    axis: &'a mut SimAxis,
+    every: Option<u32>,
+    asked: &'a mut u32,
+}
+
+impl StepSink for Asking<'_> {
+    fn pushed(&mut self, steps: &PushedSteps) {
+        self.axis.pushed(steps);
+    }
+
+    fn pause_wanted(&mut self) -> bool {
+        let Some(every) = self.every else {
+            return false;
+        };
+        *self.asked += 1;
+        self.asked.is_multiple_of(every)
+    }
+}
 
 /// A planner on a simulated axis, called every millisecond; with a budget
 /// it fills again after each [`Fill::Paused`] at the same `now`, as the
@@ -26,6 +51,9 @@ struct Run {
     steps: Vec<StepRecord>,
     now_us: u64,
     budget: Option<u32>,
+    /// The sink asks for a pause at every this many questions.
+    ask_every: Option<u32>,
+    asked: u32,
     /// Fills that returned `Paused`.
     pauses: u64,
     /// The most ring entries one part after the first of a control call
@@ -34,7 +62,7 @@ struct Run {
 }
 
 impl Run {
-    fn new(board: Board, budget: Option<u32>) -> Self {
+    fn new(board: Board, budget: Option<u32>, ask_every: Option<u32>) -> Self {
         let cfg = PlannerConfig::for_board(board);
         let cfg = budget.map_or(cfg, |b| cfg.with_fill_budget(b));
         Self {
@@ -44,6 +72,8 @@ impl Run {
             steps: Vec::new(),
             now_us: 0,
             budget,
+            ask_every,
+            asked: 0,
             pauses: 0,
             widest_later_part: 0,
         }
@@ -53,16 +83,22 @@ impl Run {
         let mut first = true;
         for _ in 0..10_000 {
             let free = self.sched.free();
-            let fill = self
-                .planner
-                .fill_with(self.now_us, &self.sched, &mut self.axis);
+            let mut sink = Asking {
+                axis: &mut self.axis,
+                every: self.ask_every,
+                asked: &mut self.asked,
+            };
+            let fill = self.planner.fill_with(self.now_us, &self.sched, &mut sink);
             if !first {
                 self.widest_later_part = self.widest_later_part.max(free - self.sched.free());
             }
             first = false;
             match fill {
                 Fill::Paused => {
-                    assert!(self.budget.is_some(), "paused without a budget");
+                    assert!(
+                        self.budget.is_some() || self.ask_every.is_some(),
+                        "paused unasked, without a budget"
+                    );
                     self.pauses += 1;
                 }
                 _ => break,
@@ -105,12 +141,20 @@ fn ramp(v: f64, a: f64) -> Ramp {
     Ramp::new((v * 10.0) as u64, (a * 10.0) as u64, (a * 10.0) as u64)
 }
 
-/// Both runs (without and with `budget`) over the same goals: the same
-/// steps at the same ticks and exact times, nothing late, nothing dry.
-fn same_schedule(board: Board, goals: &[(Goal, u64)], decel: u64, budget: u32) -> Run {
-    let mut whole = Run::new(board, None);
+/// Both runs (one unbounded fill a period, and in parts with `budget`
+/// and a sink asking for a pause at every `ask`-th question) over the
+/// same goals: the same steps at the same ticks and exact times, nothing
+/// late, nothing dry.
+fn same_schedule(
+    board: Board,
+    goals: &[(Goal, u64)],
+    decel: u64,
+    budget: Option<u32>,
+    ask: Option<u32>,
+) -> Run {
+    let mut whole = Run::new(board, None, None);
     whole.drive(goals, decel);
-    let mut parts = Run::new(board, Some(budget));
+    let mut parts = Run::new(board, budget, ask);
     parts.drive(goals, decel);
     assert_eq!(whole.pauses, 0);
     assert_eq!(parts.steps.len(), whole.steps.len(), "steps made");
@@ -126,10 +170,16 @@ fn same_schedule(board: Board, goals: &[(Goal, u64)], decel: u64, budget: u32) -
     }
     // a part that follows a pause pushes at most the budget (one entry
     // more for a direction marker), in constant-speed steps at most
-    // CONSTANT_STEPS_PER_BUDGET a budget step
+    // CONSTANT_STEPS_PER_BUDGET a budget step; asked at every question,
+    // one push
+    let widest = match (budget, ask) {
+        (_, Some(1)) => PUSH_STEPS as usize + 1,
+        (Some(b), _) => (b * CONSTANT_STEPS_PER_BUDGET) as usize + 1,
+        (None, _) => usize::MAX,
+    };
     assert!(
-        parts.widest_later_part <= (budget * CONSTANT_STEPS_PER_BUDGET) as usize + 1,
-        "a part took {} entries, budget {budget}",
+        parts.widest_later_part <= widest,
+        "a part took {} entries, budget {budget:?}, asked every {ask:?}",
         parts.widest_later_part
     );
     parts
@@ -152,7 +202,7 @@ fn a_cruise_at_the_top_rate_is_filled_in_parts_to_the_same_schedule() {
             (top / accel * 1000.0) as u64 + 300,
         )];
         let budget = 16;
-        let parts = same_schedule(board, &goals, board.max_accel() * 10, budget);
+        let parts = same_schedule(board, &goals, board.max_accel() * 10, Some(budget), None);
         // at least two pauses a period while cruising
         assert!(parts.pauses > 400, "{board:?}: {} pauses", parts.pauses);
         // the cruise's steps count a quarter: its parts take more entries
@@ -178,8 +228,30 @@ fn a_budget_below_one_fit_still_fills() {
         },
         60,
     )];
-    let parts = same_schedule(Board::G431, &goals, 10_000_000, 1);
+    let parts = same_schedule(Board::G431, &goals, 10_000_000, Some(1), None);
     assert!(parts.pauses > 0);
+}
+
+/// The firmware's case with a frame waiting at every question: without a
+/// budget, a fill asked to pause does so after one push (once its lead
+/// is covered), through a cruise at the board's top rate and its ramps,
+/// and the parts still make the unbounded fill's schedule.
+#[test]
+fn a_fill_asked_to_pause_pauses_after_one_push() {
+    for board in Board::ALL {
+        let top = f64::from(board.max_step_rate());
+        let accel = board.max_accel() as f64;
+        let goals = [(
+            Goal::Run {
+                forward: true,
+                ramp: ramp(top, accel),
+            },
+            (top / accel * 1000.0) as u64 + 100,
+        )];
+        let parts = same_schedule(board, &goals, board.max_accel() * 10, None, Some(1));
+        // several pauses a period while cruising
+        assert!(parts.pauses > 300, "{board:?}: {} pauses", parts.pauses);
+    }
 }
 
 fn log_range(lo: f64, hi: f64) -> impl Strategy<Value = f64> {
@@ -208,18 +280,20 @@ proptest! {
     #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
 
     /// Random goals changed mid-motion (cuts of the queued steps, reversals,
-    /// stops), at each board's tick, with random budgets: the parts make
-    /// the schedule one unbounded fill makes, step for step.
+    /// stops), at each board's tick, with random budgets and pauses asked
+    /// for at random: the parts make the schedule one unbounded fill
+    /// makes, step for step.
     #[test]
     fn filling_in_parts_makes_the_same_schedule(
         (a, goals) in log_range(2_000.0, 2_000_000.0).prop_flat_map(|a| {
             (Just(a), prop::collection::vec((goal(a), 1u64..40), 1..6))
         }),
-        budget in prop_oneof![1u32..8, 8u32..300],
+        budget in prop::option::of(prop_oneof![1u32..8, 8u32..300]),
+        ask in prop::option::of(1u32..5),
         f103 in any::<bool>(),
     ) {
         let board = if f103 { Board::F103 } else { Board::G431 };
-        same_schedule(board, &goals, (a * 10.0) as u64, budget);
+        same_schedule(board, &goals, (a * 10.0) as u64, budget, ask);
     }
 }
 

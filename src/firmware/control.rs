@@ -25,7 +25,7 @@ use core::task::Poll;
 use embassy_stm32::gpio::Output;
 use embassy_time::{Duration, Instant, Ticker};
 use modbus_drive::drive::io::PowerOutputs;
-use modbus_drive::motion::StepSchedule;
+use modbus_drive::motion::{PushedSteps, StepSchedule, StepSink};
 
 use super::board;
 use super::calc::StepShape;
@@ -49,6 +49,22 @@ pub const CONTROL_PERIOD: Duration = Duration::from_micros(modbus_drive::device:
 /// longest one, only repeat the fill's set-up more often.
 pub const FILL_BUDGET: u32 = modbus_drive::motion::FIT_COST;
 
+/// The fill's sink here: no exact times kept; a pause wanted while a
+/// closed frame waits for the dispatcher, so that the part running when a
+/// frame closes ends after the push it is in (once the queue reaches the
+/// planner's lead), not at its budget.
+struct FrameWaits;
+
+impl StepSink for FrameWaits {
+    #[inline(always)]
+    fn pushed(&mut self, _: &PushedSteps) {}
+
+    #[inline(always)]
+    fn pause_wanted(&mut self) -> bool {
+        rx_slots::frame_waiting()
+    }
+}
+
 /// ENABLE (high = power stage on) and BRAKE (high = brake released).
 pub type PowerPins = PowerOutputs<Output<'static>, Output<'static>>;
 
@@ -69,6 +85,9 @@ pub async fn run(
     let mut encoder_wanted = false;
     loop {
         ticker.next().await;
+        // a frame that closed with this tick's wake-up goes first: the
+        // executor polls this task before the dispatcher in that batch
+        in_parts(&mut || false).await;
         #[cfg(feature = "fault-test")]
         if super::fault::control_stuck() {
             core::future::pending::<()>().await; // stuck on purpose
@@ -94,7 +113,7 @@ pub async fn run(
                         encoder_wanted = d.params().encoder_counts_per_rev() > 0;
                         d.begin_control_latched(now_us, switch_states, edges, schedule);
                     }
-                    None => d.top_up(schedule),
+                    None => d.top_up_with(schedule, &mut FrameWaits),
                 }
                 d.fill_paused()
             })

@@ -20,7 +20,7 @@ pub mod sim;
 pub use homing::{Homing, HomingError, HomingMethod, HomingStep};
 pub use planner::{
     Fill, Goal, Planner, PlannerConfig, Ramp, CONSTANT_STEPS_PER_BUDGET, FIT_COST, MAX_ACCEL,
-    MAX_STEP_RATE, SCHEDULE_SLOTS,
+    MAX_STEP_RATE, PUSH_STEPS, SCHEDULE_SLOTS,
 };
 pub use schedule::{
     LimitBrake, NextStep, PushedSteps, Segment, StepSchedule, StepSink, StepSource, SCHEDULE_STEPS,

@@ -1,6 +1,7 @@
 //! The control call's fill: plans and pushes segments until the horizon
 //! is covered or the ring is full (or, with a fill budget, in parts).
 
+use super::segment::Pushed;
 use super::{Fill, Goal, Planner, FIT_COST};
 use crate::motion::{StepSchedule, StepSink};
 
@@ -55,6 +56,14 @@ impl Planner {
     #[inline(always)]
     fn lead_covered(&self, now: u64) -> bool {
         self.t_isr.wrapping_sub(now) as i64 >= self.lead_q as i64
+    }
+
+    /// What is queued reaches a quarter of the horizon past `now`: from
+    /// here on a fill may pause when its sink asks
+    /// ([`crate::motion::StepSink::pause_wanted`]).
+    #[inline(always)]
+    fn asked_lead_covered(&self, now: u64) -> bool {
+        self.t_isr.wrapping_sub(now) as i64 >= self.asked_lead_q as i64
     }
 
     /// Not waiting for a stop at once, and steps left to push or to plan.
@@ -147,6 +156,10 @@ impl Planner {
         let fresh = self.step_budget;
         loop {
             if self.pending.rest.count() > 0 {
+                if self.step_budget != fresh && sink.pause_wanted() && self.asked_lead_covered(now)
+                {
+                    return Fill::Paused;
+                }
                 if self.step_budget == 0 {
                     if self.lead_covered(now) {
                         return Fill::Paused;
@@ -155,11 +168,11 @@ impl Planner {
                     // that the fill pauses soon after it is not
                     self.step_budget = self.cfg.fill_budget;
                 }
-                if !self.push_pending(sched, sink, self.step_budget) && self.step_budget != 0 {
-                    // the ring (or the segment bookkeeping) is full; a
-                    // push the budget stopped is looked at above
+                if self.push_pending(sched, sink, self.step_budget) == Pushed::Full {
                     return Fill::Full;
                 }
+                // (a push its budget or its length stopped is looked at
+                // above)
                 continue;
             }
             let Some(profile) = self.profile.as_mut() else {
@@ -188,7 +201,10 @@ impl Planner {
             }
             // a fit is the first thing a fill may always do: each part
             // makes progress, whatever the budget
-            if self.step_budget < FIT_COST && self.step_budget != fresh && self.lead_covered(now) {
+            if self.step_budget != fresh
+                && (self.step_budget < FIT_COST && self.lead_covered(now)
+                    || sink.pause_wanted() && self.asked_lead_covered(now))
+            {
                 return Fill::Paused;
             }
             self.step_budget = self.step_budget.saturating_sub(FIT_COST);

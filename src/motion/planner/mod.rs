@@ -95,6 +95,17 @@ pub const FIT_COST: u32 = 96;
 pub const CONSTANT_STEPS_PER_BUDGET: u32 = 4;
 const _: () = assert!(CONSTANT_STEPS_PER_BUDGET.is_power_of_two());
 
+/// Most steps one push takes, whatever the budget left: a fill looks
+/// whether its caller wants the thread back
+/// ([`crate::motion::StepSink::pause_wanted`]) between two pushes, so a
+/// caller asking waits for one push at most. As many as a fit counts
+/// ([`FIT_COST`]): a push of ramp steps then takes about as long as a fit,
+/// the longest wait anyway, and one of constant-speed steps a quarter of
+/// that, where a budget's worth of them would take as long as a fit;
+/// shorter pushes would cost each push's set-up on a ramp, where a step
+/// costs most.
+pub const PUSH_STEPS: u32 = FIT_COST;
+
 /// Segments the planner keeps track of between the interrupt's step and
 /// the end of the queue (a power of two): while they are all queued, the
 /// schedule counts as full. At the maximum step rate and the shortest
@@ -188,8 +199,10 @@ pub enum Fill {
     /// A stop-at-once is being carried out by the interrupt.
     Waiting,
     /// The fill's step budget ran out before the horizon was covered
-    /// ([`PlannerConfig::with_fill_budget`]; never without one): fill
-    /// again, with the same or a later `now`, to go on where it paused.
+    /// ([`PlannerConfig::with_fill_budget`]), or its sink asked for the
+    /// thread back ([`crate::motion::StepSink::pause_wanted`]); never
+    /// without one of them: fill again, with the same or a later `now`,
+    /// to go on where it paused.
     Paused,
 }
 
@@ -404,6 +417,10 @@ pub struct Planner {
     /// Half of `horizon_q`: a fill pauses at its budget only once what
     /// is queued reaches this far past `now`.
     lead_q: u64,
+    /// A quarter of `horizon_q`: a fill whose sink asks for a pause
+    /// ([`crate::motion::StepSink::pause_wanted`]) pauses once what is
+    /// queued reaches this far past `now`.
+    asked_lead_q: u64,
     /// Steps the current fill may still push (`PlannerConfig::fill_budget`
     /// at its start).
     step_budget: u32,
@@ -452,6 +469,7 @@ impl Planner {
             pending: Pending::default(),
             horizon_q: 0,
             lead_q: 0,
+            asked_lead_q: 0,
             step_budget: u32::MAX,
             cut: None,
             s_end: 0,
@@ -464,6 +482,12 @@ impl Planner {
         // more than a control period by the frames passed their turn
         // between them, and the queue must outlast that
         p.lead_q = p.ticks_q(u64::from(cfg.horizon_us / 2));
+        // a quarter for a pause asked for: it comes only while a frame
+        // waits, at most once a frame, and what runs in it (the frame's
+        // poll) is short beside that; at the top step rate the ring holds
+        // little more than the half, which the fill would then have to
+        // reach, unpaused, at the start of every control call
+        p.asked_lead_q = p.ticks_q(u64::from(cfg.horizon_us / 4));
         p
     }
 

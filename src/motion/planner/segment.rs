@@ -2,7 +2,7 @@
 //! and its cut when a new goal comes (module docs of the planner).
 
 use super::slots::SlotInfo;
-use super::{Planner, CONSTANT_STEPS_PER_BUDGET, SCHEDULE_SLOTS};
+use super::{Planner, CONSTANT_STEPS_PER_BUDGET, PUSH_STEPS, SCHEDULE_SLOTS};
 use crate::arith::div_i64;
 use crate::motion::profile::w_along;
 use crate::motion::schedule::{Segment, StepSchedule, StepSink, MAX_FINE_BITS};
@@ -36,6 +36,17 @@ pub(super) struct Pending {
     pub(super) t_start: u64,
     pub(super) first: u32,
     pub(super) pushed: u32,
+}
+
+/// What [`Planner::push_pending`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Pushed {
+    /// The pending segment is pushed whole.
+    Ended,
+    /// Its budget or [`PUSH_STEPS`] ended the push, steps are left.
+    Stopped,
+    /// The ring or the segment bookkeeping is full.
+    Full,
 }
 
 impl Planner {
@@ -125,19 +136,18 @@ impl Planner {
     }
 
     /// Pushes the pending segment whole, or as much of it as the ring
-    /// takes and `limit` allows (a new goal cuts it at the horizon,
-    /// `drop_pending`); the steps pushed come off the fill's budget. True
-    /// when none is left; false when the ring, the segment bookkeeping or
-    /// `limit` stopped it.
+    /// takes, `limit` (budget steps) allows and [`PUSH_STEPS`] (a new goal
+    /// cuts it at the horizon, `drop_pending`); the steps pushed come off
+    /// the fill's budget.
     pub(super) fn push_pending<S: StepSink>(
         &mut self,
         sched: &StepSchedule,
         sink: &mut S,
         limit: u32,
-    ) -> bool {
+    ) -> Pushed {
         let tracked = self.segments.wrapping_sub(self.oldest) as usize;
         if tracked >= SCHEDULE_SLOTS {
-            return false;
+            return Pushed::Full;
         }
         let pending = &mut self.pending;
         let seg = &mut pending.rest;
@@ -150,7 +160,8 @@ impl Planner {
         let k = seg
             .count()
             .min(sched.free() as u32)
-            .min(limit.saturating_mul(1 << shift));
+            .min(limit.saturating_mul(1 << shift))
+            .min(PUSH_STEPS);
         if (self
             .t_isr
             .wrapping_add(seg.interval())
@@ -165,7 +176,7 @@ impl Planner {
             pending.t_start = self.t_isr;
         }
         let Some(made) = sched.push_steps(seg, k, sink) else {
-            return false;
+            return Pushed::Full;
         };
         pending.pushed += k;
         self.step_budget = self
@@ -183,7 +194,13 @@ impl Planner {
         let slot = self.last_slot();
         slot.last_index = last;
         slot.to_end = to_end;
-        to_end == 0
+        if to_end == 0 {
+            Pushed::Ended
+        } else if sched.free() == 0 {
+            Pushed::Full
+        } else {
+            Pushed::Stopped
+        }
     }
 
     /// A new goal: the state goes back to the last step of the pending

@@ -1,8 +1,10 @@
-//! The hook through which a push reports its steps' exact times: the
-//! firmware passes `()`, which records nothing and compiles to nothing;
-//! the simulation (`motion::sim::SimAxis`, feature `sim`) keeps the exact time of
-//! every step in its own storage, so that the schedule has one layout on
-//! every target (module docs of the schedule).
+//! The hook beside a fill: each push reports its steps' exact times to
+//! it, and the planner asks it between pushes whether the caller wants
+//! its thread back. `()` records nothing, never asks and compiles to
+//! nothing; the simulation (`motion::sim::SimAxis`, feature `sim`) keeps
+//! the exact time of every step in its own storage, so that the schedule
+//! has one layout on every target (module docs of the schedule); the
+//! firmware's control loop asks for a pause while a frame waits.
 
 use super::segment::{Expansion, Segment};
 
@@ -10,6 +12,19 @@ use super::segment::{Expansion, Segment};
 /// entries are written.
 pub trait StepSink {
     fn pushed(&mut self, steps: &PushedSteps);
+
+    /// Asked by the planner's fill between two pushes and before a fit,
+    /// once the fill has made progress: true pauses the fill there
+    /// ([`crate::motion::Fill::Paused`], as at the end of its budget) if
+    /// the queue already reaches a quarter of the planner's horizon past
+    /// the fill's `now` (half of what a budget's pause needs: a pause is
+    /// asked for only while something short waits). A fill asked at
+    /// every question still pushes what it would have pushed, a push
+    /// ([`crate::motion::PUSH_STEPS`] at most) a part.
+    #[inline(always)]
+    fn pause_wanted(&mut self) -> bool {
+        false
+    }
 }
 
 /// The no-op sink: the firmware's and every caller's that needs no exact
