@@ -113,6 +113,13 @@ pub struct Profile {
     /// boundary, whose v² is short by up to one slope unit — 3e-7 of the
     /// speed, 1 µs after 100 slow steps).
     w_cruise: u128,
+    /// The last travel time by division (`dx`, `v1 + v2`, ticks) and the
+    /// last step time (`av`, [`Profile::step_ticks`]), kept with their
+    /// arguments: every segment of a cruise asks the same two quotients,
+    /// each a 128-bit division in software on a Cortex-M, longer than the
+    /// rest of the segment's planning.
+    travel_memo: (u128, u128, u64),
+    step_memo: (u128, Option<u64>),
 }
 
 impl Profile {
@@ -206,6 +213,9 @@ impl Profile {
             k_time: 20 * u128::from(tick_hz),
             w_end: 0,
             w_cruise: w0,
+            // what travel_ticks gives for dx = 0; no v is u128::MAX
+            travel_memo: (0, 0, 0),
+            step_memo: (u128::MAX, None),
         }
     }
 
@@ -287,11 +297,17 @@ impl Profile {
     /// 2^-30 only, a reciprocal by a 64-by-32 division, left them noise
     /// whose rounding over 256-step segments fed back from segment to
     /// segment: ±2·10^-5 of the velocity on the seed's cruise).
-    pub fn step_ticks(&self) -> Option<u64> {
-        // 1/v in ticks per step = 10·f·2^V_FRAC / av = k_time·2^(V_FRAC-1) / av,
-        // and 2^32 more for Q32.32
-        let num = self.k_time << (V_FRAC - 1 + 32);
-        (self.av > num >> 64).then(|| div(num, self.av) as u64)
+    pub fn step_ticks(&mut self) -> Option<u64> {
+        if self.step_memo.0 != self.av {
+            // 1/v in ticks per step = 10·f·2^V_FRAC / av = k_time·2^(V_FRAC-1) / av,
+            // and 2^32 more for Q32.32
+            let num = self.k_time << (V_FRAC - 1 + 32);
+            self.step_memo = (
+                self.av,
+                (self.av > num >> 64).then(|| div(num, self.av) as u64),
+            );
+        }
+        self.step_memo.1
     }
 
     /// The v² slope (per Q32 position unit) of the current piece: 0 on a
@@ -323,14 +339,18 @@ impl Profile {
     /// `v`: `Δv/a` on a ramp's own line (`per_v` ≠ 0, [`Piece::per_v`]),
     /// else `2·Δx/(v1 + v2)`.
     #[inline(never)]
-    fn ticks_to(&self, dx: u128, v: u128, per_v: u64) -> u64 {
+    fn ticks_to(&mut self, dx: u128, v: u128, per_v: u64) -> u64 {
         if per_v != 0 {
             // Δt = Δv/a: a multiplication. The roots' rounding (one unit
             // of v, at most 1/256 tick here) does not add up: each v is
             // the end of one step and the start of the next.
             ((u128::from(v.abs_diff(self.av) as u64) * u128::from(per_v)) >> 40) as u64
         } else {
-            travel_ticks(self.k_time, dx, self.av + v)
+            let v_sum = self.av + v;
+            if (dx, v_sum) != (self.travel_memo.0, self.travel_memo.1) {
+                self.travel_memo = (dx, v_sum, travel_ticks(self.k_time, dx, v_sum));
+            }
+            self.travel_memo.2
         }
     }
 
@@ -369,7 +389,8 @@ impl Profile {
         // cruise: same v² as the anchor, same v (no root)
         let v = if w == self.aw { self.av } else { isqrt(w) };
         let per_v = if on_line { piece.per_v } else { 0 };
-        self.at = self.at.wrapping_add(self.ticks_to(dx, v, per_v));
+        let ticks = self.ticks_to(dx, v, per_v);
+        self.at = self.at.wrapping_add(ticks);
         self.ax = x;
         self.aw = w;
         self.av = v;

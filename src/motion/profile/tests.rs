@@ -101,11 +101,8 @@ fn cruise_times_are_exact_over_long_runs() {
     let budget = SegmentBudget::new(F, 400_000);
     // (the ramp piece before the cruise has no length: one step)
     for i in 0..300 {
-        let n = p.segment_len(
-            p.step_ticks(),
-            p.step_ticks().map_or(0, |s| p.curvature(s)),
-            &budget,
-        );
+        let s = p.step_ticks();
+        let n = p.segment_len(s, s.map_or(0, |s| p.curvature(s)), &budget);
         assert_eq!(n, if i == 0 { 1 } else { 32 });
         t = p.advance(n);
     }
@@ -123,11 +120,8 @@ fn stop_ends_on_a_whole_step_at_rest() {
     let budget = SegmentBudget::new(F, 100_000);
     let mut segments = 0;
     while p.remaining() > 0 {
-        let n = p.segment_len(
-            p.step_ticks(),
-            p.step_ticks().map_or(0, |s| p.curvature(s)),
-            &budget,
-        );
+        let s = p.step_ticks();
+        let n = p.segment_len(s, s.map_or(0, |s| p.curvature(s)), &budget);
         assert!(n.is_power_of_two() && n <= p.remaining(), "{n}");
         p.advance(n);
         segments += 1;
@@ -194,15 +188,12 @@ fn fast_isqrt_and_division_are_exact() {
 #[test]
 fn segments_stay_inside_pieces() {
     let su = slope_of(100_000);
-    let p = Profile::new_move(true, 0, w_of(100_000), 0, su, su, 1_000_000, 0, F);
+    let mut p = Profile::new_move(true, 0, w_of(100_000), 0, su, su, 1_000_000, 0, F);
     // at rest: single steps
     let budget = SegmentBudget::new(F, 2000);
+    let s = p.step_ticks();
     assert_eq!(
-        p.segment_len(
-            p.step_ticks(),
-            p.step_ticks().map_or(0, |s| p.curvature(s)),
-            &budget
-        ),
+        p.segment_len(s, s.map_or(0, |s| p.curvature(s)), &budget),
         1
     );
 }
@@ -252,4 +243,41 @@ fn ramp_segments_stay_long_at_high_step_rates() {
         p.advance(n);
     }
     assert!(fast > 1_000, "{fast} segments");
+}
+
+/// The remembered quotients (a cruise's travel time and step time) are
+/// the ones the divisions give: a profile planned segment by segment
+/// through ramps and a cruise times every step and gives every slope as
+/// the same profile with both forgotten before each segment, and the
+/// cruise's segments do take them from memory. The slow ramps' steps are
+/// timed by the same division as a cruise, at a speed that changes.
+#[test]
+fn remembered_quotients_are_the_divisions() {
+    for (accel, steps) in [(2_000_000, 400_000), (100, 3_000)] {
+        let su = slope_of(accel);
+        let mut p = Profile::new_move(true, 0, w_of(300_000), 0, su, su, steps, 0, F);
+        let budget = SegmentBudget::new(F, 2000);
+        let mut remembered = 0;
+        while p.remaining() != 0 {
+            let mut fresh = p.clone();
+            let cruise = p.piece_slope() == 0;
+            let s = p.step_ticks();
+            fresh.step_memo = (u128::MAX, None);
+            assert_eq!(fresh.step_ticks(), s);
+            let n = p.segment_len(s, s.map_or(0, |s| p.curvature(s)), &budget);
+            let known = p.travel_memo;
+            fresh.travel_memo = (0, 0, 0);
+            assert_eq!(
+                p.advance(n),
+                fresh.advance(n),
+                "{accel}: at step {}",
+                p.done
+            );
+            remembered += usize::from(cruise && p.travel_memo == known);
+        }
+        assert!(
+            remembered > 100 || accel < 1000,
+            "{remembered} segments from memory"
+        );
+    }
 }
