@@ -18,7 +18,7 @@ use calc::*;
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
-use feed::EngineFeed;
+use feed::fill_half;
 use flash::{FlashRegion, RegionError};
 use modbus_drive::motion::burst::{Burst, BurstWriter, PulseShape};
 use modbus_drive::motion::schedule::brake_rate;
@@ -178,8 +178,15 @@ impl Engine {
                 step.map(|n| (n.delay_ticks(), n.forward() != inverted))
             });
         } else {
-            let mut feed = EngineFeed::new(source, sched, ledger, *inverted, self.inverted_before);
-            writer.fill(&mut half, &mut feed);
+            fill_half(
+                writer,
+                &mut half,
+                source,
+                sched,
+                ledger,
+                *inverted,
+                self.inverted_before,
+            );
         }
         self.inverted_before = self.inverted;
         self.entries.extend_from_slice(&half);
@@ -457,9 +464,15 @@ impl DmaEngine {
             ledger,
             ..
         } = &mut self.e;
-        let mut feed = EngineFeed::new(source, sched, ledger, false, false);
-        writer.fill(&mut self.buffer[at..at + HALF], &mut feed);
-        drop(feed);
+        fill_half(
+            writer,
+            &mut self.buffer[at..at + HALF],
+            source,
+            sched,
+            ledger,
+            false,
+            false,
+        );
         self.newest = at + HALF - 1;
     }
 

@@ -1,9 +1,10 @@
 //! The step engine's step feed: the core's `StepSource` on the schedule,
 //! each step's DIR level under PA11, and every step given to the timer
-//! kept in the refill's `StepLedger`. HAL-free, so `tests/firmware_calc.rs`
+//! kept in the refill's `StepLedger`; and the refill's writing of a buffer
+//! half through it (`fill_half`). HAL-free, so `tests/firmware_calc.rs`
 //! includes it by path and runs the refill's own feed on the host.
 
-use modbus_drive::motion::burst::StepFeed;
+use modbus_drive::motion::burst::{Burst, BurstWriter, StepFeed};
 use modbus_drive::motion::{StepSchedule, StepSource};
 
 use super::calc::StepLedger;
@@ -83,4 +84,33 @@ impl Drop for EngineFeed<'_> {
         self.settle();
         self.ledger.check_long();
     }
+}
+
+/// Writes one buffer half for the refill: the whole runs of a cruise that
+/// goes on, copied (`BurstWriter::fill_runs`, the noted run of the
+/// schedule: `StepSource::advance_whole_runs`), while PA11 is as the
+/// refill before applied it; then the rest through an [`EngineFeed`]. The
+/// pulses written.
+#[inline(always)]
+pub fn fill_half(
+    writer: &mut BurstWriter,
+    half: &mut [Burst],
+    source: &mut StepSource,
+    sched: &StepSchedule,
+    ledger: &mut StepLedger,
+    inverted: bool,
+    inverted_before: bool,
+) -> u32 {
+    let (copied, runs_pulses) = if inverted == inverted_before {
+        writer.fill_runs(half, |delay, per, entries| {
+            source.advance_whole_runs(sched, delay, per, entries)
+        })
+    } else {
+        (0, 0)
+    };
+    // the runs' steps are plain steps of the pending run (at most a half
+    // of entries of 256 periods each: no wrap of the ledger's count)
+    ledger.advanced_plain(runs_pulses as u16);
+    let mut feed = EngineFeed::new(source, sched, ledger, inverted, inverted_before);
+    runs_pulses + writer.fill(&mut half[copied..], &mut feed)
 }

@@ -41,7 +41,7 @@ use modbus_drive::motion::{StepSchedule, StepSource};
 
 use super::board;
 use super::calc::{StepLedger, StepShape, LEDGER_WORDS, LONG_RUN};
-use super::feed::EngineFeed;
+use super::feed::fill_half;
 use super::owned::IrqOwned;
 use super::trim::cut_runs;
 
@@ -445,9 +445,15 @@ fn refill(e: &mut Engine, half: &mut [Burst]) {
         ..
     } = e;
     let runs = ledger.newest_run();
-    let mut feed = EngineFeed::new(source, &SCHEDULE, ledger, inverted, *inverted_before);
-    let pulses = writer.fill(half, &mut feed);
-    drop(feed);
+    let pulses = fill_half(
+        writer,
+        half,
+        source,
+        &SCHEDULE,
+        ledger,
+        inverted,
+        *inverted_before,
+    );
     *inverted_before = inverted;
     publish(ledger, ledger.newest_run() != runs);
     let quiet = if pulses == 0 && !writer.busy() {

@@ -355,6 +355,57 @@ impl BurstWriter {
         self.pulses - before
     }
 
+    /// Entries at the start of `out` for a cruise that goes on: when a
+    /// pulse is open and the last delay is one the fast path writes,
+    /// `take(delay, per, entries)` takes up to `entries` whole runs of
+    /// `per()` steps of that delay, each as at once as [`StepFeed::run`]
+    /// takes one (the feed's own, known without reading them, and plain:
+    /// in the last step's direction, DIR as it was), and says how many;
+    /// it calls `per` (a division) only once it has such a run. Each is
+    /// the entry [`BurstWriter::fill`]'s fast path would write for that
+    /// run; they are written as copies. Returns the entries and the
+    /// pulses; fill the rest of `out` with [`BurstWriter::fill`]. A
+    /// refill in a cruise then costs one look at its runs, not one an
+    /// entry. A call of its own, not a part of `fill`: in it, the fast
+    /// path's loop kept more of its state in memory, which every ramp step
+    /// paid for; and a refill on a ramp pays only the checks before `take`
+    /// and `take`'s first look.
+    #[inline(always)]
+    pub fn fill_runs(
+        &mut self,
+        out: &mut [Burst],
+        take: impl FnOnce(u32, &mut dyn FnMut() -> u32, u32) -> u32,
+    ) -> (usize, u32) {
+        if !self.open || self.next.is_some() {
+            return (0, 0);
+        }
+        let delay = self.last_interval;
+        if !(MIN_ENTRY_TICKS..=self.shape.idle).contains(&delay) {
+            return (0, 0);
+        }
+        let mut room = 0;
+        let run = self.shape.run_ticks();
+        let copies = take(
+            delay,
+            &mut || {
+                // Burst::room of the run's first period
+                room = (run / delay).min(MAX_PERIODS).saturating_sub(1);
+                1 + room
+            },
+            out.len() as u32,
+        )
+        .min(out.len() as u32);
+        if copies == 0 {
+            return (0, 0);
+        }
+        let b = Burst::new(delay, self.shape.width.min(delay / 2), self.level);
+        debug_assert_eq!(b.room(run), room);
+        out[..copies as usize].fill(b.repeated(room));
+        let pulses = copies * (1 + room);
+        self.pulses += pulses;
+        (copies as usize, pulses)
+    }
+
     /// Plans the time up to the next pulse.
     fn accept(&mut self, delay: u32, level: bool) {
         let shape = self.shape;

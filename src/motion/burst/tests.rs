@@ -96,6 +96,10 @@ struct Plain {
     steps: Vec<(u32, bool)>,
     at: usize,
     runs: bool,
+    /// Takes whole runs too ([`StepFeed::whole_runs`]), as many as the
+    /// steps ahead hold; counts them.
+    whole: bool,
+    whole_taken: u32,
 }
 
 impl StepFeed for Plain {
@@ -132,23 +136,75 @@ impl StepFeed for Plain {
     }
 }
 
+impl Plain {
+    /// [`BurstWriter::fill_runs`]' `take`: whole runs if `whole`, as
+    /// many as the steps ahead hold in the last step's direction.
+    fn whole_runs(&mut self, delay: u32, per: &mut dyn FnMut() -> u32, entries: u32) -> u32 {
+        if !self.whole {
+            return 0;
+        }
+        let per = per();
+        let level = self.steps[self.at - 1].1;
+        let alike = self.steps[self.at..]
+            .iter()
+            .take_while(|&&s| s == (delay, level))
+            .count() as u32;
+        let runs = (alike / per).min(entries);
+        self.at += (runs * per) as usize;
+        self.whole_taken += runs;
+        runs
+    }
+}
+
 /// Writes `steps` through a [`Plain`] feed in fills of `chunk` entries.
 fn write_plain(steps: &[(u32, bool)], chunk: usize, runs: bool) -> Vec<Burst> {
+    write_feed(steps, chunk, runs, false).0
+}
+
+/// [`write_plain`], with whole runs if `whole`; and how many the writer
+/// took.
+fn write_feed(steps: &[(u32, bool)], chunk: usize, runs: bool, whole: bool) -> (Vec<Burst>, u32) {
     let mut w = BurstWriter::new(shape(), steps.first().is_none_or(|s| s.1));
     let mut feed = Plain {
         steps: steps.to_vec(),
         at: 0,
         runs,
+        whole,
+        whole_taken: 0,
     };
     let mut out = Vec::new();
     let mut buf = vec![Burst::default(); chunk];
+    let fill = |w: &mut BurstWriter, buf: &mut [Burst], feed: &mut Plain| {
+        let (n, _) = w.fill_runs(buf, |d, per, entries| feed.whole_runs(d, per, entries));
+        w.fill(&mut buf[n..], feed);
+    };
     while feed.at < steps.len() || w.busy() {
-        w.fill(&mut buf, &mut feed);
+        fill(&mut w, &mut buf, &mut feed);
         out.extend_from_slice(&buf);
     }
-    w.fill(&mut buf, &mut feed);
+    fill(&mut w, &mut buf, &mut feed);
     out.extend_from_slice(&buf);
-    out
+    (out, feed.whole_taken)
+}
+
+#[test]
+fn whole_runs_make_the_entries_runs_make() {
+    // cruises at two speeds (one a whole number of runs, one not), a
+    // ramp between, a reversal, in fills of several sizes: the entries
+    // are the same bit for bit, and most of a cruise's came as copies
+    let mut steps = vec![(144u32, true); 25 * 40];
+    steps.extend((0..40).map(|k| (144 + 7 * k, true)));
+    steps.extend(vec![(500u32, true); 333]);
+    steps.extend(vec![(700u32, false); 50]);
+    for chunk in [1, 3, 8, 16] {
+        let (runs, none) = write_feed(&steps, chunk, true, false);
+        let (whole, taken) = write_feed(&steps, chunk, true, true);
+        assert_eq!(none, 0);
+        assert_eq!(runs, whole, "fills of {chunk}");
+        if chunk > 1 {
+            assert!(taken > 20, "fills of {chunk}: {taken} whole runs");
+        }
+    }
 }
 
 #[test]

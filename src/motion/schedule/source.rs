@@ -210,6 +210,34 @@ impl StepSource {
         taken as u32
     }
 
+    /// Up to `runs` runs of `per()` entries each, from the next entry on,
+    /// that the producer's noted run says hold `delay`
+    /// ([`Self::advance_run`] without the compares): taken at once (up to
+    /// the ring's end at most); how many runs. `per` is called only once
+    /// the next entry is in such a run.
+    #[inline(always)]
+    pub fn advance_whole_runs(
+        &mut self,
+        sched: &StepSchedule,
+        delay: u32,
+        per: &mut dyn FnMut() -> u32,
+        runs: u32,
+    ) -> u32 {
+        let start = sched.next.load(Ordering::Relaxed);
+        let known = sched.run_ahead(start, delay);
+        if known == 0 || !sched.quiet.load(Ordering::Relaxed) {
+            return 0;
+        }
+        let per = per().max(1);
+        let i = start as usize % SCHEDULE_STEPS;
+        let known = known.min(SCHEDULE_STEPS - i) as u32;
+        let taken = (known / per).min(runs);
+        sched
+            .next
+            .store(start.wrapping_add(taken * per), Ordering::Relaxed);
+        taken
+    }
+
     /// The pending step runs into an active limit that brakes (0x6085 set)
     /// and the brake has not started: the next `advance` starts it. The
     /// step engine, which is handed steps ahead of its timer, then takes
