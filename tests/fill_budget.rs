@@ -185,22 +185,27 @@ fn same_schedule(
     parts
 }
 
+/// A run to the board's top rate at its acceleration limit, for the
+/// ramp's time and then `cruise_ms` of cruise.
+fn top_rate_run(board: Board, cruise_ms: u64) -> [(Goal, u64); 1] {
+    let top = f64::from(board.max_step_rate());
+    let accel = board.max_accel() as f64;
+    [(
+        Goal::Run {
+            forward: true,
+            ramp: ramp(top, accel),
+        },
+        (top / accel * 1000.0) as u64 + cruise_ms,
+    )]
+}
+
 /// The firmware's case: cruise at the board's top rate with a budget of a
 /// fraction of a period's steps: every control call fills in several
 /// parts, and the schedule is the unbounded fill's.
 #[test]
 fn a_cruise_at_the_top_rate_is_filled_in_parts_to_the_same_schedule() {
     for board in Board::ALL {
-        let top = f64::from(board.max_step_rate());
-        let accel = board.max_accel() as f64;
-        let goals = [(
-            Goal::Run {
-                forward: true,
-                ramp: ramp(top, accel),
-            },
-            // the ramp's time, then 300 ms of cruise
-            (top / accel * 1000.0) as u64 + 300,
-        )];
+        let goals = top_rate_run(board, 300);
         let budget = 16;
         let parts = same_schedule(board, &goals, board.max_accel() * 10, Some(budget), None);
         // at least two pauses a period while cruising
@@ -239,15 +244,7 @@ fn a_budget_below_one_fit_still_fills() {
 #[test]
 fn a_fill_asked_to_pause_pauses_after_one_push() {
     for board in Board::ALL {
-        let top = f64::from(board.max_step_rate());
-        let accel = board.max_accel() as f64;
-        let goals = [(
-            Goal::Run {
-                forward: true,
-                ramp: ramp(top, accel),
-            },
-            (top / accel * 1000.0) as u64 + 100,
-        )];
+        let goals = top_rate_run(board, 100);
         let parts = same_schedule(board, &goals, board.max_accel() * 10, None, Some(1));
         // several pauses a period while cruising
         assert!(parts.pauses > 300, "{board:?}: {} pauses", parts.pauses);
