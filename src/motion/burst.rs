@@ -110,9 +110,7 @@ impl Burst {
     /// How many more periods the entry may take: while it lasts no more
     /// than `longest` ticks and has no more than [`MAX_PERIODS`].
     fn room(&self, longest: u32) -> u32 {
-        (longest / self.period_ticks())
-            .min(MAX_PERIODS)
-            .saturating_sub(self.periods())
+        room_of(self.period_ticks(), self.periods(), longest)
     }
 
     /// `more` periods added (within [`Burst::room`]).
@@ -222,6 +220,13 @@ impl<F: FnMut() -> Option<(u32, bool)>> StepFeed for F {
     fn next_step(&mut self) -> Option<(u32, bool)> {
         self()
     }
+}
+
+/// [`Burst::room`] of an entry of `periods` periods of `period` ticks,
+/// without the entry.
+#[inline(always)]
+fn room_of(period: u32, periods: u32, longest: u32) -> u32 {
+    (longest / period).min(MAX_PERIODS).saturating_sub(periods)
 }
 
 /// Makes [`Burst`] entries from per-step delays (module docs).
@@ -388,8 +393,9 @@ impl BurstWriter {
         let copies = take(
             delay,
             &mut || {
-                // Burst::room of the run's first period
-                room = (run / delay).min(MAX_PERIODS).saturating_sub(1);
+                // the room of the run's first period: the entry itself is
+                // made only for copies (on a ramp there are none)
+                room = room_of(delay, 1, run);
                 1 + room
             },
             out.len() as u32,
@@ -399,7 +405,6 @@ impl BurstWriter {
             return (0, 0);
         }
         let b = Burst::new(delay, self.shape.width.min(delay / 2), self.level);
-        debug_assert_eq!(b.room(run), room);
         out[..copies as usize].fill(b.repeated(room));
         let pulses = copies * (1 + room);
         self.pulses += pulses;

@@ -96,7 +96,7 @@ struct Plain {
     steps: Vec<(u32, bool)>,
     at: usize,
     runs: bool,
-    /// Takes whole runs too ([`StepFeed::whole_runs`]), as many as the
+    /// Takes whole runs too ([`Plain::whole_runs`]), as many as the
     /// steps ahead hold; counts them.
     whole: bool,
     whole_taken: u32,
@@ -124,19 +124,24 @@ impl StepFeed for Plain {
         if !self.runs {
             return 0;
         }
-        let max = max();
-        let level = self.steps[self.at - 1].1;
-        let alike = self.steps[self.at..]
-            .iter()
-            .take(max as usize)
-            .take_while(|&&s| s == (delay, level))
-            .count();
+        let alike = self.alike_ahead(delay, max() as usize);
         self.at += alike;
         alike as u32
     }
 }
 
 impl Plain {
+    /// How many of the next steps, `max` at most, are `delay` in the last
+    /// step's direction.
+    fn alike_ahead(&self, delay: u32, max: usize) -> usize {
+        let level = self.steps[self.at - 1].1;
+        self.steps[self.at..]
+            .iter()
+            .take(max)
+            .take_while(|&&s| s == (delay, level))
+            .count()
+    }
+
     /// [`BurstWriter::fill_runs`]' `take`: whole runs if `whole`, as
     /// many as the steps ahead hold in the last step's direction.
     fn whole_runs(&mut self, delay: u32, per: &mut dyn FnMut() -> u32, entries: u32) -> u32 {
@@ -144,12 +149,7 @@ impl Plain {
             return 0;
         }
         let per = per();
-        let level = self.steps[self.at - 1].1;
-        let alike = self.steps[self.at..]
-            .iter()
-            .take_while(|&&s| s == (delay, level))
-            .count() as u32;
-        let runs = (alike / per).min(entries);
+        let runs = (self.alike_ahead(delay, usize::MAX) as u32 / per).min(entries);
         self.at += (runs * per) as usize;
         self.whole_taken += runs;
         runs
